@@ -1,0 +1,46 @@
+"""One root exception; a subclass per failure class, each mapped to a CLI exit code.
+
+Exit codes (DESIGN §7): 0 ok, 2 bad input, 3 infeasible / not converged, 4 gateway or
+communication fault, 5 safety stop.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class RxcommError(Exception):
+    """Root of every error rxcomm raises on purpose."""
+
+    exit_code: int = 1
+
+
+class InputError(RxcommError):
+    """Bad input: names the file, the field and the reason."""
+
+    exit_code = 2
+
+    def __init__(self, reason: str, *, file: str | Path | None = None, field: str | None = None):
+        self.file = str(file) if file is not None else None
+        self.field = field
+        self.reason = reason
+        where = ": ".join(p for p in (self.file, self.field) if p)
+        super().__init__(f"{where}: {reason}" if where else reason)
+
+
+class InfeasibleError(RxcommError):
+    """A problem with no solution under the given limits, or a solver that did not converge."""
+
+    exit_code = 3
+
+
+class GatewayError(RxcommError):
+    """Communication with the drive gateway failed (connection, protocol, timeout)."""
+
+    exit_code = 4
+
+
+class SafetyStop(RxcommError):
+    """Motion was stopped for safety (fault, following error, watchdog, e-stop, user abort)."""
+
+    exit_code = 5

@@ -1,0 +1,284 @@
+"""The robot: an immutable Pinocchio model of a 6R arm plus its drives data (DESIGN §4).
+
+`Robot` describes; scratch data comes from `robot.create_data()` (Pinocchio's Model/Data split).
+A robot is loaded from a directory holding one URDF and `drives.yaml`; loading validates both and
+raises `InputError` naming the file and the field at fault.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import yaml
+from pydantic import ValidationError
+
+from rxcomm.errors import InputError
+from rxcomm.schemas.drives import Drives
+
+TCP_FRAME = "tcp"
+
+
+def _readonly(a) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Robot:
+    """A fixed-base serial arm. Never mutated: a calibrated robot is a new `Robot` (see `with_model`)."""
+
+    name: str
+    model: pin.Model
+    drives: Drives
+    urdf_path: Path
+    drives_path: Path
+    tcp_frame_id: int
+    flange_frame_id: int
+    q_min: np.ndarray = field(repr=False)
+    q_max: np.ndarray = field(repr=False)
+    v_max: np.ndarray = field(repr=False)
+
+    @property
+    def n(self) -> int:
+        return self.model.nv
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.drives.joints)
+
+    def _per_joint(self, attr: str) -> np.ndarray:
+        return _readonly([getattr(j, attr) for j in self.drives.joints])
+
+    @property
+    def tau_max(self) -> np.ndarray:
+        """Peak joint torque, N·m."""
+        return self._per_joint("peak_torque_nm")
+
+    @property
+    def tau_cont(self) -> np.ndarray:
+        return self._per_joint("continuous_torque_nm")
+
+    @property
+    def tau_rate_max(self) -> np.ndarray:
+        return self._per_joint("torque_rate_max_nm_per_s")
+
+    @property
+    def a_max(self) -> np.ndarray:
+        return self._per_joint("acceleration_max_rad_per_s2")
+
+    @property
+    def gear_ratio(self) -> np.ndarray:
+        return self._per_joint("gear_ratio")
+
+    @property
+    def rotor_inertia(self) -> np.ndarray:
+        """Motor-side rotor inertia, kg·m²."""
+        return self._per_joint("rotor_inertia_kgm2")
+
+    @property
+    def torque_constant(self) -> np.ndarray:
+        return self._per_joint("torque_constant_nm_per_a")
+
+    @property
+    def motor_sign(self) -> np.ndarray:
+        return self._per_joint("motor_sign")
+
+    @property
+    def coulomb_prior(self) -> np.ndarray:
+        return self._per_joint("coulomb_friction_nm")
+
+    @property
+    def viscous_prior(self) -> np.ndarray:
+        return self._per_joint("viscous_friction_nm_s_per_rad")
+
+    @property
+    def motor_coupling(self) -> np.ndarray:
+        """Dimensionless C: motor angle = diag(gear_ratio)·C·q."""
+        c = self.drives.motor_coupling
+        return _readonly(np.eye(self.n) if c is None else c)
+
+    @property
+    def joint_to_motor(self) -> np.ndarray:
+        """R = diag(gear_ratio)·C: motor angles θ_m = R·q, joint torques τ = Rᵀ·τ_m."""
+        return _readonly(np.diag(self.gear_ratio) @ self.motor_coupling)
+
+    @property
+    def reflected_rotor_inertia(self) -> np.ndarray:
+        """Joint-space rotor inertia Rᵀ·diag(J_m)·R (full when the wrist is coupled), kg·m²."""
+        r = self.joint_to_motor
+        return _readonly(r.T @ np.diag(self.rotor_inertia) @ r)
+
+    @property
+    def spring_joint_index(self) -> int | None:
+        s = self.drives.spring
+        return None if s is None else self.joint_names.index(s.joint)
+
+    def create_data(self) -> pin.Data:
+        return self.model.createData()
+
+    def with_model(self, model: pin.Model) -> Robot:
+        """The same drives on another kinematic/inertial model (e.g. a calibrated one)."""
+        _check_chain(model, self.joint_names, self.urdf_path)
+        return Robot(
+            name=self.name,
+            model=model,
+            drives=self.drives,
+            urdf_path=self.urdf_path,
+            drives_path=self.drives_path,
+            tcp_frame_id=model.getFrameId(TCP_FRAME),
+            flange_frame_id=model.getFrameId(self.drives.tcp.parent_frame),
+            q_min=self.q_min,
+            q_max=self.q_max,
+            v_max=self.v_max,
+        )
+
+
+def load_robot(robot_dir: str | Path, urdf: str | Path | None = None) -> Robot:
+    """Load `ROBOT_DIR/drives.yaml` and the URDF it names (or `urdf`, e.g. a calibrated one).
+
+    `robot_dir` may also be the path of a drives YAML file.
+    """
+    robot_dir = Path(robot_dir)
+    drives_path = robot_dir if robot_dir.is_file() else robot_dir / "drives.yaml"
+    if not drives_path.exists():
+        raise InputError("no drives.yaml here (a robot is a URDF + drives.yaml)", file=drives_path)
+    drives = _load_drives(drives_path)
+    urdf_path = Path(urdf) if urdf is not None else drives_path.parent / drives.urdf
+    if not urdf_path.exists():
+        raise InputError(f"URDF {urdf_path} not found", file=drives_path, field="urdf")
+    names = [j.name for j in drives.joints]
+    limits = _validate_urdf(urdf_path, names)
+    try:
+        model = pin.buildModelFromUrdf(str(urdf_path))
+    except (RuntimeError, ValueError) as e:
+        raise InputError(f"Pinocchio cannot load it: {e}", file=urdf_path) from e
+    _check_chain(model, tuple(names), urdf_path)
+    tcp = drives.tcp
+    if not model.existFrame(tcp.parent_frame):
+        raise InputError(
+            f"frame {tcp.parent_frame!r} is not in the URDF", file=drives_path, field="tcp.parent_frame"
+        )
+    parent_frame = model.getFrameId(tcp.parent_frame)
+    f = model.frames[parent_frame]
+    placement = f.placement * pin.SE3(pin.rpy.rpyToMatrix(np.array(tcp.rpy_rad)), np.array(tcp.xyz_m))
+    tcp_id = model.addFrame(
+        pin.Frame(TCP_FRAME, f.parentJoint, parent_frame, placement, pin.FrameType.OP_FRAME)
+    )
+    lo, hi, vel = (np.array(v) for v in zip(*limits, strict=True))
+    return Robot(
+        name=model.name,
+        model=model,
+        drives=drives,
+        urdf_path=urdf_path,
+        drives_path=drives_path,
+        tcp_frame_id=tcp_id,
+        flange_frame_id=parent_frame,
+        q_min=_readonly(lo),
+        q_max=_readonly(hi),
+        v_max=_readonly(vel),
+    )
+
+
+def _load_drives(path: Path) -> Drives:
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        raise InputError(f"not valid YAML: {e}", file=path) from e
+    if not isinstance(raw, dict):
+        raise InputError("expected a mapping at the top level", file=path)
+    try:
+        return Drives.model_validate(raw)
+    except ValidationError as e:
+        err = e.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"])
+        if isinstance(err["loc"][0], str) and err["loc"][0] == "joints" and len(err["loc"]) > 1:
+            idx = err["loc"][1]
+            if isinstance(idx, int) and idx < len(raw.get("joints", [])):
+                name = raw["joints"][idx].get("name", idx) if isinstance(raw["joints"][idx], dict) else idx
+                loc = loc.replace(f"joints.{idx}", f"joints[{name}]", 1)
+        more = f" (and {len(e.errors()) - 1} more)" if len(e.errors()) > 1 else ""
+        raise InputError(f"{err['msg']}{more}", file=path, field=loc or None) from e
+
+
+def _validate_urdf(path: Path, joint_names: list[str]) -> list[tuple[float, float, float]]:
+    """Check what Pinocchio does not: limits present, inertias physical, joints matching drives.yaml."""
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise InputError(f"not valid XML: {e}", file=path) from e
+    for link in root.iter("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        where = f"link[{link.get('name')}].inertial"
+        mass_el, inertia_el = inertial.find("mass"), inertial.find("inertia")
+        if mass_el is None or inertia_el is None:
+            raise InputError("needs <mass> and <inertia>", file=path, field=where)
+        try:
+            mass = float(mass_el.get("value", "nan"))
+            i = {k: float(inertia_el.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+        except ValueError as e:
+            raise InputError(f"not a number: {e}", file=path, field=where) from e
+        if not mass > 0:
+            raise InputError(f"mass must be positive, got {mass}", file=path, field=f"{where}.mass")
+        tensor = np.array(
+            [[i["ixx"], i["ixy"], i["ixz"]], [i["ixy"], i["iyy"], i["iyz"]], [i["ixz"], i["iyz"], i["izz"]]]
+        )
+        ev = np.linalg.eigvalsh(tensor)
+        if ev[0] <= 0 or ev[2] > ev[0] + ev[1] + 1e-12:
+            raise InputError(
+                f"inertia tensor is not physical (eigenvalues {np.round(ev, 6).tolist()}: must be positive "
+                "and satisfy the triangle inequality)",
+                file=path,
+                field=f"{where}.inertia",
+            )
+    moving = [j for j in root.iter("joint") if j.get("type") not in ("fixed",)]
+    urdf_names = [j.get("name") for j in moving]
+    if sorted(urdf_names) != sorted(joint_names):
+        raise InputError(
+            f"URDF joints {urdf_names} do not match drives.yaml joints {joint_names}",
+            file=path,
+            field="joint",
+        )
+    limits = {}
+    for j in moving:
+        name = j.get("name")
+        if j.get("type") != "revolute":
+            raise InputError(
+                f"only revolute joints are supported, got {j.get('type')!r}",
+                file=path,
+                field=f"joint[{name}].type",
+            )
+        lim = j.find("limit")
+        if lim is None:
+            raise InputError("missing <limit>", file=path, field=f"joint[{name}].limit")
+        vals = []
+        for attr in ("lower", "upper", "velocity"):
+            if lim.get(attr) is None:
+                raise InputError(f"missing {attr!r}", file=path, field=f"joint[{name}].limit.{attr}")
+            vals.append(float(lim.get(attr)))
+        if not vals[0] < vals[1]:
+            raise InputError(f"lower {vals[0]} ≥ upper {vals[1]}", file=path, field=f"joint[{name}].limit")
+        if not vals[2] > 0:
+            raise InputError(
+                "velocity limit must be positive", file=path, field=f"joint[{name}].limit.velocity"
+            )
+        limits[name] = tuple(vals)
+    return [limits[n] for n in joint_names]
+
+
+def _check_chain(model: pin.Model, joint_names: tuple[str, ...], path: Path) -> None:
+    names = tuple(model.names[1:])
+    if names != tuple(joint_names):
+        raise InputError(
+            f"joint order {list(names)} does not match drives.yaml {list(joint_names)}",
+            file=path,
+            field="joint",
+        )
+    if model.nq != model.nv or any(model.joints[i].nq != 1 for i in range(1, model.njoints)):
+        raise InputError("every joint must be a single-DOF revolute joint", file=path, field="joint")
