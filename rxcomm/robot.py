@@ -152,7 +152,7 @@ def load_robot(robot_dir: str | Path, urdf: str | Path | None = None) -> Robot:
     if not urdf_path.exists():
         raise InputError(f"URDF {urdf_path} not found", file=drives_path, field="urdf")
     names = [j.name for j in drives.joints]
-    limits = _validate_urdf(urdf_path, names)
+    limits = _validate_urdf(urdf_path, names, drives_path)
     try:
         model = pin.buildModelFromUrdf(str(urdf_path))
     except (RuntimeError, ValueError) as e:
@@ -196,7 +196,7 @@ def _load_drives(path: Path) -> Drives:
     except ValidationError as e:
         err = e.errors()[0]
         loc = ".".join(str(p) for p in err["loc"])
-        if isinstance(err["loc"][0], str) and err["loc"][0] == "joints" and len(err["loc"]) > 1:
+        if len(err["loc"]) > 1 and err["loc"][0] == "joints":
             idx = err["loc"][1]
             if isinstance(idx, int) and idx < len(raw.get("joints", [])):
                 name = raw["joints"][idx].get("name", idx) if isinstance(raw["joints"][idx], dict) else idx
@@ -205,7 +205,7 @@ def _load_drives(path: Path) -> Drives:
         raise InputError(f"{err['msg']}{more}", file=path, field=loc or None) from e
 
 
-def _validate_urdf(path: Path, joint_names: list[str]) -> list[tuple[float, float, float]]:
+def _validate_urdf(path: Path, joint_names: list[str], drives_path: Path) -> list[tuple[float, float, float]]:
     """Check what Pinocchio does not: limits present, inertias physical, joints matching drives.yaml."""
     try:
         root = ET.parse(path).getroot()
@@ -240,10 +240,12 @@ def _validate_urdf(path: Path, joint_names: list[str]) -> list[tuple[float, floa
     moving = [j for j in root.iter("joint") if j.get("type") not in ("fixed",)]
     urdf_names = [j.get("name") for j in moving]
     if sorted(urdf_names) != sorted(joint_names):
+        unknown = [n for n in joint_names if n not in urdf_names]
+        field = f"joints[{unknown[0]}].name" if unknown else "joints"
         raise InputError(
-            f"URDF joints {urdf_names} do not match drives.yaml joints {joint_names}",
-            file=path,
-            field="joint",
+            f"the URDF {path.name} has joints {urdf_names}; drives.yaml lists {joint_names}",
+            file=drives_path,
+            field=field,
         )
     limits = {}
     for j in moving:

@@ -1,0 +1,46 @@
+"""The `rxcomm` command: one subcommand per stage (DESIGN §9).
+
+This is the composition root: the only library module that imports `rxcomm.stages`. Each stage
+module exposes a typer command function; registering it here is all a new stage needs.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+
+from rxcomm import __version__
+from rxcomm.stages import robot_info
+
+app = typer.Typer(
+    name="rxcomm",
+    help="Commissioning pipeline for 6-axis industrial robots: calibration, dynamic identification, "
+    "time/energy-optimal planning and model-based execution. Every stage reads and writes files.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"rxcomm {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """rxcomm: commission a robot step by step, each step one subcommand."""
+
+
+# Stage registrations (one line each).
+app.command("robot-info")(robot_info.command)
+
+
+def main() -> None:
+    app()

@@ -1,0 +1,90 @@
+"""The one place stages report through: human summaries and progress on stderr/stdout, error exits.
+
+Library code never prints; stages call these helpers.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable, Iterable, Iterator
+from typing import TypeVar
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from rxcomm.errors import RxcommError
+
+out = Console(highlight=False)
+err = Console(stderr=True, highlight=False)
+
+T = TypeVar("T")
+
+
+def fail(e: RxcommError) -> typer.Exit:
+    """Print a one-line reason and return the matching exit (caller raises it)."""
+    err.print(f"[bold red]error[/]: {escape(str(e))}", soft_wrap=True)
+    return typer.Exit(code=e.exit_code)
+
+
+def stage_command(fn: Callable[..., T]) -> Callable[..., T]:
+    """Wrap a typer command so RxcommError becomes a one-line message and its exit code."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except RxcommError as e:
+            raise fail(e) from e
+        except KeyboardInterrupt:
+            err.print("interrupted")
+            raise typer.Exit(code=5) from None
+
+    return wrapper
+
+
+def progress() -> Progress:
+    """A progress bar on stderr (silent when stderr is not a terminal, so logs stay clean)."""
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=False,
+        disable=not sys.stderr.isatty(),
+    )
+
+
+def track(items: Iterable[T], description: str, total: int | None = None) -> Iterator[T]:
+    with progress() as p:
+        task = p.add_task(description, total=total)
+        for x in items:
+            yield x
+            p.advance(task)
+
+
+def summary_table(title: str, rows: dict[str, object]) -> None:
+    """Print a stage's summary mapping as aligned `name  value` lines."""
+    out.print(f"[bold]{title}[/]")
+    width = max((len(k) for k in rows), default=0)
+    for k, v in rows.items():
+        out.print(f"  {k:<{width}}  {_fmt(v)}")
+
+
+def _fmt(v: object) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v)

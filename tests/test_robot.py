@@ -1,0 +1,85 @@
+"""Loading a robot description: the samples load, bad files are refused naming file and field (exit 2)."""
+
+import shutil
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from rxcomm.cli import app
+from rxcomm.errors import InputError
+from rxcomm.robot import load_robot
+
+from .conftest import SAMPLES
+
+
+def test_rx130l_reference_data(rx130l):
+    assert rx130l.n == 6
+    np.testing.assert_allclose(np.degrees(rx130l.q_max), [160, 137.5, 150, 270, 120, 270], atol=1e-4)
+    np.testing.assert_allclose(np.degrees(rx130l.q_min[4]), -105, atol=1e-4)
+    np.testing.assert_allclose(rx130l.tau_max, [692, 574, 242, 58, 29, 29])
+    masses = [rx130l.model.inertias[i].mass for i in range(1, 7)]
+    np.testing.assert_allclose(masses, [45.4, 38.8, 19.8, 27.6, 0.55, 0.04])
+    # Coupled wrist: motor 6 sees axis 5, so the reflected rotor inertia has a J5-J6 term.
+    m = rx130l.reflected_rotor_inertia
+    assert m[4, 5] == pytest.approx(2.0e-5 * 40**2 * 0.4) and np.allclose(m, m.T)
+
+
+def test_model_is_immutable(rx130l):
+    with pytest.raises(ValueError):
+        rx130l.q_max[0] = 0.0
+    with pytest.raises(AttributeError):
+        rx130l.name = "other"
+
+
+def _copy(tmp_path, name="rx130l"):
+    dst = tmp_path / name
+    shutil.copytree(SAMPLES / name, dst)
+    return dst
+
+
+def _edit(path, old, new):
+    text = path.read_text()
+    assert old in text, old
+    path.write_text(text.replace(old, new, 1))
+
+
+@pytest.mark.parametrize(
+    ("file", "old", "new", "field"),
+    [
+        ("drives.yaml", "cycle_s: 0.0004", "cycle_s: 0.0004\nbogus_key: 1", "bogus_key"),
+        ("drives.yaml", "gear_ratio: 140,", "gear_ration: 140,", "joints[joint_3]"),
+        ("drives.yaml", "peak_torque_nm: 242,", "peak_torque_nm: -242,", "joints[joint_3].peak_torque_nm"),
+        ("drives.yaml", "name: joint_6", "name: joint_7", "joints[joint_7].name"),
+        ("rx130l.urdf", 'velocity="4.450590"', "", "joint[joint_3].limit.velocity"),
+        ("rx130l.urdf", 'ixx="0.42"', 'ixx="-0.42"', "link[link_3].inertial.inertia"),
+        ("rx130l.urdf", '<mass value="0.55"/>', '<mass value="0"/>', "link[link_5].inertial.mass"),
+    ],
+)
+def test_bad_robot_files_exit_2_naming_the_field(tmp_path, file, old, new, field):
+    d = _copy(tmp_path)
+    _edit(d / file, old, new)
+    with pytest.raises(InputError) as e:
+        load_robot(d)
+    assert e.value.field is not None and e.value.field.startswith(field), e.value
+    assert e.value.file.endswith(file)
+    result = CliRunner().invoke(app, ["robot-info", str(d)])
+    assert result.exit_code == 2, result.output
+    assert field in result.output and file in result.output
+
+
+def test_joint_count_mismatch(tmp_path):
+    d = _copy(tmp_path)
+    text = (d / "drives.yaml").read_text()
+    start = text.index("  - {name: joint_6")
+    end = text.index("# Axis-2")
+    (d / "drives.yaml").write_text(text[:start] + text[end:].replace("  - [0, 0, 0, 0, 0.4, 1]\n", ""))
+    with pytest.raises(InputError) as e:
+        load_robot(d)
+    assert "motor_coupling" in str(e.value) or "joint" in (e.value.field or "")
+
+
+def test_missing_robot_dir(tmp_path):
+    result = CliRunner().invoke(app, ["robot-info", str(tmp_path / "nope")])
+    assert result.exit_code == 2
+    assert "drives.yaml" in result.output
