@@ -270,7 +270,7 @@ def parameters_from_base(
     return DynamicParameters.from_vector(robot.joint_names, p, prior.has_spring)
 
 
-def dynamics_from_artefact(artefact, robot: Robot) -> DynamicParameters:
+def dynamics_from_artefact(artefact: Dynamics, robot: Robot) -> DynamicParameters:
     """The parameters a `schemas.dynamics.Dynamics` artefact stands for, on `robot`: its full estimate
     when it carries one, else the prior corrected to its base parameter values."""
     names = parameter_names(robot.joint_names, robot.drives.spring is not None)
@@ -314,14 +314,18 @@ def dynamics_artefact_fields(
     rel = [None] * bset.n_base if relative_std is None else [float(v) for v in relative_std]
     spring = None
     if robot.drives.spring is not None:
-        i_kl0 = bset.full_names.index("spring.kL0")
         base_of = {int(j): i for i, j in enumerate(bset.independent)}
+        i_kl0 = bset.full_names.index("spring.kL0")
+        k_identified = bset.full_names.index("spring.k") in base_of
+        # k alone regroups with link gravity: report the prior unless the set (or a full estimate
+        # that says so) separates it; the loaded parameters may carry a corrected k all the same.
+        k = params.spring[0] if (k_identified or full is not None) else robot.drives.spring.stiffness_n_per_m
         spring = {
             "joint": robot.drives.spring.joint,
             "k_l0_n": float(params.spring[1]),
             "k_l0_relative_std": rel[base_of[i_kl0]] if i_kl0 in base_of else None,
-            "stiffness_n_per_m": float(params.spring[0]),
-            "stiffness_identified": full is not None or bset.full_names.index("spring.k") in base_of,
+            "stiffness_n_per_m": float(k),
+            "stiffness_identified": k_identified,
         }
     return {
         "robot": robot.name,

@@ -69,7 +69,9 @@ class SpringEstimate(_Strict):
     joint: str
     k_l0_n: float = Field(description="k·L0, N (identified)")
     k_l0_relative_std: float | None = None
-    stiffness_n_per_m: float = Field(description="k, N/m: the prior unless a full estimate separates it")
+    stiffness_n_per_m: float = Field(
+        description="k, N/m: the prior when not identifiable alone (`stiffness_identified` false)"
+    )
     stiffness_identified: bool = False
 
 

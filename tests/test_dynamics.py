@@ -241,6 +241,7 @@ def test_parameters_from_base_and_artefact_round_trip(rx130l, bset_rx, tmp_path)
     summary = {"n_base_params": bset_rx.n_base, "validation_nrmse": [0.0] * 6, "validation_rms_nm": [0.0] * 6}
     art = Dynamics(**Dynamics.envelope({}, {}, {**summary, "seconds": 0.0}), **fields)
     assert art.spring.k_l0_n == pytest.approx(true.spring[1]) and not art.spring.stiffness_identified
+    assert art.spring.stiffness_n_per_m == rx130l.drives.spring.stiffness_n_per_m  # k: the prior
     assert [f.coulomb_nm for f in art.friction] == pytest.approx(list(true.coulomb_nm))
     path = write_yaml_artefact(tmp_path / "dynamics.yaml", art)
     loaded = load_dynamics(path, rx130l)
