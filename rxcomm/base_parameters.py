@@ -165,7 +165,10 @@ class BaseParameterSet:
 def base_parameters(
     robot: Robot, n_samples: int = 300, seed: int = 0, rank_tolerance: float = RANK_TOLERANCE
 ) -> BaseParameterSet:
-    """The base parameter set of `robot` from `n_samples` random states within its limits."""
+    """The base parameter set of `robot` from `n_samples` random states within its limits (≥ 50: the
+    rank must not depend on the sample)."""
+    if n_samples < 50:
+        raise ValueError(f"n_samples must be at least 50 for a reliable rank, got {n_samples}")
     q, qd, qdd = random_states(robot, n_samples, seed)
     w = joint_torque_regressor(robot, q, qd, qdd)
     names = parameter_names(robot.joint_names, robot.drives.spring is not None)
@@ -199,7 +202,7 @@ def base_parameters_from_regressor(
     d_ord = np.abs(np.diag(r_ord))
     kept_mask = d_ord > rank_tolerance * d_piv[0]
     if int(kept_mask.sum()) != rank:
-        raise RuntimeError(
+        raise ValueError(
             f"ordered QR keeps {int(kept_mask.sum())} columns, pivoted QR finds rank {rank}: "
             "the regressor samples are degenerate; use more samples"
         )

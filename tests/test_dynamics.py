@@ -218,6 +218,8 @@ def test_base_parameters_reproduce_torques(robot):
     b = base_parameters(robot, n_samples=200, seed=3)
     expected = 59 if robot.drives.spring is not None else 58
     assert b.n_base == expected
+    with pytest.raises(ValueError):
+        base_parameters(robot, n_samples=10)
     q, qd, qdd = random_states(robot, 200, seed=11)  # fresh states
     y = joint_torque_regressor(robot, q, qd, qdd)
     for params in (prior_parameters(robot), perturbed(robot, seed=5)):
