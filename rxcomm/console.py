@@ -24,8 +24,9 @@ from rich.progress import (
 
 from rxcomm.errors import RxcommError
 
-out = Console(highlight=False)
-err = Console(stderr=True, highlight=False)
+# soft_wrap: never hard-wrap at 80 columns when output goes to a file or a pipe (make, CI logs).
+out = Console(highlight=False, soft_wrap=True)
+err = Console(stderr=True, highlight=False, soft_wrap=True)
 
 T = TypeVar("T")
 

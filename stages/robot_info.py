@@ -8,9 +8,16 @@ from typing import Annotated
 import numpy as np
 import pinocchio as pin
 import typer
+from scipy.optimize import minimize_scalar
 
 from rxcomm import console
+from rxcomm.dynamics import RobotDynamics, prior_parameters
+from rxcomm.geometric_errors import identifiable_count
 from rxcomm.robot import Robot, load_robot
+
+# A tracker target 50 mm off the TCP's z axis (in the TCP frame): position-only calibration needs one
+# off the J6 axis, or the J6 offset and the tool's in-axis terms are invisible.
+OFF_AXIS_POINT = (0.05, 0.0, 0.0)
 
 
 def stretched_pose(robot: Robot) -> np.ndarray:
@@ -20,30 +27,32 @@ def stretched_pose(robot: Robot) -> np.ndarray:
     worst case for J2's gravity load.
     """
     data = robot.create_data()
-    best_q, best_r = None, -1.0
-    for q2 in np.linspace(robot.q_min[1], robot.q_max[1], 721):
+
+    def reach(q2: float) -> float:
         q = np.zeros(robot.n)
         q[1] = q2
         pin.framesForwardKinematics(robot.model, data, q)
         p = data.oMf[robot.flange_frame_id].translation
-        r = float(np.hypot(p[0], p[1]))
-        if r > best_r + 1e-12:
-            best_q, best_r = q, r
-    return best_q
+        return float(np.hypot(p[0], p[1]))
+
+    grid = np.linspace(robot.q_min[1], robot.q_max[1], 721)
+    i = int(np.argmax([reach(x) for x in grid]))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    best = minimize_scalar(lambda x: -reach(x), bounds=(lo, hi), method="bounded", options={"xatol": 1e-9})
+    q = np.zeros(robot.n)
+    q[1] = best.x
+    return q
 
 
 def robot_facts(robot: Robot) -> dict[str, object]:
     """The figures `robot-info` prints, as a flat mapping (SI units)."""
-    from rxcomm.dynamics import prior_parameters, spring_torque
-    from rxcomm.geometric_errors import identifiable_count
-
     data = robot.create_data()
     q = stretched_pose(robot)
     pin.framesForwardKinematics(robot.model, data, q)
     flange = data.oMf[robot.flange_frame_id].translation
-    g = pin.computeGeneralizedGravity(robot.model, data, q)
-    params = prior_parameters(robot)
-    spring = spring_torque(robot, params, q)
+    dyn = RobotDynamics(robot, prior_parameters(robot))
+    g = dyn.gravity_torque(q, include_spring=False)
+    spring = dyn.gravity_torque(q, include_spring=True) - g
     facts: dict[str, object] = {
         "name": robot.name,
         "dof": robot.n,
@@ -55,7 +64,10 @@ def robot_facts(robot: Robot) -> dict[str, object]:
         "stretched_net_torque_nm": (g + spring).tolist(),
         "peak_torque_nm": robot.tau_max.tolist(),
         "identifiable_geometric_full_pose": identifiable_count(robot, position_only=False),
-        "identifiable_geometric_position_only": identifiable_count(robot, position_only=True),
+        "identifiable_geometric_position_only": identifiable_count(
+            robot, position_only=True, point=OFF_AXIS_POINT
+        ),
+        "identifiable_geometric_tcp_position_only": identifiable_count(robot, position_only=True),
     }
     return facts
 
@@ -105,6 +117,7 @@ def run(robot_dir: Path) -> dict[str, object]:
     out.print("")
     out.print(
         f"  identifiable geometric parameters: {facts['identifiable_geometric_full_pose']} with full-pose "
-        f"measurement, {facts['identifiable_geometric_position_only']} with TCP position only (of 48)"
+        f"measurement, {facts['identifiable_geometric_position_only']} with the position of an off-axis "
+        f"point ({facts['identifiable_geometric_tcp_position_only']} with the TCP position), of 48 modelled"
     )
     return facts

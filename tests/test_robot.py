@@ -83,3 +83,11 @@ def test_missing_robot_dir(tmp_path):
     result = CliRunner().invoke(app, ["robot-info", str(tmp_path / "nope")])
     assert result.exit_code == 2
     assert "drives.yaml" in result.output
+
+
+def test_robot_info_shows_why_the_spring_matters():
+    result = CliRunner().invoke(app, ["robot-info", str(SAMPLES / "rx130l")])
+    assert result.exit_code == 0, result.output
+    assert "gravity alone needs 527 N·m on joint_2" in result.output
+    assert "30 with full-pose measurement, 27 with the position of an off-axis point" in result.output
+    assert "flange reach          1.660 m" in result.output
