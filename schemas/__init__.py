@@ -1,0 +1,12 @@
+"""Artefact contracts: one pydantic module per artefact, plus the JSON Schema generated from them.
+
+``ARTEFACT_MODELS`` lists every model whose JSON Schema is committed here as
+``<name>.schema.json`` (``rxcomm/Calibration`` -> ``calibration.schema.json``; a config model without
+``KIND`` is named after its class, ``CellConfig`` -> ``cell-config.schema.json``). When you add an
+artefact model, append ``"rxcomm.schemas.<module>:<Class>"`` here and run
+``.venv/bin/python -m rxcomm.schemas.generate``; ``tests/test_schemas.py`` fails on drift.
+"""
+
+ARTEFACT_MODELS: list[str] = [
+    "rxcomm.schemas.trajectory:TrajectorySummary",
+]
