@@ -9,4 +9,7 @@ artefact model, append ``"rxcomm.schemas.<module>:<Class>"`` here and run
 
 ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.trajectory:TrajectorySummary",
+    "rxcomm.schemas.drives:Drives",
+    "rxcomm.schemas.truth:CellTruth",
+    "rxcomm.schemas.dynamics:Dynamics",
 ]
