@@ -1,0 +1,77 @@
+"""Foundation rows: the per-sample cost of the model calls every stage is built on, beside bare Pinocchio."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from bench.table import Row, median_seconds
+from rxcomm.dynamics import RobotDynamics, joint_torque_regressor, prior_parameters, random_states
+from rxcomm.geometric_errors import identification_jacobians
+from rxcomm.kinematics import inverse_kinematics, tcp_placement
+from rxcomm.robot import load_robot
+from rxcomm.symbolic import inverse_dynamics_function
+
+
+def rows(quick: bool) -> list[Row]:
+    robot = load_robot("samples/rx130l")
+    n = 200 if quick else 2000
+    repeats = 3 if quick else 7
+    q, qd, qdd = random_states(robot, n, seed=1)
+    params = prior_parameters(robot)
+    dyn = RobotDynamics(robot, params)
+    model, data = robot.model, robot.create_data()
+
+    def bare_regressor():
+        for i in range(n):
+            pin.computeJointTorqueRegressor(model, data, q[i], qd[i], qdd[i])
+
+    def bare_rnea():
+        for i in range(n):
+            pin.rnea(model, data, q[i], qd[i], qdd[i])
+
+    ours_y = median_seconds(lambda: joint_torque_regressor(robot, q, qd, qdd), repeats) / n
+    peer_y = median_seconds(bare_regressor, repeats) / n
+    ours_id = median_seconds(lambda: dyn.inverse_dynamics(q, qd, qdd), repeats) / n
+    peer_id = median_seconds(bare_rnea, repeats) / n
+    f = inverse_dynamics_function(robot, params).map(n)
+    ours_ca = median_seconds(lambda: f(q.T, qd.T, qdd.T), repeats) / n
+    ours_jac = median_seconds(lambda: identification_jacobians(robot, q), repeats) / n
+
+    targets = [tcp_placement(robot, q[i]) for i in range(min(n, 50))]
+    rng = np.random.default_rng(2)
+    seeds = [np.clip(q[i] + rng.normal(0, 0.05, 6), robot.q_min, robot.q_max) for i in range(len(targets))]
+
+    def ik_all():
+        for tgt, s in zip(targets, seeds, strict=True):
+            inverse_kinematics(robot, tgt, s)
+
+    ours_ik = median_seconds(ik_all, repeats) / len(targets)
+    return [
+        Row(
+            "foundation",
+            "joint-torque regressor + drives columns, per sample",
+            "s",
+            ours_y,
+            peer_name="bare pin regressor",
+            peer=peer_y,
+        ),
+        Row(
+            "foundation",
+            "inverse dynamics (RNEA + rotor, friction, spring), per sample",
+            "s",
+            ours_id,
+            peer_name="bare pin.rnea",
+            peer=peer_id,
+        ),
+        Row(
+            "foundation",
+            "CasADi inverse dynamics (mapped), per sample",
+            "s",
+            ours_ca,
+            peer_name="bare pin.rnea",
+            peer=peer_id,
+        ),
+        Row("foundation", "identification Jacobian 6×48, per pose", "s", ours_jac),
+        Row("foundation", "IK from a seed 0.05 rad away, per pose", "s", ours_ik),
+    ]
