@@ -6,6 +6,9 @@ ramp; a backend owns the drives' control loops, the robot plant and the tracker.
 angles), the feed-forward torque (N·m, 0x60B2 semantics: added after the velocity loop) and which
 axes have torque on. Disabled axes are held by their brakes; what that means is the backend's call.
 
+Calls are serialised by the server (never concurrent): ``cycle`` from its cycle thread, ``tracker``
+and ``feedback`` from its Modbus thread. Arrays passed in are fresh copies the backend may keep.
+
 ``IdealBackend`` is a protocol test double (actual = demand, torque = feed-forward): it lets the
 gateway be tested without physics and must not be used to judge control performance.
 """

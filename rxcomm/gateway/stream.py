@@ -10,6 +10,7 @@ watchdog, e-stop, quick stop) raises SafetyStop with what the gateway reported.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -56,7 +57,27 @@ def stream(
 ) -> StreamResult:
     """Stream ``pos_rad``/``tau_ff_nm`` (n, 6) as setpoints 0..n-1 with the client's configured
     prefill, interpolation ratio and trace decimation (``client.configure`` first). Drives must be
-    enabled. Returns the trace of the whole stream."""
+    enabled. Returns the trace of the whole stream. Ctrl-C sends a quick stop before re-raising
+    (if that fails too, the gateway's watchdog stops the drives)."""
+    try:
+        return _stream(
+            client, pos_rad, tau_ff_nm, high_level=high_level, timeout_s=timeout_s, on_reply=on_reply
+        )
+    except KeyboardInterrupt:
+        with contextlib.suppress(GatewayError):
+            client.quick_stop()
+        raise
+
+
+def _stream(
+    client: GatewayClient,
+    pos_rad: np.ndarray,
+    tau_ff_nm: np.ndarray,
+    *,
+    high_level: int = 1500,
+    timeout_s: float | None = None,
+    on_reply: Callable[[BlockReply], None] | None = None,
+) -> StreamResult:
     pos = np.asarray(pos_rad, dtype=float)
     tau = np.asarray(tau_ff_nm, dtype=float)
     n = pos.shape[0]
