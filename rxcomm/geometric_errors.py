@@ -450,3 +450,13 @@ def identifiable_count(
     poses = random_poses(robot, n_poses, np.random.default_rng(0))
     pt = None if point is None else np.asarray(point, dtype=float)
     return len(identifiable_parameters(robot, poses, position_only, pt))
+
+
+def placement_to_se3(xyz_m: Sequence[float], rpy_rad: Sequence[float]) -> pin.SE3:
+    """A URDF-style placement (translation, rpy with R = Rz·Ry·Rx) as `pin.SE3`."""
+    return pin.SE3(pin.rpy.rpyToMatrix(np.asarray(rpy_rad, dtype=float)), np.asarray(xyz_m, dtype=float))
+
+
+def se3_to_xyz_rpy(m: pin.SE3) -> tuple[list[float], list[float]]:
+    """Inverse of `placement_to_se3` (plain lists, ready for YAML/URDF)."""
+    return [float(v) for v in m.translation], [float(v) for v in pin.rpy.matrixToRpy(m.rotation)]

@@ -1,0 +1,115 @@
+"""The simulated tracker: the TCP pose of the *true* robot in the tracker frame, with noise (DESIGN §6).
+
+This is the only place in the library that applies the truth's geometric errors: the real robot is
+the nominal one with `truth.geometry.error_parameters` (an `ErrorModel`) mounted at
+`truth.geometry.tracker_to_base`. A reading is the true pose of the TCP (or of `point`, an offset in
+the TCP frame, for position-only probes) with Gaussian noise: position N(0, σ_p²) per axis, and
+orientation R_meas = exp([n]×)·R_true with n ~ N(0, σ_o²) per axis (tracker frame), σ from
+`truth.noise`. With a `visibility` spec (the cell's `TrackerSpec`), poses the tracker cannot see give
+`valid=False` readings — the checks of `rxcomm.optim.pose_selection` on the true robot.
+
+The readings are duck-compatible with `rxcomm.cell.backend.TrackerReading` (`position_m`,
+`quaternion_wxyz`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from rxcomm.geometric_errors import ErrorModel, measured_pose, placement_to_se3
+from rxcomm.robot import Robot
+from rxcomm.schemas.cell import TrackerSpec
+from rxcomm.schemas.truth import CellTruth
+
+
+def quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix."""
+    q = pin.Quaternion(np.asarray(rotation, dtype=float))
+    q.normalize()
+    out = np.array([q.w, q.x, q.y, q.z])
+    return out if out[0] >= 0 else -out
+
+
+def rotation_from_wxyz(qt: np.ndarray) -> np.ndarray:
+    w, x, y, z = (float(v) for v in qt)
+    q = pin.Quaternion(w, x, y, z)
+    q.normalize()
+    return q.toRotationMatrix()
+
+
+@dataclass(frozen=True)
+class TrackerReading:
+    """One tracker sample in the tracker frame. `valid` False: probe not visible (values are then NaN)."""
+
+    position_m: np.ndarray
+    rotation: np.ndarray
+    valid: bool = True
+
+    @property
+    def quaternion_wxyz(self) -> np.ndarray:
+        if not self.valid:
+            return np.full(4, np.nan)
+        return quaternion_wxyz(self.rotation)
+
+    @property
+    def se3(self) -> pin.SE3:
+        return pin.SE3(self.rotation, self.position_m)
+
+
+class SimulatedTracker:
+    """`measure(q_true)`: what the cell's tracker reports with the robot standing at `q_true`."""
+
+    def __init__(
+        self,
+        robot_nominal: Robot,
+        truth: CellTruth,
+        rng: np.random.Generator,
+        *,
+        visibility: TrackerSpec | None = None,
+        point: np.ndarray | None = None,
+    ) -> None:
+        g = truth.geometry
+        self._errors = ErrorModel.from_mapping(
+            robot_nominal, g.error_parameters, field="geometry.error_parameters"
+        )
+        self._robot_true = self._errors.apply(robot_nominal)
+        self._t2b = placement_to_se3(g.tracker_to_base.xyz_m, g.tracker_to_base.rpy_rad)
+        self._sigma_p = truth.noise.tracker_position_sigma_m
+        self._sigma_o = truth.noise.tracker_orientation_sigma_rad
+        self._rng = rng
+        self._visibility = visibility
+        self._point = None if point is None else np.asarray(point, dtype=float)
+
+    def true_pose(self, q: np.ndarray) -> pin.SE3:
+        """Noise-free TCP (or point) pose in the tracker frame (tests only: this is the truth)."""
+        m = measured_pose(self._robot_true, q, None, self._t2b)
+        if self._point is not None:
+            m = pin.SE3(m.rotation, m.act(self._point))
+        return m
+
+    def visible(self, q: np.ndarray) -> bool:
+        if self._visibility is None:
+            return True
+        m = self.true_pose(q)
+        spec = self._visibility
+        p = m.translation
+        dist = float(np.linalg.norm(p))
+        view = np.asarray(spec.view_axis_in_tracker, dtype=float)
+        probe = m.rotation @ np.asarray(spec.probe_axis_in_tcp, dtype=float)
+        return (
+            spec.range_min_m <= dist <= spec.range_max_m
+            and float(view @ p) >= np.cos(spec.half_angle_rad) * np.linalg.norm(view) * dist
+            and float(-probe @ p) >= np.cos(spec.probe_half_angle_rad) * np.linalg.norm(probe) * dist
+        )
+
+    def measure(self, q_true: np.ndarray) -> TrackerReading:
+        """A noisy reading at the true joint angles `q_true` (rad)."""
+        if not self.visible(q_true):
+            return TrackerReading(np.full(3, np.nan), np.full((3, 3), np.nan), valid=False)
+        m = self.true_pose(q_true)
+        p = m.translation + self._rng.normal(0.0, self._sigma_p, 3)
+        r = pin.exp3(self._rng.normal(0.0, self._sigma_o, 3)) @ m.rotation
+        return TrackerReading(p, r, valid=True)
