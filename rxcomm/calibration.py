@@ -644,21 +644,36 @@ def calibrate(
         )
     idx = np.array(ident.indices)
     result = _fit(robot, ms_fit, t2b, idx, sigma_p, sigma_o, point, settings)
-    # Outliers: a component beyond outlier_sigma robust σ (MAD of all weighted residual components).
-    prob = _Problem(robot, ms_fit.q, ms_fit.position_m, ms_fit.rotation, t2b, sigma_p, sigma_o, idx, point)
-    res = prob.residual(result.errors.values[idx]).reshape(fit.size, rows)
-    scale = 1.4826 * float(np.median(np.abs(res)))
-    flagged = fit[np.max(np.abs(res), axis=1) > settings.outlier_sigma * max(scale, 1e-12)]
-    if flagged.size and settings.drop_outliers:
-        fit = np.setdiff1d(fit, flagged)
-        if fit.size < need:
+    # Outliers: a pose with a component beyond outlier_sigma robust σ (MAD of all weighted residual
+    # components). One blunder smears into its neighbours' residuals through the fit, so when dropping,
+    # remove the worst pose only and refit, until none is beyond (at most a quarter of the poses).
+    flagged_list: list[int] = []
+    while True:
+        prob = _Problem(
+            robot, ms_fit.q, ms_fit.position_m, ms_fit.rotation, t2b, sigma_p, sigma_o, idx, point
+        )
+        res = prob.residual(result.errors.values[idx]).reshape(fit.size, rows)
+        scale = max(1.4826 * float(np.median(np.abs(res))), 1e-12)
+        worst = np.max(np.abs(res), axis=1)
+        beyond = worst > settings.outlier_sigma * scale
+        if not np.any(beyond):
+            break
+        if not settings.drop_outliers:
+            flagged_list += fit[beyond].tolist()
+            break
+        k = int(np.argmax(worst))
+        flagged_list.append(int(fit[k]))
+        fit = np.delete(fit, k)
+        if fit.size < need or len(flagged_list) > max(1, fit.size // 4):
             raise InputError(
-                f"{flagged.size} outlier poses leave {fit.size} fit poses, fewer than the {need} needed",
+                f"{len(flagged_list)} outlier poses ({flagged_list[:10]}) leave {fit.size} fit poses: the "
+                f"measurements do not fit the model (need {need} good poses)",
                 file=ms.source,
                 field="poses",
             )
         ms_fit = ms.subset(fit)
         result = _fit(robot, ms_fit, t2b, idx, sigma_p, sigma_o, point, settings)
+    flagged = np.array(sorted(flagged_list), dtype=int)
     frames_idx = _frames_only_indices(robot, ms_fit, point)
     frames = _fit(robot, ms_fit, t2b, frames_idx, sigma_p, sigma_o, point, settings)
     tables: dict[tuple[str, str], ErrorStats] = {}

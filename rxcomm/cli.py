@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 
 from rxcomm import __version__
-from rxcomm.stages import robot_info
+from rxcomm.stages import calibrate, robot_info, select_configs
 
 app = typer.Typer(
     name="rxcomm",
@@ -40,6 +40,8 @@ def _main(
 
 # Stage registrations (one line each).
 app.command("robot-info")(robot_info.command)
+app.command("select-configs")(select_configs.command)
+app.command("calibrate")(calibrate.command)
 
 
 def main() -> None:

@@ -12,4 +12,8 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.drives:Drives",
     "rxcomm.schemas.truth:CellTruth",
     "rxcomm.schemas.dynamics:Dynamics",
+    "rxcomm.schemas.cell:Cell",
+    "rxcomm.schemas.configs:Configs",
+    "rxcomm.schemas.measurements:Measurements",
+    "rxcomm.schemas.calibration:Calibration",
 ]

@@ -73,7 +73,15 @@ class Criterion(StrEnum):
 # ---------------------------------------------------------------------------------------------------
 # Cell checks (shared by the grid stream and arbitrary poses)
 
-REASONS = ("ok", "workspace", "self_collision", "tracker_range", "tracker_cone", "probe_facing")
+REASONS = (
+    "ok",
+    "workspace",
+    "self_collision",
+    "tracker_range",
+    "tracker_cone",
+    "probe_facing",
+    "joint_limits",
+)
 
 
 def _seg_dist(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -163,7 +171,7 @@ def feasibility(robot: Robot, cell: Cell, qs: np.ndarray) -> np.ndarray:
     probe = ch.tcp[:, :3, :3] @ geo.probe_axis
     code = geo.check(ch.tcp[:, :3, 3], probe, origin[:, 4], origin[:, 2], origin[:, 1])
     outside = np.any((qs < robot.q_min - 1e-12) | (qs > robot.q_max + 1e-12), axis=1)
-    code[outside & (code == 0)] = 1
+    code[outside] = REASONS.index("joint_limits")
     return code
 
 

@@ -1,0 +1,337 @@
+"""calibrate: recovery on the simulated tracker (truth read here only to score), Table 2, the
+calibrated URDF, load_calibration + IK, bad-input refusals, the stage."""
+
+import time
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+from rxcomm.schemas.calibration import Calibration
+from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.measurements import MeasuredPose, Measurements
+from rxcomm.schemas.truth import CellTruth
+from typer.testing import CliRunner
+
+from rxcomm.calibration import (
+    CalibrateSettings,
+    MeasurementSet,
+    _fit,
+    _Problem,
+    calibrate,
+    calibrated_urdf_text,
+    load_calibration,
+    read_measurements,
+)
+from rxcomm.cell.tracker import SimulatedTracker
+from rxcomm.cli import app
+from rxcomm.errors import InputError
+from rxcomm.geometric_errors import ErrorModel, placement_to_se3, predict_poses, random_poses
+from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
+from rxcomm.kinematics import cardan_xyz, inverse_kinematics, tcp_placement
+from rxcomm.optim.pose_selection import select_measurement_poses
+from rxcomm.robot import load_robot
+
+from .conftest import SAMPLES
+
+
+def _load(name):
+    cell = Cell.model_validate(yaml.safe_load((SAMPLES / name / "cell.yaml").read_text()))
+    truth = CellTruth.model_validate(yaml.safe_load((SAMPLES / name / "truth.yaml").read_text()))
+    t2b = placement_to_se3(cell.tracker.tracker_to_base.xyz_m, cell.tracker.tracker_to_base.rpy_rad)
+    return cell, truth, t2b
+
+
+def _measure(tracker, qs, roles):
+    rs = [tracker.measure(q) for q in qs]
+    return MeasurementSet(
+        q=np.asarray(qs, dtype=float),
+        position_m=np.array([r.position_m for r in rs]),
+        rotation=np.array([r.rotation for r in rs]),
+        valid=np.array([r.valid for r in rs]),
+        role=tuple(roles),
+    )
+
+
+@pytest.fixture(scope="module", params=["rx130l", "m900"])
+def campaign(request):
+    """32 optimal poses of ≥ 4,000 candidates + 40 validation poses, measured on the simulated tracker."""
+    name = request.param
+    robot = load_robot(SAMPLES / name)
+    cell, truth, t2b = _load(name)
+    sel = select_measurement_poses(
+        robot, cell, 32, intervals=9, max_candidates=4000, n_validation=40, restarts=3
+    )
+    tracker = SimulatedTracker(robot, truth, np.random.default_rng(1), visibility=cell.tracker)
+    roles = ["fit"] * 32 + ["validation"] * 40
+    ms = _measure(tracker, np.vstack([sel.q_selected, sel.q_validation]), roles)
+    naive = _measure(tracker, np.vstack([sel.q_baseline, sel.q_validation]), roles)
+    res = calibrate(robot, ms, tracker_to_base=t2b)
+    return robot, cell, truth, t2b, sel, tracker, ms, naive, res
+
+
+def test_heldout_accuracy_meets_the_issue(campaign):
+    robot, *_, sel, tracker, ms, naive, res = campaign
+    assert sel.candidates.q.shape[0] >= 4000 and len(sel.q_selected) == 32
+    t = res.tables
+    assert len(res.identifiable) == 30 and res.outlier_idx.size == 0
+    assert t[("heldout", "nominal")].max_position_error_m > 3e-3  # millimetres before
+    assert t[("heldout", "calibrated")].max_position_error_m <= 0.3e-3
+    assert t[("heldout", "calibrated")].max_orientation_error_rad <= np.radians(0.1)
+    # The honest baseline: base + tool frames alone leave millimetres.
+    assert (
+        t[("heldout", "frames_only")].max_position_error_m
+        > 5 * t[("heldout", "calibrated")].max_position_error_m
+    )
+    assert 0.7 < res.fit.residual_scale < 1.3  # residuals match the tracker noise
+
+
+def test_identifiable_parameters_recovered_within_3_sigma(campaign):
+    """Compare in the identifiable subspace: the truth's identifiable-set equivalent is the fit of the
+    same reduced model to noise-free truth poses (the dropped parameters' effect regrouped exactly)."""
+    robot, cell, truth, t2b, sel, tracker, ms, naive, res = campaign
+    qs = random_poses(robot, 200, np.random.default_rng(7))
+    poses = [tracker.true_pose(q) for q in qs]
+    exact = MeasurementSet(
+        q=qs,
+        position_m=np.array([m.translation for m in poses]),
+        rotation=np.array([m.rotation for m in poses]),
+        valid=np.ones(200, bool),
+        role=("fit",) * 200,
+    )
+    idx = np.array(res.identifiable.indices)
+    proj = _fit(robot, exact, t2b, idx, 5e-5, 1e-4, None, CalibrateSettings())
+    assert proj.residual_scale < 1e-9  # the reduced model reproduces the truth exactly
+    z = (res.fit.errors.values[idx] - proj.errors.values[idx]) / res.fit.std[idx]
+    assert np.max(np.abs(z)) < 3.0, dict(zip(res.identifiable.names, np.round(z, 2), strict=True))
+    # The full 48-parameter truth and the estimate predict the same poses everywhere (to noise level).
+    p_true = np.array([tracker.true_pose(q).translation for q in sel.candidates.q[:500]])
+    p_est, _ = predict_poses(robot, sel.candidates.q[:500], res.fit.errors, t2b)
+    assert np.max(np.linalg.norm(p_est - p_true, axis=1)) < 0.15e-3
+
+
+def test_naive_pose_set_is_measurably_worse(campaign):
+    robot, cell, truth, t2b, sel, tracker, ms, naive, res = campaign
+    assert sel.improvement_ratio > 1.1
+    res_naive = calibrate(robot, naive, tracker_to_base=t2b)
+    q = sel.candidates.q
+    p_true = np.array([tracker.true_pose(qq).translation for qq in q])
+    err = {}
+    for label, r in (("optimal", res), ("naive", res_naive)):
+        p, _ = predict_poses(robot, q, r.fit.errors, t2b)
+        err[label] = np.sqrt(np.mean(np.sum((p - p_true) ** 2, axis=1)))
+    # Noise-free prediction error over all 4,000 candidates (rms, m): the optimal set is better.
+    assert err["naive"] > 1.1 * err["optimal"], err
+
+
+def test_lm_jacobian_equals_finite_differences(rx130l):
+    cell, truth, t2b = _load("rx130l")
+    tracker = SimulatedTracker(rx130l, truth, np.random.default_rng(0))
+    ms = _measure(tracker, random_poses(rx130l, 4, np.random.default_rng(1)), ["fit"] * 4)
+    idx = np.arange(48)
+    prob = _Problem(rx130l, ms.q, ms.position_m, ms.rotation, t2b, 5e-5, 1e-4, idx, None)
+    x = np.random.default_rng(2).normal(0, 1e-3, 48)
+    jac = prob.jacobian(x)
+    h = 1e-7
+    fd = np.array([(prob.residual(x + h * e) - prob.residual(x - h * e)) / (2 * h) for e in np.eye(48)]).T
+    assert np.max(np.abs(jac - fd)) / np.max(np.abs(jac)) < 1e-6
+
+
+def test_calibrated_urdf_matches_the_error_model(tmp_path, robot):
+    name = "rx130l" if robot.name == "rx130l" else "m900"
+    truth = yaml.safe_load((SAMPLES / name / "truth.yaml").read_text())
+    errors = ErrorModel.from_mapping(robot, truth["geometry"]["error_parameters"])
+    path = tmp_path / "calibrated.urdf"
+    path.write_text(calibrated_urdf_text(robot, errors))
+    calibrated = load_robot(SAMPLES / name, urdf=path)  # Pinocchio loads it; drives.yaml's TCP still valid
+    worst = 0.0
+    for q in random_poses(robot, 50, np.random.default_rng(0)):
+        a, b = tcp_placement(calibrated, q), tcp_placement(robot, q, errors)
+        worst = max(worst, float(np.max(np.abs(a.homogeneous - b.homogeneous))))
+    assert worst < 1e-9
+
+
+def _artefact(robot, ms, t2b=None, sigma=True):
+    poses = []
+    for i in range(ms.n):
+        qt = pin.Quaternion(ms.rotation[i]) if ms.rotation is not None else None
+        poses.append(
+            MeasuredPose(
+                q_rad=ms.q[i].tolist(),
+                position_m=tuple(ms.position_m[i]),
+                quaternion_wxyz=None if qt is None else (qt.w, qt.x, qt.y, qt.z),
+                valid=bool(ms.valid[i]),
+                role=ms.role[i],
+            )
+        )
+    from rxcomm.geometric_errors import se3_to_xyz_rpy
+
+    placement = None
+    if t2b is not None:
+        xyz, rpy = se3_to_xyz_rpy(t2b)
+        placement = {"xyz_m": xyz, "rpy_rad": rpy}
+    summary = {"n_poses": ms.n, "n_valid": int(ms.valid.sum())}
+    return Measurements(
+        **Measurements.envelope({}, {}, summary),
+        robot=robot.name,
+        joint_names=list(robot.joint_names),
+        tracker_to_base=placement,
+        position_sigma_m=5e-5 if sigma else None,
+        orientation_sigma_rad=1e-4 if sigma else None,
+        poses=poses,
+    )
+
+
+@pytest.fixture(scope="module")
+def rx_meas():
+    robot = load_robot(SAMPLES / "rx130l")
+    cell, truth, t2b = _load("rx130l")
+    sel = select_measurement_poses(
+        robot, cell, 32, intervals=7, max_candidates=2000, n_validation=16, restarts=1
+    )
+    tracker = SimulatedTracker(robot, truth, np.random.default_rng(5))
+    ms = _measure(tracker, np.vstack([sel.q_selected, sel.q_validation]), ["fit"] * 32 + ["validation"] * 16)
+    return robot, t2b, ms, tracker
+
+
+def test_stage_load_calibration_and_ik_honour_it(tmp_path, rx_meas):
+    robot, t2b, ms, tracker = rx_meas
+    meas = tmp_path / "meas.yaml"
+    write_yaml_artefact(meas, _artefact(robot, ms, t2b))
+    out, urdf = tmp_path / "calibration.yaml", tmp_path / "cal.urdf"
+    t0 = time.perf_counter()
+    r = CliRunner().invoke(
+        app,
+        [
+            "calibrate",
+            "--robot",
+            str(SAMPLES / "rx130l"),
+            "--measurements",
+            str(meas),
+            "-o",
+            str(out),
+            "--urdf-out",
+            str(urdf),
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    assert time.perf_counter() - t0 < 10
+    art = read_yaml_artefact(out, Calibration)
+    assert art.summary["n_identifiable"] == 30 and art.tracker_to_base_source == "measurements"
+    assert art.summary["heldout_max_position_error_m"] < 0.3e-3
+    assert len(art.error_tables) == 6 and len(art.dropped) == 18
+    assert all(p.std is not None for p in art.parameters if p.estimated)
+    errors, t2b_loaded = load_calibration(out)
+    np.testing.assert_allclose(t2b_loaded.homogeneous, t2b.homogeneous, atol=1e-12)
+    # IK on the calibrated model reaches a pose measured in the tracker frame, expressed in the base frame.
+    q_true = ms.q[40]
+    target = t2b.inverse() * tracker.true_pose(q_true)
+    res = inverse_kinematics(robot, target, q_true + 0.05, errors=errors)
+    assert res.converged
+    assert np.max(np.abs(res.q - q_true)) < 2e-4  # the true joint angles, to calibration accuracy
+    plain = inverse_kinematics(robot, target, q_true + 0.05)
+    assert np.max(np.abs(plain.q - q_true)) > 1e-3  # the nominal model misses by mrad
+    cal_robot = load_robot(SAMPLES / "rx130l", urdf=urdf)
+    np.testing.assert_allclose(
+        tcp_placement(cal_robot, q_true).homogeneous,
+        tcp_placement(robot, q_true, errors).homogeneous,
+        atol=1e-9,
+    )
+
+
+def test_registration_without_nominal_base(rx_meas):
+    robot, t2b, ms, _ = rx_meas
+    res = calibrate(robot, ms)  # no tracker_to_base anywhere: Kabsch registration
+    assert res.tracker_to_base_source == "registration"
+    assert res.tables[("heldout", "calibrated")].max_position_error_m < 0.3e-3
+
+
+def test_outlier_is_flagged_and_dropped(rx_meas):
+    robot, t2b, ms, _ = rx_meas
+    p = ms.position_m.copy()
+    p[5] += [0.0, 0.004, 0.0]  # a 4 mm blunder
+    bad = MeasurementSet(ms.q, p, ms.rotation, ms.valid, ms.role)
+    res = calibrate(robot, bad, tracker_to_base=t2b)
+    assert res.outlier_idx.tolist() == [5] and 5 not in res.fit_idx
+    assert res.tables[("heldout", "calibrated")].max_position_error_m < 0.3e-3
+
+
+def test_csv_with_units_in_headers(tmp_path, rx_meas):
+    robot, t2b, ms, _ = rx_meas
+    ang = cardan_xyz(ms.rotation)
+    lines = ["q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad,role"]
+    for i in range(ms.n):
+        vals = [*np.degrees(ms.q[i]), *(ms.position_m[i] * 1e3), *ang[i]]
+        lines.append(",".join(f"{v:.12g}" for v in vals) + f",{ms.role[i]}")
+    path = tmp_path / "tracker.csv"
+    path.write_text("\n".join(lines) + "\n")
+    got = read_measurements(path, robot)
+    np.testing.assert_allclose(got.q, ms.q, atol=1e-10)
+    np.testing.assert_allclose(got.position_m, ms.position_m, atol=1e-12)
+    np.testing.assert_allclose(got.rotation, ms.rotation, atol=1e-10)
+    res = calibrate(robot, got, tracker_to_base=t2b)
+    assert res.tables[("heldout", "calibrated")].max_position_error_m < 0.3e-3
+
+
+def _csv(tmp_path, ms, scale_p=1.0, scale_q=1.0, nan_row=None):
+    lines = ["q1_rad,q2_rad,q3_rad,q4_rad,q5_rad,q6_rad,x_m,y_m,z_m"]
+    for i in range(ms.n):
+        vals = [*(ms.q[i] * scale_q), *(ms.position_m[i] * scale_p)]
+        if i == nan_row:
+            vals[7] = float("nan")
+        lines.append(",".join(f"{v:.12g}" for v in vals))
+    path = tmp_path / "t.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_bad_inputs_are_input_errors(tmp_path, rx_meas):
+    robot, t2b, ms, _ = rx_meas
+    with pytest.raises(InputError, match=r"NaN.*poses \[3\]"):
+        read_measurements(_csv(tmp_path, ms, nan_row=3), robot)
+    with pytest.raises(InputError, match="millimetres given as metres"):
+        read_measurements(_csv(tmp_path, ms, scale_p=1000.0), robot)
+    with pytest.raises(InputError, match="degrees given as radians"):
+        read_measurements(_csv(tmp_path, ms, scale_q=180 / np.pi), robot)
+    few = ms.subset(np.arange(4))
+    with pytest.raises(InputError, match="need at least 6 fit poses"):
+        calibrate(robot, few, CalibrateSettings(holdout_fraction=0.0), tracker_to_base=t2b)
+    # Rank-deficient: many poses that differ only in q1 (the wrist never moves).
+    q = np.tile(ms.q[0], (40, 1))
+    q[:, 0] = np.linspace(-2.5, 2.5, 40)
+    p, r = predict_poses(robot, q, None, t2b)
+    flat = MeasurementSet(q, p, r, np.ones(40, bool), ("fit",) * 40)
+    with pytest.raises(InputError, match="rank-deficient"):
+        calibrate(robot, flat, CalibrateSettings(holdout_fraction=0.0), tracker_to_base=t2b)
+    # Positions of another robot / wrong base: refused, not silently fitted.
+    far = MeasurementSet(ms.q, ms.position_m + np.array([0.0, 0.0, 0.3]), ms.rotation, ms.valid, ms.role)
+    with pytest.raises(InputError, match="from the nominal robot"):
+        calibrate(robot, far, tracker_to_base=t2b)
+
+
+def test_stage_exit_2_on_bad_measurements(tmp_path, rx_meas):
+    robot, t2b, ms, _ = rx_meas
+    r = CliRunner().invoke(
+        app,
+        [
+            "calibrate",
+            "--robot",
+            str(SAMPLES / "rx130l"),
+            "--measurements",
+            str(_csv(tmp_path, ms, nan_row=2)),
+            "-o",
+            str(tmp_path / "c.yaml"),
+        ],
+    )
+    assert r.exit_code == 2 and "NaN" in r.output
+    assert not (tmp_path / "c.yaml").exists()
+
+
+def test_calibrate_100_poses_timing(rx_meas):
+    robot, t2b, ms, tracker = rx_meas
+    qs = random_poses(robot, 100, np.random.default_rng(3))
+    big = _measure(tracker, qs, ["fit"] * 100)
+    t0 = time.perf_counter()
+    res = calibrate(robot, big, CalibrateSettings(holdout_fraction=0.2), tracker_to_base=t2b)
+    assert res.fit_idx.size == 80
+    assert time.perf_counter() - t0 < 5  # ≈ 0.3 s measured; generous for shared machines

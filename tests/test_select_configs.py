@@ -1,0 +1,182 @@
+"""select-configs: the streamed grid and its cell checks, the exchange algorithm's bookkeeping and
+optimality, the stage and its artefact."""
+
+import time
+
+import numpy as np
+import pytest
+import yaml
+from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.configs import Configs
+from typer.testing import CliRunner
+
+from rxcomm.cli import app
+from rxcomm.errors import InfeasibleError, InputError
+from rxcomm.geometric_errors import identifiable_parameters, random_poses
+from rxcomm.io.yaml_io import read_yaml_artefact
+from rxcomm.optim.pose_selection import (
+    Criterion,
+    _score,
+    _Search,
+    evenly_spaced,
+    feasibility,
+    grid_axes,
+    information_blocks,
+    observation_index,
+    select_measurement_poses,
+    select_poses,
+    stream_candidates,
+)
+
+from .conftest import SAMPLES
+
+
+def _cell(name):
+    return Cell.model_validate(yaml.safe_load((SAMPLES / name / "cell.yaml").read_text()))
+
+
+@pytest.fixture(scope="module")
+def rx_blocks(rx130l):
+    cand = stream_candidates(rx130l, _cell("rx130l"), intervals=9, max_candidates=4000, seed=0)
+    ident = identifiable_parameters(rx130l, random_poses(rx130l, 60, np.random.default_rng(0)))
+    return cand, information_blocks(rx130l, cand.q, ident)
+
+
+def test_grid_axes_are_interval_midpoints(rx130l):
+    axes = grid_axes(rx130l, 13)
+    assert len(axes) == 6 and all(a.size == 13 for a in axes)
+    step = (rx130l.q_max[0] - rx130l.q_min[0]) / 13
+    np.testing.assert_allclose(axes[0][0], rx130l.q_min[0] + step / 2)
+    np.testing.assert_allclose(np.diff(axes[0]), step)
+    with pytest.raises(InputError):
+        grid_axes(rx130l, (13, 13))
+
+
+def test_streamed_grid_agrees_with_per_pose_checks(robot):
+    name = "rx130l" if robot.name == "rx130l" else "m900"
+    cell = _cell(name)
+    cand = stream_candidates(robot, cell, intervals=5, max_candidates=None, seed=0)
+    assert cand.n_grid == 5**6
+    assert cand.n_feasible == cand.q.shape[0] == cand.n_grid - sum(cand.rejected.values())
+    # Every kept pose passes the per-pose checks; a sample of all grid poses agrees on the count.
+    assert np.all(feasibility(robot, cell, cand.q) == 0)
+    axes = grid_axes(robot, 5)
+    full = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 6)
+    assert int(np.sum(feasibility(robot, cell, full) == 0)) == cand.n_feasible
+
+
+def test_cell_checks_refuse_what_they_should(rx130l):
+    cell = _cell("rx130l")
+    # Folded arm: TCP down into the base. Stretched straight down: under the floor.
+    bad = np.array([[0.0, 0.0, 2.6, 0.0, 1.0, 0.0], [0.0, 2.3, 0.0, 0.0, 0.0, 0.0]])
+    assert np.all(feasibility(rx130l, cell, bad) > 0)
+    # Beyond a joint limit.
+    assert feasibility(rx130l, cell, np.array([[3.0, 0, 0.5, 0, 0.5, 0]]))[0] == 6
+
+
+def test_reservoir_is_bounded_seeded_and_uniform(rx130l):
+    cell = _cell("rx130l")
+    a = stream_candidates(rx130l, cell, intervals=7, max_candidates=500, seed=3)
+    b = stream_candidates(rx130l, cell, intervals=7, max_candidates=500, seed=3)
+    c = stream_candidates(rx130l, cell, intervals=7, max_candidates=500, seed=4)
+    assert a.q.shape == (500, 6) and np.array_equal(a.grid_index, b.grid_index)
+    assert not np.array_equal(a.grid_index, c.grid_index)
+    assert np.all(np.diff(a.grid_index) > 0)  # grid order
+    # Uniform subset: the kept share of each q1 value follows the feasible share (within noise).
+    full = stream_candidates(rx130l, cell, intervals=7, max_candidates=None)
+    share_full = np.unique(full.q[:, 0], return_counts=True)[1] / full.q.shape[0]
+    share_sub = np.unique(a.q[:, 0], return_counts=True)[1] / 500
+    assert np.max(np.abs(share_full - share_sub)) < 0.06
+
+
+def test_incremental_information_matrix_equals_recomputed(rx_blocks):
+    _, blocks = rx_blocks
+    res = select_poses(blocks, 32, "min-eig", restarts=2, seed=1)
+    assert len(res.indices) == 32 and len(set(res.indices.tolist())) == 32
+    assert observation_index(blocks[res.indices]) == pytest.approx(res.observation_index, rel=1e-9)
+
+
+@pytest.mark.parametrize("criterion", ["min-eig", "det-root", "cond"])
+def test_best_addition_is_the_brute_force_best(rx_blocks, criterion):
+    _, blocks = rx_blocks
+    rng = np.random.default_rng(2)
+    chosen = rng.choice(len(blocks), 12, replace=False)
+    lam = np.einsum("nri,nrj->ij", blocks[chosen], blocks[chosen])
+    exclude = np.zeros(len(blocks), bool)
+    exclude[chosen] = True
+    i, val = _Search(blocks, Criterion(criterion)).best_add(lam, exclude)
+    brute = _score(lam[None] + np.einsum("nri,nrj->nij", blocks, blocks), Criterion(criterion))
+    brute[exclude] = -np.inf
+    assert val == pytest.approx(brute.max(), rel=1e-9)
+    assert i == int(np.argmax(brute))
+
+
+def test_exchange_beats_random_and_naive_sets(rx_blocks):
+    _, blocks = rx_blocks
+    res = select_poses(blocks, 32, "min-eig", restarts=3, seed=0)
+    rng = np.random.default_rng(9)
+    randoms = [observation_index(blocks[rng.choice(len(blocks), 32, replace=False)]) for _ in range(50)]
+    naive = observation_index(blocks[evenly_spaced(len(blocks), 32)])
+    assert res.observation_index > max(randoms) and res.observation_index > naive
+    # The index is pinned by physics: the J5/J6 misalignment difference has a 0.11 m lever in every
+    # pose, so no set of 32 reaches much more than 32·(0.11/L)²/2 ≈ 0.06 (L = 1.81 m).
+    assert 0.05 < res.observation_index < 0.07
+
+
+def test_too_few_or_singular_candidates(rx_blocks):
+    _, blocks = rx_blocks
+    with pytest.raises(InputError, match="at least 5"):
+        select_poses(blocks, 3)
+    with pytest.raises(InfeasibleError, match="only 10"):
+        select_poses(blocks[:10], 32)
+    same = np.repeat(blocks[:1], 40, axis=0)  # 40 copies of one pose: never nonsingular
+    with pytest.raises(InfeasibleError, match="nonsingular"):
+        select_poses(same, 8)
+
+
+def test_32_of_4000_candidates_and_timing(rx130l):
+    t0 = time.perf_counter()
+    sel = select_measurement_poses(rx130l, _cell("rx130l"), 32, intervals=9, max_candidates=4000, restarts=5)
+    assert sel.candidates.q.shape[0] == 4000 and len(sel.q_selected) == 32
+    assert len(sel.identifiable) == 30
+    assert sel.improvement_ratio > 1.1
+    assert np.all(feasibility(rx130l, _cell("rx130l"), sel.q_selected) == 0)
+    assert time.perf_counter() - t0 < 60  # generous: shared CI machines; the bench reports the figure
+
+
+def test_stage_writes_configs_and_refuses_bad_cell(tmp_path):
+    out = tmp_path / "configs.yaml"
+    args = ["select-configs", "--robot", str(SAMPLES / "m900"), "--cell", str(SAMPLES / "m900" / "cell.yaml")]
+    r = CliRunner().invoke(
+        app,
+        [*args, "-n", "12", "--intervals", "7", "--max-candidates", "800", "--restarts", "1", "-o", str(out)],
+    )
+    assert r.exit_code == 0, r.output
+    cfg = read_yaml_artefact(out, Configs)
+    assert [p.role for p in cfg.poses].count("fit") == 12 and cfg.summary["n_candidates"] == 800
+    for key in (
+        "n_candidates",
+        "n_selected",
+        "observation_index",
+        "baseline_observation_index",
+        "improvement_ratio",
+        "seconds",
+    ):
+        assert key in cfg.summary
+    bad = tmp_path / "cell.yaml"
+    bad.write_text(
+        (SAMPLES / "m900" / "cell.yaml").read_text().replace("half_angle_rad: 0.70", "half_angle: 0.7")
+    )
+    r = CliRunner().invoke(
+        app, ["select-configs", "--robot", str(SAMPLES / "m900"), "--cell", str(bad), "-o", str(out)]
+    )
+    assert r.exit_code == 2 and "half_angle" in r.output
+
+
+@pytest.mark.slow
+def test_full_grid_13_intervals(rx130l):
+    t0 = time.perf_counter()
+    sel = select_measurement_poses(rx130l, _cell("rx130l"), 32, intervals=13, max_candidates=4000)
+    assert sel.candidates.n_grid == 13**6 and sel.candidates.q.shape[0] == 4000
+    assert sel.candidates.n_feasible > 4000
+    assert time.perf_counter() - t0 < 120
