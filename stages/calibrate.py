@@ -242,7 +242,9 @@ def run(
         )
     except ValidationError as e:
         err = e.errors()[0]
-        raise InputError(err["msg"], field=str(err["loc"][0]) if err["loc"] else None) from e
+        names = {"holdout_fraction": "holdout", "outlier_sigma": "outlier-sigma"}
+        loc = str(err["loc"][0]) if err["loc"] else "options"
+        raise InputError(err["msg"], field=names.get(loc, loc)) from e
     with console.err.status(f"calibrate: fitting {robot.name} to {ms.n} poses"):
         res = calibrate(robot, ms, settings, tracker_to_base=t2b)
     art = calibration_artefact(robot, res, inputs, urdf_out)

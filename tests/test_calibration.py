@@ -335,3 +335,24 @@ def test_calibrate_100_poses_timing(rx_meas):
     res = calibrate(robot, big, CalibrateSettings(holdout_fraction=0.2), tracker_to_base=t2b)
     assert res.fit_idx.size == 80
     assert time.perf_counter() - t0 < 5  # ≈ 0.3 s measured; generous for shared machines
+
+
+@pytest.mark.parametrize("name", ["rx130l", "m900"])
+def test_position_only_of_an_off_axis_point(name):
+    robot = load_robot(SAMPLES / name)
+    _, truth, t2b = _load(name)
+    point = np.array([0.05, 0.03, 0.10])
+    tracker = SimulatedTracker(robot, truth, np.random.default_rng(1), point=point)
+    qs = random_poses(robot, 80, np.random.default_rng(3))
+    ms = MeasurementSet(
+        q=qs,
+        position_m=np.array([tracker.measure(q).position_m for q in qs]),
+        rotation=None,
+        valid=np.ones(80, bool),
+        role=("fit",) * 60 + ("validation",) * 20,
+    )
+    res = calibrate(robot, ms, CalibrateSettings(point_in_tcp_m=tuple(point)), tracker_to_base=t2b)
+    assert len(res.identifiable) == 27 and res.measurement == "position"
+    held = res.tables[("heldout", "calibrated")]
+    assert held.max_orientation_error_rad is None
+    assert held.max_position_error_m < 0.3e-3 < res.tables[("heldout", "nominal")].max_position_error_m
