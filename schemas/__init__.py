@@ -16,4 +16,5 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.configs:Configs",
     "rxcomm.schemas.measurements:Measurements",
     "rxcomm.schemas.calibration:Calibration",
+    "rxcomm.schemas.run_log:RunLog",
 ]

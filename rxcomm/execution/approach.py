@@ -1,0 +1,38 @@
+"""Jerk-limited moves between rest positions: the approach to a plan's start and a campaign's poses.
+
+A ruckig profile (time-optimal under per-joint velocity, acceleration and jerk limits, joints
+synchronised) at a fraction of the robot's velocity and acceleration limits, sampled at the drive
+cycle. The result is an ordinary trajectory: it goes through the same dense limit check as any plan.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rxcomm.errors import InputError
+from rxcomm.optim.warm_start import ruckig_profile
+from rxcomm.robot import Robot
+from rxcomm.trajectory import Trajectory
+
+JERK_RAMP_S = 0.1  # acceleration builds up over this long: j_max = a_max / JERK_RAMP_S
+
+
+def move_trajectory(
+    robot: Robot, q_from: np.ndarray, q_to: np.ndarray, sample_s: float, speed_fraction: float = 0.2
+) -> Trajectory:
+    """Rest-to-rest jerk-limited move sampled every ``sample_s``, velocity and acceleration limits
+    scaled by ``speed_fraction`` (0 < f ≤ 1). A move of zero length is two identical samples."""
+    if not 0.0 < speed_fraction <= 1.0:
+        raise InputError(f"must be in (0, 1], got {speed_fraction}", field="speed_fraction")
+    q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
+    for name, q in (("q_from", q_from), ("q_to", q_to)):
+        if q.shape != (robot.n,) or not np.all(np.isfinite(q)):
+            raise InputError(f"expected {robot.n} finite joint angles, got {q.tolist()}", field=name)
+    v = speed_fraction * np.asarray(robot.v_max)
+    a = speed_fraction * np.asarray(robot.a_max)
+    profile = ruckig_profile(q_from, q_to, v, a, a / JERK_RAMP_S)
+    n = max(2, int(np.ceil(profile.duration_s / sample_s - 1e-9)) + 1)
+    t = np.arange(n) * sample_s
+    q, qd, qdd = profile.at(t)
+    q[-1], qd[-1], qdd[-1] = q_to, 0.0, 0.0  # exactly at the goal, at rest
+    return Trajectory(t, q, qd, qdd)

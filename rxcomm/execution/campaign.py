@@ -1,0 +1,223 @@
+"""A measurement campaign: drive to each pose of a pose list, settle, read the tracker (paper §3.4).
+
+Every move (current position → pose 1 → pose 2 → …) is planned and limit-checked before the drives
+are enabled. Per pose: stream the jerk-limited move, wait ``settle_s`` (feeding the watchdog), read the
+tracker — it answers only at standstill — up to ``tracker_attempts`` times, then the encoders. A pose
+whose tracker never answers is recorded with ``valid=False`` (NaN position), not an error.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from rxcomm.dynamics import DynamicParameters
+from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
+from rxcomm.execution.approach import move_trajectory
+from rxcomm.execution.plan import StreamPlan, prepare_plan
+from rxcomm.execution.session import RunResult, Session, StreamSettings, StreamStopped
+from rxcomm.gateway.client import GatewayClient, TrackerSample
+from rxcomm.robot import Robot
+from rxcomm.schemas.measurements import MeasuredPose
+
+
+class CampaignSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    feedforward: bool = True
+    speed_fraction: float = Field(0.2, gt=0, le=1, description="of velocity and acceleration limits")
+    settle_s: float = Field(0.3, ge=0, description="wait after each move before reading the tracker, s")
+    tracker_attempts: int = Field(20, ge=1, description="tracker reads per pose before giving up")
+    tracker_retry_s: float = Field(0.05, ge=0, description="pause between tracker reads, s")
+    limit_tolerance: float = Field(1e-3, ge=0)
+    fault_reset: bool = False
+    stream: StreamSettings = StreamSettings()
+
+
+@dataclass(frozen=True)
+class PoseReading:
+    """One pose as measured: encoders after settling and the tracker sample (None: never valid)."""
+
+    index: int
+    q_commanded: np.ndarray
+    q_rad: np.ndarray
+    tracker: TrackerSample | None
+    attempts: int
+
+
+@dataclass
+class CampaignResult:
+    run: RunResult
+    n_planned: int
+    readings: list[PoseReading] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def n_valid(self) -> int:
+        return sum(r.tracker is not None for r in self.readings)
+
+
+def check_poses(robot: Robot, poses: Sequence[Sequence[float]], tolerance: float = 0.0) -> np.ndarray:
+    """Poses as an [n, dof] array; InputError for a malformed list, SafetyStop naming the pose and
+    joint for one outside the joint limits."""
+    if len(poses) == 0:
+        raise InputError("the pose list is empty", field="poses")
+    for i, p in enumerate(poses):
+        if len(p) != robot.n or not np.all(np.isfinite(np.asarray(p, dtype=float))):
+            raise InputError(
+                f"expected {robot.n} finite joint angles, got {list(p)}", field=f"poses[{i}].q_rad"
+            )
+    q = np.asarray(poses, dtype=float)
+    half = (robot.q_max - robot.q_min) / 2
+    ratio = np.abs(q - (robot.q_max + robot.q_min) / 2) / half
+    if ratio.max() > 1.0 + tolerance:
+        i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        raise SafetyStop(
+            f"pose {i} is outside the joint limits: {robot.joint_names[j]} = {q[i, j]:.4f} rad, "
+            f"limits [{robot.q_min[j]:.4f}, {robot.q_max[j]:.4f}]"
+        )
+    return q
+
+
+def plan_moves(
+    robot: Robot,
+    q_start: np.ndarray,
+    poses: np.ndarray,
+    params: DynamicParameters,
+    cycle_s: float,
+    settings: CampaignSettings,
+) -> list[StreamPlan]:
+    """The chain of moves start → pose 0 → pose 1 → …, each resampled, with τ_ff, limit-checked."""
+    plans = []
+    q_from = np.asarray(q_start, dtype=float)
+    for i, q_to in enumerate(poses):
+        move = move_trajectory(robot, q_from, q_to, cycle_s, settings.speed_fraction)
+        plans.append(
+            prepare_plan(
+                robot,
+                move,
+                params,
+                cycle_s,
+                feedforward=settings.feedforward,
+                limit_tolerance=settings.limit_tolerance,
+                what=f"move to pose {i}",
+            )
+        )
+        q_from = q_to
+    return plans
+
+
+def run_campaign(
+    client: GatewayClient,
+    robot: Robot,
+    poses: Sequence[Sequence[float]],
+    params: DynamicParameters,
+    settings: CampaignSettings | None = None,
+    progress: Callable[[str, float], None] | None = None,
+) -> CampaignResult:
+    """Drive to every pose and read the tracker there. Refusals before motion raise; a stop during
+    the campaign is returned in ``result.run.error`` with the readings taken so far."""
+    settings = settings or CampaignSettings()
+    t_start = time.perf_counter()
+    q_poses = check_poses(robot, poses, settings.limit_tolerance)
+    ses = Session(client, robot, settings.stream)
+    ses.check_identity()
+    ses.check_faults(settings.fault_reset)
+    q_now = ses.positions()
+    moves = plan_moves(robot, q_now, q_poses, params, ses.cycle_s, settings)
+    ses.configure()
+    run = RunResult(gateway=ses.address, ratio=ses.ratio, cycle_s=ses.cycle_s, round_trip_probe_s=ses.probe_s)
+    result = CampaignResult(run, n_planned=len(moves))
+    try:
+        client.enable_all()
+        held = ses.demand()
+        if np.max(np.abs(held - q_now)) > 1e-3:
+            raise SafetyStop(f"the robot moved while enabling: {np.round(held - q_now, 5).tolist()} rad")
+        for i, move in enumerate(moves):
+            if progress is not None:
+                progress("poses", i / len(moves))
+            run.moves.append(ses.stream(move))
+            sample, attempts = _settle_and_read(ses, settings)
+            result.readings.append(PoseReading(i, q_poses[i], ses.positions(), sample, attempts))
+        if progress is not None:
+            progress("poses", 1.0)
+        run.stop_note = ses.stop_drives(after_stop=False)
+    except StreamStopped as s:
+        run.moves.append(s.log)
+        run.error = s.error
+        run.stop_note = ses.stop_drives(after_stop=True)
+    except (GatewayError, SafetyStop) as e:
+        run.error = e
+        run.stop_note = ses.stop_drives(after_stop=True)
+    except KeyboardInterrupt:
+        run.error = SafetyStop("interrupted by the user (Ctrl-C)")
+        run.stop_note = ses.stop_drives(after_stop=True)
+    result.seconds = time.perf_counter() - t_start
+    return result
+
+
+def _settle_and_read(ses: Session, s: CampaignSettings) -> tuple[TrackerSample | None, int]:
+    """Wait ``settle_s`` then read the tracker until valid (bounded), feeding the watchdog throughout."""
+    beat = 0
+
+    def wait(seconds: float) -> None:
+        nonlocal beat
+        deadline = time.monotonic() + seconds
+        while True:
+            beat += 1
+            ses.client.heartbeat(beat)
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            time.sleep(min(left, 0.02))
+
+    wait(s.settle_s)
+    for attempt in range(1, s.tracker_attempts + 1):
+        sample = ses.client.read_tracker()
+        if sample is not None:
+            return sample, attempt
+        wait(s.tracker_retry_s)
+    return None, s.tracker_attempts
+
+
+def measured_poses(result: CampaignResult, roles: Sequence[str]) -> list[MeasuredPose]:
+    """The `rxcomm/Measurements` poses: encoders, tracker position and orientation (NaN when the
+    tracker never answered, then ``valid=False``), the pose list's role."""
+    out = []
+    nan4 = (float("nan"),) * 4
+    for r in result.readings:
+        t = r.tracker
+        out.append(
+            MeasuredPose(
+                q_rad=r.q_rad.tolist(),
+                position_m=tuple(t.position_m.tolist()) if t is not None else (float("nan"),) * 3,
+                quaternion_wxyz=tuple(t.quaternion_wxyz.tolist()) if t is not None else nan4,
+                valid=t is not None,
+                role=roles[r.index],
+            )
+        )
+    return out
+
+
+def campaign_summary(result: CampaignResult) -> dict[str, object]:
+    """Measurements summary (DESIGN §9: n_poses, n_valid) plus how the campaign went."""
+    run = result.run
+    lags = [np.nanmax(np.abs(m.following_error)) for m in run.moves if m.n_records]
+    err: RxcommError | None = run.error
+    return {
+        "n_poses": len(result.readings),
+        "n_valid": result.n_valid,
+        "n_planned": result.n_planned,
+        "underruns": int(sum(m.underruns for m in run.moves)),
+        "max_move_lag_rad": float(max(lags)) if lags else None,
+        "max_tracker_attempts": max((r.attempts for r in result.readings), default=0),
+        "interpolation_ratio": run.ratio,
+        "outcome": run.outcome,
+        "stop_reason": None if err is None else str(err),
+        "stop_note": run.stop_note,
+        "seconds": result.seconds,
+    }

@@ -1,0 +1,143 @@
+"""What gets streamed: a plan resampled on the drive-cycle grid, its feed-forward torque, its limit check.
+
+Everything here is pure (no gateway): a plan is refused before any motion. A trajectory is checked
+densely on the drive-cycle grid (400 µs) with the feed-forward torque the run will actually send, so
+the torque limits are checked against the model in use; then it is subsampled to the stream's
+setpoint period (R drive cycles) when the gateway interpolates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline
+
+from rxcomm.dynamics import COULOMB_EPS_NLP_RAD_S, DynamicParameters, RobotDynamics
+from rxcomm.errors import InputError, SafetyStop
+from rxcomm.limits import LimitReport, check_limits
+from rxcomm.robot import Robot
+from rxcomm.trajectory import Trajectory
+
+REST_VELOCITY_RAD_S = 1e-3  # a plan must start and end at rest (|q̇| below this per joint)
+
+
+@dataclass(frozen=True, eq=False)
+class StreamPlan:
+    """Setpoints on a uniform grid: ``q``, ``qd``, ``qdd``, ``tau_ff`` [n, dof] every ``sample_s``."""
+
+    sample_s: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau_ff: np.ndarray
+    report: LimitReport | None = None  # the dense check it passed (drive-cycle grid)
+
+    @property
+    def n(self) -> int:
+        return int(self.q.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return (self.n - 1) * self.sample_s
+
+    @property
+    def t(self) -> np.ndarray:
+        return np.arange(self.n) * self.sample_s
+
+    def subsample(self, ratio: int) -> StreamPlan:
+        """Every ``ratio``-th setpoint (the gateway interpolates linearly in between), last one kept."""
+        if ratio == 1:
+            return self
+        idx = np.arange(0, self.n, ratio)
+        if idx[-1] != self.n - 1:
+            idx = np.append(idx, self.n - 1)  # overshoot the end by < R cycles: the plan holds there
+        return StreamPlan(
+            self.sample_s * ratio, self.q[idx], self.qd[idx], self.qdd[idx], self.tau_ff[idx], self.report
+        )
+
+
+def resample(traj: Trajectory, sample_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q, q̇, q̈) on the grid 0, sample_s, … covering the plan (times from its first sample).
+
+    Already on the grid: copied. Otherwise q by cubic Hermite on (q, q̇), q̇ by cubic Hermite on (q̇, q̈),
+    q̈ linear; grid points past the end hold the final state (a plan ends at rest).
+    """
+    t = traj.t - traj.t[0]
+    n = int(np.ceil(t[-1] / sample_s - 1e-9)) + 1
+    grid = np.arange(n) * sample_s
+    if traj.n == n and np.allclose(t, grid, rtol=0, atol=1e-9):
+        return np.array(traj.q), np.array(traj.qd), np.array(traj.qdd)
+    if traj.n < 2:
+        raise InputError("a plan needs at least two samples", field="t")
+    tg = np.minimum(grid, t[-1])
+    q = CubicHermiteSpline(t, traj.q, traj.qd, axis=0)(tg)
+    qd = CubicHermiteSpline(t, traj.qd, traj.qdd, axis=0)(tg)
+    qdd = np.stack([np.interp(tg, t, traj.qdd[:, j]) for j in range(traj.dof)], axis=1)
+    return q, qd, qdd
+
+
+def model_torque(
+    robot: Robot, params: DynamicParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+) -> np.ndarray:
+    """τ = M(q)q̈ + g(q, q̇) of the model (paper eq. 7): the feed-forward torque.
+
+    Coulomb friction uses the planners' smooth sign (tanh, ε = 0.02 rad/s): an exact sign would step
+    the feed-forward by 2·Fc through every velocity reversal.
+    """
+    return RobotDynamics(robot, params, coulomb_eps_rad_s=COULOMB_EPS_NLP_RAD_S).inverse_dynamics(q, qd, qdd)
+
+
+def check_plan_shape(robot: Robot, traj: Trajectory, what: str = "plan") -> None:
+    """InputError (exit 2) for a plan this robot cannot even interpret: wrong joint count, no duration,
+    not at rest at either end."""
+    if traj.dof != robot.n:
+        raise InputError(f"{what} has {traj.dof} joints, the robot {robot.n}", field="q")
+    if traj.n < 2 or traj.duration_s <= 0:
+        raise InputError(f"{what} has no duration ({traj.n} samples)", field="t")
+    for end, i in (("start", 0), ("end", -1)):
+        v = np.abs(traj.qd[i])
+        if np.any(v > REST_VELOCITY_RAD_S):
+            j = int(np.argmax(v))
+            raise InputError(
+                f"{what} does not {end} at rest: |q̇| = {v[j]:.4g} rad/s on {robot.joint_names[j]} "
+                f"(streaming starts from and ends in a held position)",
+                field="qd",
+            )
+
+
+def prepare_plan(
+    robot: Robot,
+    traj: Trajectory,
+    params: DynamicParameters,
+    cycle_s: float,
+    *,
+    feedforward: bool = True,
+    limit_tolerance: float = 1e-3,
+    what: str = "plan",
+) -> StreamPlan:
+    """Resample ``traj`` at the drive cycle, compute the model torque, check every limit densely.
+
+    ``params`` is the model: its torque is the feed-forward (zeros when ``feedforward`` is False) and
+    is what the torque and torque-rate limits are checked on either way (without feed-forward the
+    drives' loops must produce it). Raises InputError for a malformed plan and SafetyStop (exit 5)
+    naming the limit, joint and time of the worst sample when a ratio exceeds 1 + ``limit_tolerance``.
+    """
+    check_plan_shape(robot, traj, what)
+    q, qd, qdd = resample(traj, cycle_s)
+    tau = model_torque(robot, params, q, qd, qdd)
+    t = np.arange(q.shape[0]) * cycle_s
+    report = check_limits(robot, t, q, qd, qdd, tau)
+    if report.max_ratio > 1.0 + limit_tolerance:
+        limit, joint, t_s, ratio = report.worst()
+        raise SafetyStop(
+            f"{what} outside the robot's limits: {limit} of {joint} at t = {t_s:.4f} s is "
+            f"{ratio:.3f} × its limit (checked every {cycle_s * 1e3:g} ms)"
+        )
+    return StreamPlan(cycle_s, q, qd, qdd, tau if feedforward else np.zeros_like(tau), report)
+
+
+def distance_to_start(robot: Robot, q_now: np.ndarray, q_start: np.ndarray) -> dict[str, float]:
+    """Per joint |q_now − q_start| (rad), keyed by joint name."""
+    d = np.abs(np.asarray(q_now, dtype=float) - np.asarray(q_start, dtype=float))
+    return {name: float(v) for name, v in zip(robot.joint_names, d, strict=True)}

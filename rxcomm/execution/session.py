@@ -1,0 +1,549 @@
+"""A streaming session on a drive gateway: checks, interpolation ratio, enable, stream + record, stop.
+
+The order of a run (DESIGN §7 run):
+
+1. identity and map version (``GatewayClient.identity``), the drive cycle against drives.yaml;
+2. drive and gateway faults: refused unless ``fault_reset``;
+3. the robot at the plan's start (per joint, rad), else refused unless an approach move is allowed —
+   every move is planned and limit-checked *before* the drives are enabled, so nothing slow happens
+   while the watchdog runs;
+4. round trip measured with empty blocks, interpolation ratio R chosen so a 6-setpoint block lasts at
+   least ``ROUND_TRIP_MARGIN`` × the typical round trip (``choose_ratio``); trace decimation R (one
+   record per setpoint);
+5. enable, stream (``rxcomm.gateway.stream``), every reply's trace and status kept in memory (the MCAP
+   writer blocks ~10 ms closing a chunk: the log is written after the motion, never inside the loop);
+6. disable. Any stop after enabling — gateway stop bits, lost connection, Ctrl-C — quick-stops, waits
+   until the demand stands still (bounded), disables, and is *returned* in ``RunResult.error`` with
+   what was recorded up to it, so the caller can still write the log.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from rxcomm.dynamics import DynamicParameters
+from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
+from rxcomm.execution.approach import move_trajectory
+from rxcomm.execution.plan import StreamPlan, distance_to_start, prepare_plan
+from rxcomm.gateway import registers as R
+from rxcomm.gateway.client import BlockReply, GatewayClient, RoundTripStats
+from rxcomm.gateway.registers import DriveState, ErrorCode, Status
+from rxcomm.gateway.stream import STOP_BITS, stream
+from rxcomm.robot import Robot
+
+ROUND_TRIP_MARGIN = 2.0  # a block must last this many typical round trips
+LATCHED_FAULT_BITS = (
+    Status.WATCHDOG | Status.ESTOP | Status.AXIS_FAULT | Status.UNDERRUN | Status.SEQUENCE_ERROR
+)
+COMMUNICATION_ERRORS = (ErrorCode.HEARTBEAT, ErrorCode.UNDERRUN)  # the master's fault: exit 4
+
+
+class StreamSettings(BaseModel):
+    """How setpoints are fed to the gateway."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    interpolation_ratio: int | None = Field(
+        None,
+        ge=1,
+        le=R.INTERPOLATION_RATIO_MAX,
+        description="drive cycles per setpoint; None: from the round trip",
+    )
+    lead_s: float = Field(0.5, gt=0, description="buffered setpoints kept ahead of execution, s")
+    prefill_s: float = Field(0.25, gt=0, description="buffered before the stream starts, s")
+    min_lead_s: float = Field(0.1, gt=0, description="the lead the run promises to keep, s")
+    watchdog_ms: int = Field(
+        500, ge=10, le=R.WATCHDOG_MS_MAX, description="no accepted write for this long: the cell faults"
+    )
+    round_trip_probes: int = Field(50, ge=5, description="empty blocks timed to choose the ratio")
+    stop_timeout_s: float = Field(3.0, gt=0, description="wait for the stop ramp before disabling, s")
+
+
+class RunSettings(BaseModel):
+    """What `run` does with a trajectory plan."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    feedforward: bool = Field(True, description="stream τ_ff of the model; False: zeros")
+    approach: bool = Field(False, description="move to the plan's start first (jerk-limited)")
+    approach_speed_fraction: float = Field(0.2, gt=0, le=1, description="of velocity and acceleration limits")
+    start_tolerance_rad: float = Field(1e-3, gt=0, description="per joint: 'at the start' within this")
+    limit_tolerance: float = Field(1e-3, ge=0, description="limit ratios up to 1 + this pass")
+    fault_reset: bool = Field(False, description="reset drive faults and latched gateway stops first")
+    stream: StreamSettings = StreamSettings()
+
+
+# ---- records --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class StreamLog:
+    """One stream as recorded: the setpoints sent and, per setpoint reached, the drives' feedback.
+
+    ``q_actual``/``tau_actual`` have one row per trace record kept (record r belongs to setpoint r;
+    rows of lost records are NaN); ``gateway`` holds one entry per block reply (arrays of equal length).
+    """
+
+    plan: StreamPlan
+    ratio: int
+    cycle_s: float
+    q_actual: np.ndarray
+    tau_actual: np.ndarray
+    gateway: dict[str, np.ndarray]
+    lost_records: int
+    busy_replies: int
+    underruns: int
+    round_trips_s: np.ndarray
+    wall_s: float
+    cpu_s: float
+    completed: bool
+
+    @property
+    def n_records(self) -> int:
+        return int(self.q_actual.shape[0])
+
+    @property
+    def q_demand(self) -> np.ndarray:
+        return self.plan.q[: self.n_records]
+
+    @property
+    def following_error(self) -> np.ndarray:
+        return self.q_demand - self.q_actual
+
+    def min_lead_s(self) -> float:
+        """Smallest buffered lead while setpoints were still being sent and the stream ran."""
+        g = self.gateway
+        if len(g["lead_s"]) == 0:
+            return float("nan")
+        feeding = (g["write_index"] < self.plan.n) & ((g["status"] & int(Status.STREAMING)) != 0)
+        return float(g["lead_s"][feeding].min()) if feeding.any() else float("nan")
+
+
+@dataclass
+class RunResult:
+    """What a run produced. ``error`` is the stop that ended it early (None: completed)."""
+
+    gateway: str
+    ratio: int
+    cycle_s: float
+    log: StreamLog | None = None
+    approach: StreamLog | None = None
+    moves: list[StreamLog] = field(default_factory=list)
+    error: RxcommError | None = None
+    stop_note: str = ""
+    round_trip_probe_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def outcome(self) -> str:
+        if self.error is None:
+            return "completed"
+        return "communication_fault" if isinstance(self.error, GatewayError) else "safety_stop"
+
+
+class _LastRoundTrip(RoundTripStats):
+    """The client's round-trip statistics, also remembering the latest one (for the gateway topic)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.last_s = math.nan
+
+    def add(self, seconds: float) -> None:
+        super().add(seconds)
+        self.last_s = seconds
+
+
+class _Recorder:
+    """``stream(on_reply=...)``: keeps trace chunks and status rows, calls ``progress`` at ≤ 10 Hz."""
+
+    def __init__(self, n: int, timing: _LastRoundTrip, progress: Callable[[float], None] | None) -> None:
+        self.n = n
+        self.timing = timing
+        self.progress = progress
+        self.chunks: list[tuple[int, np.ndarray, np.ndarray]] = []
+        self.rows: list[tuple[float, float, int, int, int, int, int]] = []
+        self.t0 = time.perf_counter()
+        self._next_progress = 0.0
+        self.last_execute = 0
+
+    def __call__(self, reply: BlockReply) -> None:
+        tr = reply.trace
+        if tr.count:
+            self.chunks.append((tr.first, tr.position_rad, tr.torque_nm))
+        st = reply.status
+        if st is None:
+            return
+        wall = time.perf_counter() - self.t0
+        self.last_execute = st.execute_index
+        self.rows.append(
+            (
+                wall,
+                self.timing.last_s,
+                int(st.status),
+                st.error,
+                st.execute_index,
+                st.write_index,
+                st.buffer_level,
+            )
+        )
+        if self.progress is not None and wall >= self._next_progress:
+            self._next_progress = wall + 0.1
+            self.progress(min(1.0, st.execute_index / self.n))
+
+    def trace(self, keep: int) -> tuple[np.ndarray, np.ndarray]:
+        """Rows 0..keep-1 by record index (NaN where a record never arrived)."""
+        q = np.full((keep, R.N_AXES), np.nan)
+        tau = np.full((keep, R.N_AXES), np.nan)
+        for first, pos, tq in self.chunks:
+            lo, hi = first, min(first + pos.shape[0], keep)
+            if hi > lo:
+                q[lo:hi] = pos[: hi - lo]
+                tau[lo:hi] = tq[: hi - lo]
+        return q, tau
+
+    def gateway_arrays(self, ratio: int, cycle_s: float) -> dict[str, np.ndarray]:
+        a = np.array(self.rows, dtype=float).reshape(-1, 7)
+        ex = a[:, 4].astype(np.int64)
+        level = a[:, 6].astype(np.int64)
+        return {
+            "t": ex * ratio * cycle_s,
+            "wall_s": a[:, 0],
+            "round_trip_s": a[:, 1],
+            "status": a[:, 2].astype(np.int64),
+            "error": a[:, 3].astype(np.int64),
+            "execute_index": ex,
+            "write_index": a[:, 5].astype(np.int64),
+            "buffer_level": level,
+            "lead_s": level * ratio * cycle_s,
+        }
+
+
+# ---- the session ----------------------------------------------------------------------------------
+
+
+def choose_ratio(round_trips_s: np.ndarray, cycle_s: float) -> int:
+    """Smallest R whose 6-setpoint block lasts ≥ ROUND_TRIP_MARGIN × the typical round trip (mean of
+    the fastest 90 %): the master must keep up on average; the buffered lead absorbs the tail."""
+    rt = np.sort(np.asarray(round_trips_s, dtype=float))
+    typical = float(rt[: max(1, int(0.9 * len(rt)))].mean()) if len(rt) else 0.0
+    r = math.ceil(ROUND_TRIP_MARGIN * typical / (R.MAX_CYCLES_PER_BLOCK * cycle_s))
+    return int(min(max(r, 1), R.INTERPOLATION_RATIO_MAX))
+
+
+class Session:
+    """A master session on one gateway for one robot (one client connection, used by one thread)."""
+
+    def __init__(self, client: GatewayClient, robot: Robot, settings: StreamSettings | None = None):
+        self.client = client
+        self.robot = robot
+        self.settings = settings or StreamSettings()
+        self.timing = _LastRoundTrip()
+        client.timing = self.timing
+        self.cycle_s = robot.drives.cycle_s
+        self.capacity = 0
+        self.ratio = 1
+        self.probe_s = np.zeros(0)
+
+    @property
+    def address(self) -> str:
+        return f"{self.client.host}:{self.client.port}"
+
+    def check_identity(self) -> None:
+        """Map v1 identity (GatewayError) and the drive cycle against drives.yaml (InputError)."""
+        ident = self.client.identity()
+        if ident.n_axes != self.robot.n:
+            raise InputError(
+                f"gateway drives {ident.n_axes} axes, the robot has {self.robot.n}", field="joints"
+            )
+        cycle_s = ident.cycle_us * 1e-6
+        if abs(cycle_s - self.robot.drives.cycle_s) > 1e-9:
+            raise InputError(
+                f"gateway drive cycle is {ident.cycle_us} µs, "
+                f"drives.yaml says {self.robot.drives.cycle_s * 1e6:g} µs",
+                file=self.robot.drives_path,
+                field="cycle_s",
+            )
+        self.cycle_s = cycle_s
+        self.capacity = ident.buffer_capacity
+
+    def check_faults(self, reset: bool) -> None:
+        """Refuse (SafetyStop) drive faults or latched gateway stops, or clear them when ``reset``."""
+        axes = self.client.axes()
+        st = self.client.status()
+        faulted = [
+            f"{self.robot.joint_names[i]} {a.error_code:#06x}"
+            for i, a in enumerate(axes)
+            if a.state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+        ]
+        latched = Status(st.status) & LATCHED_FAULT_BITS
+        if not faulted and not latched:
+            return
+        if not reset:
+            what = ", ".join(faulted) if faulted else f"gateway {latched!r} (error {st.error:#06x})"
+            raise SafetyStop(f"the cell reports a stop before the run: {what}; clear it with --fault-reset")
+        self.client.fault_reset()
+
+    def positions(self) -> np.ndarray:
+        return self.client.positions_rad()
+
+    def demand(self) -> np.ndarray:
+        return np.array([a.position_demand_rad for a in self.client.axes()])
+
+    def configure(self) -> int:
+        """Measure the round trip with empty blocks, choose R, write watchdog/prefill/R/D."""
+        s = self.settings
+        times = []
+        for _ in range(s.round_trip_probes):
+            t0 = time.perf_counter()
+            self.client.poll()
+            times.append(time.perf_counter() - t0)
+        self.probe_s = np.array(times)
+        self.ratio = s.interpolation_ratio or choose_ratio(self.probe_s, self.cycle_s)
+        sample_s = self.ratio * self.cycle_s
+        prefill = min(math.ceil(s.prefill_s / sample_s), self.capacity // 2)
+        self.client.configure(
+            watchdog_ms=s.watchdog_ms,
+            prefill=prefill,
+            interpolation_ratio=self.ratio,
+            trace_decimation=self.ratio,
+        )
+        return self.ratio
+
+    def high_level(self) -> int:
+        """Buffer level the stream fills to: the lead, within the capacity (a block's room left)."""
+        sample_s = self.ratio * self.cycle_s
+        lead = max(self.settings.lead_s, self.settings.min_lead_s + 0.05)
+        return int(min(math.ceil(lead / sample_s), self.capacity - 2 * R.MAX_CYCLES_PER_BLOCK))
+
+    def stream(self, plan: StreamPlan, progress: Callable[[float], None] | None = None) -> StreamLog:
+        """Stream ``plan`` (subsampled to this session's ratio) and return what was recorded; a stop
+        raises ``StreamStopped`` carrying the explained error and the log up to it."""
+        sub = plan.subsample(self.ratio)
+        rec = _Recorder(sub.n, self.timing, progress)
+        self.client.heartbeat(0)  # feeds the watchdog: a campaign reads tracker and encoders before this
+        before = self._underrun_count()
+        rt0 = self.timing.count
+        wall0, cpu0 = time.perf_counter(), time.process_time()
+        error: RxcommError | None = None
+        busy = 0
+        try:
+            res = stream(self.client, sub.q, sub.tau_ff, high_level=self.high_level(), on_reply=rec)
+            busy = res.busy_replies
+        except (GatewayError, SafetyStop) as e:
+            error = self._explain(e)
+        except KeyboardInterrupt:  # stream() sent the quick stop already
+            error = SafetyStop("interrupted by the user (Ctrl-C): quick stop sent")
+        if error is not None:
+            executed = rec.last_execute
+            self._drain_trace(rec)  # the records up to the stop trail it: fetch them for the log
+            rec.last_execute = executed
+        wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+        after = self._underrun_count()
+        gw = rec.gateway_arrays(self.ratio, self.cycle_s)
+        if before is not None and after is not None:
+            underruns = (after - before) % 0x10000
+        else:
+            underruns = int(np.any(gw["status"] & int(Status.UNDERRUN)))
+        keep = sub.n if error is None else min(sub.n, rec.last_execute)
+        q_act, tau_act = rec.trace(keep)
+        if error is not None:  # records of the last setpoints before a stop may never have arrived
+            arrived = np.flatnonzero(~np.isnan(q_act[:, 0]))
+            keep = int(arrived[-1]) + 1 if arrived.size else 0
+            q_act, tau_act = q_act[:keep], tau_act[:keep]
+        log = StreamLog(
+            plan=sub,
+            ratio=self.ratio,
+            cycle_s=self.cycle_s,
+            q_actual=q_act,
+            tau_actual=tau_act,
+            gateway=gw,
+            lost_records=int(np.isnan(q_act[:, 0]).sum()),
+            busy_replies=busy,
+            underruns=int(underruns),
+            round_trips_s=self.timing.seconds()[rt0:],
+            wall_s=wall,
+            cpu_s=cpu,
+            completed=error is None,
+        )
+        if error is not None:
+            raise StreamStopped(error, log)
+        return log
+
+    def _drain_trace(self, rec: _Recorder, timeout_s: float = 2.0) -> None:
+        """After a stop: poll (empty blocks) until the trace stops growing, bounded."""
+        if not self.client_open:
+            return
+        deadline = time.monotonic() + timeout_s
+        idle = 0
+        try:
+            while idle < 3 and time.monotonic() < deadline:
+                reply = self.client.poll()
+                rec(reply)
+                idle = idle + 1 if reply.trace.count == 0 else 0
+                if reply.trace.count == 0:
+                    time.sleep(0.005)
+        except (GatewayError, KeyboardInterrupt):
+            return  # the log keeps what arrived
+
+    @property
+    def client_open(self) -> bool:
+        return bool(self.client._open)  # the client closes itself on any communication error
+
+    def _underrun_count(self) -> int | None:
+        try:
+            return self.client.status().underrun_count
+        except GatewayError:
+            return None
+
+    def _explain(self, error: RxcommError) -> RxcommError:
+        """The stop as the cell saw it: which axes faulted with which code, communication or safety."""
+        if isinstance(error, GatewayError) and not self.client_open:
+            # stream() reads the status after a refused block; if that fails too, the first error is the cause
+            cause = error.__context__ if isinstance(error.__context__, GatewayError) else error
+            return GatewayError(f"lost the connection to the gateway {self.address}: {cause}")
+        try:
+            st = self.client.status()
+            axes = self.client.axes()
+        except GatewayError:
+            return error
+        names = self.robot.joint_names
+        faulted = [(names[i], a.error_code) for i, a in enumerate(axes) if a.error_code]
+        code = st.error or (faulted[0][1] if faulted else 0)
+        t_s = st.execute_index * self.ratio * self.cycle_s
+        what = _code_name(code)
+        where = ", ".join(f"{n} {_code_name(c)}" for n, c in faulted)
+        text = f"{what} at t = {t_s:.3f} s" + (f" ({where})" if where else "")
+        if code in COMMUNICATION_ERRORS:
+            return GatewayError(f"stream stopped by the gateway: {text}")
+        if Status(st.status) & STOP_BITS or faulted:
+            return SafetyStop(f"stream stopped by the gateway: {text}")
+        return error
+
+    def stop_drives(self, after_stop: bool) -> str:
+        """Best effort: quick stop (after a stop), wait for the ramp, disable. Returns what happened."""
+        c = self.client
+        if not self.client_open:
+            try:
+                c.connect()
+            except GatewayError:
+                return f"gateway unreachable; its watchdog ({self.settings.watchdog_ms} ms) stops the drives"
+        try:
+            if after_stop:
+                with contextlib.suppress(GatewayError):
+                    c.quick_stop()
+                self._wait_standstill()
+            c.disable_all()
+            return "drives disabled"
+        except (GatewayError, SafetyStop) as e:
+            return f"could not disable the drives ({e}); the gateway's watchdog stops them"
+
+    def _wait_standstill(self) -> None:
+        """Until the demand of every axis stops changing (the stop ramp ended), feeding the watchdog."""
+        deadline = time.monotonic() + self.settings.stop_timeout_s
+        last = self.demand()
+        beat = 0
+        while time.monotonic() < deadline:
+            beat += 1
+            self.client.heartbeat(beat)
+            time.sleep(0.02)
+            now = self.demand()
+            if np.max(np.abs(now - last)) < 1e-6:
+                return
+            last = now
+
+
+class StreamStopped(Exception):  # noqa: N818 - a carrier inside rxcomm.execution, never escapes run_*
+    def __init__(self, error: RxcommError, log: StreamLog):
+        super().__init__(str(error))
+        self.error = error
+        self.log = log
+
+
+def _code_name(code: int) -> str:
+    try:
+        return f"{ErrorCode(code).name.lower().replace('_', ' ')} ({code:#06x})"
+    except ValueError:
+        return f"error {code:#06x}"
+
+
+# ---- a trajectory run -----------------------------------------------------------------------------
+
+
+def run_trajectory(
+    client: GatewayClient,
+    robot: Robot,
+    plan: StreamPlan,
+    params: DynamicParameters,
+    settings: RunSettings | None = None,
+    progress: Callable[[str, float], None] | None = None,
+) -> RunResult:
+    """Execute a prepared ``plan`` (``prepare_plan``) on a connected gateway. ``params`` is the model
+    for the approach move's feed-forward and limit check. Refusals before motion raise (InputError,
+    GatewayError, SafetyStop); a stop during motion is returned in ``RunResult.error`` with the log
+    recorded up to it. ``progress(what, fraction)`` is called at ≤ 10 Hz while streaming."""
+    settings = settings or RunSettings()
+    ses = Session(client, robot, settings.stream)
+    ses.check_identity()
+    ses.check_faults(settings.fault_reset)
+    q_now = ses.positions()
+    dist = distance_to_start(robot, q_now, plan.q[0])
+    approach: StreamPlan | None = None
+    if max(dist.values()) > settings.start_tolerance_rad:
+        if not settings.approach:
+            far = ", ".join(f"{k} {v:.4f}" for k, v in dist.items())
+            raise SafetyStop(
+                f"the robot is not at the plan's start (distance per joint, rad: {far}; tolerance "
+                f"{settings.start_tolerance_rad:g}); use --approach to move there first"
+            )
+        move = move_trajectory(robot, q_now, plan.q[0], ses.cycle_s, settings.approach_speed_fraction)
+        approach = prepare_plan(
+            robot,
+            move,
+            params,
+            ses.cycle_s,
+            feedforward=settings.feedforward,
+            limit_tolerance=settings.limit_tolerance,
+            what="approach move",
+        )
+    ses.configure()
+    result = RunResult(
+        gateway=ses.address, ratio=ses.ratio, cycle_s=ses.cycle_s, round_trip_probe_s=ses.probe_s
+    )
+    stage = "approach"
+    try:
+        client.enable_all()
+        held = ses.demand()
+        start = approach.q[0] if approach is not None else plan.q[0]
+        if np.max(np.abs(held - start)) > settings.start_tolerance_rad:
+            raise SafetyStop(f"the robot moved while enabling: {np.round(held - start, 5).tolist()} rad")
+        if approach is not None:
+            result.approach = ses.stream(approach, _named(progress, "approach"))
+        stage = "plan"
+        result.log = ses.stream(plan, _named(progress, "run"))
+        result.stop_note = ses.stop_drives(after_stop=False)
+    except StreamStopped as s:
+        if stage == "approach":
+            result.approach = s.log
+        else:
+            result.log = s.log
+        result.error = s.error
+        result.stop_note = ses.stop_drives(after_stop=True)
+    except (GatewayError, SafetyStop) as e:  # enable failed or refused after enabling
+        result.error = e
+        result.stop_note = ses.stop_drives(after_stop=True)
+    except KeyboardInterrupt:
+        result.error = SafetyStop("interrupted by the user (Ctrl-C)")
+        result.stop_note = ses.stop_drives(after_stop=True)
+    return result
+
+
+def _named(progress: Callable[[str, float], None] | None, what: str) -> Callable[[float], None] | None:
+    if progress is None:
+        return None
+    return lambda f: progress(what, f)
