@@ -1,0 +1,186 @@
+"""The simulated cell behind the gateway: drives + true plant + tracker from a truth file (DESIGN §6).
+
+`SimulatedCell` implements `rxcomm.cell.backend.CellBackend`: each `cycle` quantises the encoders,
+runs the drives' cascaded loops (`rxcomm.cell.drives`, tuned on the NOMINAL robot), integrates the
+TRUE dynamics over one drive cycle (`rxcomm.cell.plant`) and reports what a drive reports: the
+quantised position, the filtered velocity estimate, the commanded torque (after saturation) plus the
+truth's torque-measurement noise, and the following error demand − actual. The gateway quantises
+torque to 0.1 % of the rated (continuous) torque.
+
+The tracker (`rxcomm.cell.tracker.SimulatedTracker`, the cell's visibility cone when a cell file is
+given) answers only when every axis stands still: |velocity estimate| ≤ `standstill_rad_s` on all
+axes, the drives' own standstill, which needs ≈ 8 filter time constants without any encoder count
+change (≈ 4 ms at the default filter; a joint creeping slower than one count per that time is at
+most ≈ 0.25 mrad/s). The same standstill ends the gateway's settling in virtual time, so the tracker
+never waits for cycles that will not come; a reading is the pose at that instant, taken together
+with the encoder positions the gateway reports.
+
+`start_embedded_cell` builds one from a truth file and serves it on loopback: `run` uses it when no
+gateway is given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from rxcomm.cell.backend import AxisFeedback, TrackerReading
+from rxcomm.cell.drives import CascadedDrives, DriveGains, DriveTuning, drive_gains
+from rxcomm.cell.plant import Plant
+from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
+from rxcomm.cell.tracker import SimulatedTracker
+from rxcomm.cell.truth import SimTruth, load_truth
+from rxcomm.errors import InputError
+
+
+class SimSettings(BaseModel):
+    """How the simulated cell runs (the physics itself comes from the truth file)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    q0_rad: tuple[float, ...] | None = Field(None, description="initial joint angles; None: all zero")
+    seed: int | None = Field(None, description="noise seed; None: the truth file's seed")
+    substeps: int = Field(1, ge=1, le=64, description="plant integration steps per drive cycle")
+    standstill_rad_s: float = Field(
+        1e-6, gt=0, description="tracker: every |velocity estimate| at most this (≤ the gateway's 1e-6)"
+    )
+    tuning: DriveTuning = DriveTuning()
+
+
+class SimulatedCell:
+    """The real backend of the simulated cell (`CellBackend`)."""
+
+    def __init__(self, truth: SimTruth, settings: SimSettings | None = None):
+        s = settings or SimSettings()
+        robot = truth.robot
+        self.truth = truth
+        self.settings = s
+        n = robot.n
+        q0 = np.zeros(n) if s.q0_rad is None else np.array(s.q0_rad, dtype=float)
+        if q0.shape != (n,):
+            raise InputError(f"q0 needs {n} joint angles, got {len(q0)}", field="q0")
+        bad = (q0 < robot.q_min) | (q0 > robot.q_max)
+        if bad.any():
+            j = int(np.flatnonzero(bad)[0])
+            raise InputError(
+                f"q0 of {robot.joint_names[j]} = {q0[j]:.4f} rad is outside "
+                f"[{robot.q_min[j]:.4f}, {robot.q_max[j]:.4f}]",
+                field="q0",
+            )
+        seed = truth.truth.seed if s.seed is None else s.seed
+        torque_rng, tracker_rng = (np.random.default_rng(ss) for ss in np.random.SeedSequence(seed).spawn(2))
+        self._rng = torque_rng
+        self._lsb = truth.truth.noise.encoder_lsb_rad
+        self._torque_sigma = np.array(truth.truth.noise.torque_noise_nm, dtype=float)
+        self.gains: DriveGains = drive_gains(robot, s.tuning)
+        self.plant = Plant(robot, truth.params, q0, substeps=s.substeps)
+        self.drives = CascadedDrives(self.gains, self._encoder())
+        visibility = None if truth.cell is None else truth.cell.tracker
+        self._tracker = SimulatedTracker(robot, truth.truth, tracker_rng, visibility=visibility)
+        self._n = n
+        self._rated = np.array(robot.tau_cont, dtype=float)
+        self._enabled = np.zeros(n, dtype=bool)
+        zero = np.zeros(n)
+        self._fb = AxisFeedback(self._encoder(), zero, zero, zero)
+        self.cycles = 0
+
+    # ---- CellBackend ---------------------------------------------------------------------------
+
+    @property
+    def n_axes(self) -> int:
+        return self._n
+
+    @property
+    def cycle_s(self) -> float:
+        return self.gains.cycle_s
+
+    @property
+    def rated_torque_nm(self) -> np.ndarray:
+        return self._rated
+
+    @property
+    def following_error_limit_rad(self) -> np.ndarray:
+        return self.gains.following_error_limit_rad
+
+    @property
+    def quick_stop_decel_rad_s2(self) -> np.ndarray:
+        return self.gains.quick_stop_decel_rad_s2
+
+    def feedback(self) -> AxisFeedback:
+        return self._fb
+
+    def cycle(
+        self, position_demand_rad: np.ndarray, torque_ff_nm: np.ndarray, enabled: np.ndarray
+    ) -> AxisFeedback:
+        enabled = np.asarray(enabled, dtype=bool)
+        tau = self.drives.control(position_demand_rad, torque_ff_nm, enabled)
+        self.plant.step(tau, ~enabled)
+        enc = self._encoder()
+        self.drives.measure(enc)
+        noise = self._rng.standard_normal(self._n) * self._torque_sigma
+        self._enabled = enabled
+        self._fb = AxisFeedback(
+            position_rad=enc,
+            velocity_rad_s=self.drives.velocity,
+            torque_nm=(tau + noise) * enabled,  # torque off: no current, nothing measured
+            following_error_rad=(position_demand_rad - enc) * enabled,
+        )
+        self.cycles += 1
+        return self._fb
+
+    def tracker(self) -> TrackerReading | None:
+        if not self.standing_still():
+            return None
+        reading = self._tracker.measure(self.plant.q)
+        if not reading.valid:
+            return None
+        return TrackerReading(np.array(reading.position_m), np.array(reading.quaternion_wxyz))
+
+    # ---- helpers -------------------------------------------------------------------------------
+
+    def standing_still(self) -> bool:
+        """Every axis' velocity estimate within the standstill window."""
+        s = self.settings
+        return bool((np.abs(self.drives.velocity) <= s.standstill_rad_s).all())
+
+    def _encoder(self) -> np.ndarray:
+        return np.rint(self.plant.q / self._lsb) * self._lsb
+
+
+def simulated_cell(
+    truth_path: str | Path,
+    *,
+    cell_path: str | Path | None = None,
+    q0: Sequence[float] | None = None,
+    settings: SimSettings | None = None,
+) -> SimulatedCell:
+    """A `SimulatedCell` from a truth file (`q0` overrides `settings.q0_rad`)."""
+    s = settings or SimSettings()
+    if q0 is not None:
+        s = s.model_copy(update={"q0_rad": tuple(float(x) for x in q0)})
+    return SimulatedCell(load_truth(truth_path, cell_path), s)
+
+
+def start_embedded_cell(
+    truth_path: str | Path,
+    port: int = 0,
+    realtime: bool = False,
+    q0: Sequence[float] | None = None,
+    *,
+    cell_path: str | Path | None = None,
+    settings: SimSettings | None = None,
+    server_config: ServerConfig | None = None,
+) -> CellServer:
+    """Serve a simulated cell on 127.0.0.1 (port 0: ephemeral, see `.port`); returns the STARTED server.
+
+    The caller stops it (`server.stop()`, or use it as a context manager). Virtual time unless
+    `realtime`. `server_config` overrides host/port/time mode and the gateway's sizes entirely.
+    """
+    backend = simulated_cell(truth_path, cell_path=cell_path, q0=q0, settings=settings)
+    cfg = server_config or ServerConfig(
+        port=port, time_mode=TimeMode.REALTIME if realtime else TimeMode.VIRTUAL
+    )
+    return CellServer(backend, cfg).start()
