@@ -70,6 +70,7 @@ def campaign(request):
     return robot, cell, truth, t2b, sel, tracker, ms, naive, res
 
 
+@pytest.mark.slow
 def test_heldout_accuracy_meets_the_issue(campaign):
     robot, *_, sel, tracker, ms, naive, res = campaign
     assert sel.candidates.q.shape[0] >= 4000 and len(sel.q_selected) == 32
@@ -86,6 +87,7 @@ def test_heldout_accuracy_meets_the_issue(campaign):
     assert 0.7 < res.fit.residual_scale < 1.3  # residuals match the tracker noise
 
 
+@pytest.mark.slow
 def test_identifiable_parameters_recovered_within_3_sigma(campaign):
     """Compare in the identifiable subspace: the truth's identifiable-set equivalent is the fit of the
     same reduced model to noise-free truth poses (the dropped parameters' effect regrouped exactly)."""
@@ -110,6 +112,7 @@ def test_identifiable_parameters_recovered_within_3_sigma(campaign):
     assert np.max(np.linalg.norm(p_est - p_true, axis=1)) < 0.15e-3
 
 
+@pytest.mark.slow
 def test_naive_pose_set_is_measurably_worse(campaign):
     robot, cell, truth, t2b, sel, tracker, ms, naive, res = campaign
     assert sel.improvement_ratio > 1.1
