@@ -27,11 +27,14 @@
    replace while it improves; add the best pose until `n`; final remove-and-replace; `restarts`
    times with a seeded generator, keeping the best. Each move changes Λ by ±Θ̃ᵢᵀΘ̃ᵢ (rank ≤ 6, a sum
    of rank-one updates), so Λ is never rebuilt. The search over all candidates for the best addition
-   is exact but cheap: in the eigenbasis of Λ, the Rayleigh–Ritz value on the k smallest
-   eigenvectors is an upper bound of λ_min(Λ + Θ̃ᵢᵀΘ̃ᵢ) costing a k×k problem per candidate; candidates
-   are evaluated exactly in decreasing bound order until the best exact value beats the next bound
-   (branch and bound). For `det-root` the matrix determinant lemma gives every candidate's exact
-   value from a 6×6 determinant.
+   costs one batched product: in Λ's eigenbasis a second-order perturbation estimate of the new
+   λ_min (weakest direction's gain minus its coupling to the others) ranks every candidate, and the
+   best `n_exact` (32) by that estimate are evaluated exactly (30×30 eigenvalues); the exact best of
+   those is taken (tests check it equals the brute-force best). For `det-root` the matrix
+   determinant lemma gives every candidate's exact value from a 6×6 determinant. Removal is
+   evaluated exactly for every chosen pose.
+
+   Cost (RX130L, 4,000 candidates, 30 parameters, one BLAS thread): ≈0.25 s per restart.
 """
 
 from __future__ import annotations
