@@ -18,10 +18,17 @@ JERK_RAMP_S = 0.1  # acceleration builds up over this long: j_max = a_max / JERK
 
 
 def move_trajectory(
-    robot: Robot, q_from: np.ndarray, q_to: np.ndarray, sample_s: float, speed_fraction: float = 0.2
+    robot: Robot,
+    q_from: np.ndarray,
+    q_to: np.ndarray,
+    sample_s: float,
+    speed_fraction: float = 0.2,
+    hold_s: float = 0.0,
 ) -> Trajectory:
     """Rest-to-rest jerk-limited move sampled every ``sample_s``, velocity and acceleration limits
-    scaled by ``speed_fraction`` (0 < f ≤ 1). A move of zero length is two identical samples."""
+    scaled by ``speed_fraction`` (0 < f ≤ 1), then ``hold_s`` at the goal (the drives settle on a
+    streamed demand, so settling takes the same time on a real and a virtual-time cell). A move of
+    zero length is two identical samples."""
     if not 0.0 < speed_fraction <= 1.0:
         raise InputError(f"must be in (0, 1], got {speed_fraction}", field="speed_fraction")
     q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
@@ -32,7 +39,8 @@ def move_trajectory(
     a = speed_fraction * np.asarray(robot.a_max)
     profile = ruckig_profile(q_from, q_to, v, a, a / JERK_RAMP_S)
     n = max(2, int(np.ceil(profile.duration_s / sample_s - 1e-9)) + 1)
-    t = np.arange(n) * sample_s
+    n_total = n + int(np.ceil(hold_s / sample_s - 1e-9))
+    t = np.arange(n_total) * sample_s
     q, qd, qdd = profile.at(t)
-    q[-1], qd[-1], qdd[-1] = q_to, 0.0, 0.0  # exactly at the goal, at rest
+    q[n - 1 :], qd[n - 1 :], qdd[n - 1 :] = q_to, 0.0, 0.0  # exactly at the goal, at rest
     return Trajectory(t, q, qd, qdd)

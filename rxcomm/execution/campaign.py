@@ -1,8 +1,9 @@
 """A measurement campaign: drive to each pose of a pose list, settle, read the tracker (paper §3.4).
 
 Every move (current position → pose 1 → pose 2 → …) is planned and limit-checked before the drives
-are enabled. Per pose: stream the jerk-limited move, wait ``settle_s`` (feeding the watchdog), read the
-tracker — it answers only at standstill — up to ``tracker_attempts`` times, then the encoders. A pose
+are enabled. Per pose: stream the jerk-limited move and ``settle_s`` of holding the goal (a streamed
+hold settles the drives in virtual time too), read the tracker — it answers only at standstill — up
+to ``tracker_attempts`` times, then the encoders. A pose
 whose tracker never answers is recorded with ``valid=False`` (NaN position), not an error.
 """
 
@@ -30,7 +31,7 @@ class CampaignSettings(BaseModel):
 
     feedforward: bool = True
     speed_fraction: float = Field(0.2, gt=0, le=1, description="of velocity and acceleration limits")
-    settle_s: float = Field(0.3, ge=0, description="wait after each move before reading the tracker, s")
+    settle_s: float = Field(0.5, ge=0, description="demand held at each pose before reading the tracker, s")
     tracker_attempts: int = Field(20, ge=1, description="tracker reads per pose before giving up")
     tracker_retry_s: float = Field(0.05, ge=0, description="pause between tracker reads, s")
     limit_tolerance: float = Field(1e-3, ge=0)
@@ -95,7 +96,7 @@ def plan_moves(
     plans = []
     q_from = np.asarray(q_start, dtype=float)
     for i, q_to in enumerate(poses):
-        move = move_trajectory(robot, q_from, q_to, cycle_s, settings.speed_fraction)
+        move = move_trajectory(robot, q_from, q_to, cycle_s, settings.speed_fraction, settings.settle_s)
         plans.append(
             prepare_plan(
                 robot,
@@ -161,7 +162,8 @@ def run_campaign(
 
 
 def _settle_and_read(ses: Session, s: CampaignSettings) -> tuple[TrackerSample | None, int]:
-    """Wait ``settle_s`` then read the tracker until valid (bounded), feeding the watchdog throughout."""
+    """Read the tracker until valid (bounded), feeding the watchdog throughout. The settling itself
+    was streamed (the move's hold); a tracker still seeing motion gets ``tracker_retry_s`` more."""
     beat = 0
 
     def wait(seconds: float) -> None:
@@ -175,7 +177,6 @@ def _settle_and_read(ses: Session, s: CampaignSettings) -> tuple[TrackerSample |
                 return
             time.sleep(min(left, 0.02))
 
-    wait(s.settle_s)
     for attempt in range(1, s.tracker_attempts + 1):
         sample = ses.client.read_tracker()
         if sample is not None:
