@@ -6,6 +6,10 @@ process right beside ours so their ratio is meaningful.
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as rxcomm does; set before numpy loads
+
 import argparse
 import importlib
 import sys
@@ -17,7 +21,7 @@ from rich.table import Table
 from bench.table import Row
 
 # Each module exposes `rows(quick: bool) -> list[Row]`.
-SECTIONS = ["bench.foundation"]
+SECTIONS = ["bench.foundation", "bench.calibration"]
 
 
 def _fmt(x: float | None, unit: str) -> str:
