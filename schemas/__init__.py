@@ -17,4 +17,5 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.measurements:Measurements",
     "rxcomm.schemas.calibration:Calibration",
     "rxcomm.schemas.run_log:RunLog",
+    "rxcomm.schemas.excitation:Excitation",
 ]
