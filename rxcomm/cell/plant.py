@@ -81,9 +81,10 @@ class Plant:
             raise ValueError(f"q0 must have shape ({n},)")
         self.v = np.zeros(n)
         self.friction = np.zeros(n)  # last friction torque f (N·m), warm start of the next solve
+        self._static_q: np.ndarray | None = None  # static torque at q, valid while the arm rests
         self._hfv = np.diag(self.h * self.fv)
-        self._rhs = np.zeros((n, n + 1))  # [right-hand side | I]: one LAPACK call gives v* and A⁻¹
-        self._rhs[:, 1:] = np.eye(n)
+        self._rhs = np.zeros((n, n + 1))  # [right-hand side | h·I]: one LAPACK call gives v* and h·A⁻¹
+        self._rhs[:, 1:] = self.h * np.eye(n)
         m = pin.crba(self.model, self.data, np.linspace(0.3, 0.8, n))
         self._crba_full = bool(np.allclose(m, m.T))
 
@@ -102,11 +103,20 @@ class Plant:
 
     def step(self, tau_nm: np.ndarray, braked: np.ndarray) -> None:
         """Advance one drive cycle with joint torques `tau_nm` held; `braked` joints are held by brakes."""
-        if braked.all() and not self.v.any():  # power off, brakes on, at rest: nothing moves
-            return
         cap = self.fc + self.brake * braked
         for _ in range(self.substeps):
+            if not self.v.any():
+                # At rest the all-sticking solution of the friction problem is f = τ − static(q)
+                # (no velocity terms, q unchanged): if it fits the friction caps nothing moves, exactly
+                # what the full step would give, for the cost of one comparison.
+                if self._static_q is None:
+                    self._static_q = self.static_torque(self.q)
+                f = tau_nm - self._static_q
+                if (np.abs(f) <= cap).all():
+                    self.friction = f
+                    return
             self._substep(tau_nm, cap)
+            self._static_q = None
 
     def _substep(self, tau: np.ndarray, cap: np.ndarray) -> None:
         h, q, v = self.h, self.q, self.v
@@ -125,9 +135,8 @@ class Plant:
                 f"{np.round(q, 4).tolist()} (LAPACK info {info}): check the link inertials",
                 field="dynamics.links",
             )
-        vstar = x[:, 0]
-        g = h * x[:, 1:]
-        f, stuck = _coulomb(g, a / h, vstar, cap, self.friction)
+        vstar, g = x[:, 0], x[:, 1:]
+        f, stuck = _coulomb(g, a, h, vstar, cap, self.friction)
         v_new = vstar - g @ f
         if stuck is not None:
             v_new[stuck] = 0.0  # exact: a solve leaves ~1e-16 rad/s, which would let a held joint creep
@@ -137,11 +146,11 @@ class Plant:
 
 
 def _coulomb(
-    g: np.ndarray, g_inv: np.ndarray, vstar: np.ndarray, cap: np.ndarray, warm: np.ndarray
+    g: np.ndarray, a: np.ndarray, h: float, vstar: np.ndarray, cap: np.ndarray, warm: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Friction torques f with q̇⁺ = v* − g·f sticking (q̇⁺_i = 0, |f_i| ≤ cap_i) or sliding against f,
-    and the mask of sticking joints (None: none). Fast paths first (all sliding on, all sticking), then
-    an active-set iteration over which joints stick, projected Gauss–Seidel as the fallback.
+    and the mask of sticking joints (None: none); g = h·A⁻¹. Fast paths first (all sliding on, all
+    sticking), then an active-set iteration over which joints stick, projected Gauss–Seidel last.
 
     Plain floats throughout: for six joints they cost a fraction of numpy's per-call overhead."""
     gl, vs, cl = g.tolist(), vstar.tolist(), cap.tolist()
@@ -149,7 +158,7 @@ def _coulomb(
     f = [c * s for c, s in zip(cl, sign, strict=True)]
     if all((v - sum(map(mul, row, f))) * s > 0.0 for v, row, s in zip(vs, gl, sign, strict=True)):
         return np.array(f), None  # every joint keeps sliding the way it went
-    f = (g_inv @ vstar).tolist()  # every joint stops
+    f = (a @ vstar / h).tolist()  # every joint stops
     if all(abs(fi) <= c for fi, c in zip(f, cl, strict=True)):
         return np.array(f), np.ones(len(f), dtype=bool)
     solved = _active_set(gl, vs, cl)
