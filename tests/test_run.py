@@ -431,3 +431,64 @@ def test_read_mcap_of_a_run_log_is_foxglove_shaped(tmp_path, cell, rx130l):
     assert set(c.topics) == {"/run/joints", "/run/gateway"}
     assert c.topics["/run/joints"].schema_title == "rxcomm.RunJoints"
     assert c.envelope["kind"] == "rxcomm/RunLog"
+
+
+@pytest.mark.slow
+def test_master_stall_trips_the_watchdog_exit_4(tmp_path, cell, rx130l, monkeypatch):
+    plan = save_plan(tmp_path / "plan.mcap", cosine_plan(Q0, DQ, 3.0))
+    out = tmp_path / "log.mcap"
+    from rxcomm.execution import session as ses
+
+    calls = {"n": 0}
+    real = ses._Recorder.__call__
+
+    def stalling(self, reply):  # the master hangs for 0.8 s, longer than the 500 ms watchdog
+        real(self, reply)
+        calls["n"] += 1
+        if calls["n"] == 100:
+            time.sleep(0.8)
+
+    monkeypatch.setattr(ses._Recorder, "__call__", stalling)
+    with pytest.raises(GatewayError, match=r"heartbeat \(0x8130\)"):
+        run_stage.execute(plan, ROBOT_DIR, out, gateway=gw(cell), show_progress=False)
+    log = read_run_log(Path(str(out) + ".part"))
+    assert log.summary["outcome"] == "communication_fault" and len(log.joints) > 0
+    assert DriveState.OPERATION_ENABLED not in axis_states(cell)
+
+
+@pytest.mark.slow
+def test_drive_fault_mid_stream_is_a_safety_stop_exit_5(tmp_path, cell, rx130l):
+    plan = save_plan(tmp_path / "plan.mcap", cosine_plan(Q0, DQ, 4.0))
+    out = tmp_path / "log.mcap"
+
+    def fault_axis_3() -> None:
+        with GatewayClient("127.0.0.1", cell.port, timeout_s=1.0) as c:
+            c.sim_fault(1 << 2)
+
+    th = _when(cell, 1500, fault_axis_3)
+    res = CliRunner().invoke(
+        app, ["run", str(plan), "--robot", str(ROBOT_DIR), "--gateway", gw(cell), "-o", str(out)]
+    )
+    th.join(5)
+    assert res.exit_code == 5, res.output
+    assert "joint_3 injected (0xff02)" in res.output
+    assert read_run_log(Path(str(out) + ".part")).summary["outcome"] == "safety_stop"
+    assert DriveState.OPERATION_ENABLED not in axis_states(cell)
+
+
+@pytest.mark.slow
+def test_second_robot_runs_the_same_way(tmp_path, m900):
+    q0 = (m900.q_min + m900.q_max) / 2
+    dq = 0.15 * (m900.q_max - m900.q_min) * np.array([1, -1, 1, -1, 1, -1])
+    backend = IdealBackend(q0, cycle_s=m900.drives.cycle_s, rated_torque_nm=np.asarray(m900.tau_max))
+    srv = CellServer(backend, ServerConfig()).start()  # a 500 µs drive cycle
+    try:
+        plan = save_plan(tmp_path / "plan.mcap", cosine_plan(q0, dq, 3.0))
+        summary = run_stage.execute(
+            plan, SAMPLES / "m900", tmp_path / "log.mcap", gateway=gw(srv), show_progress=False
+        )
+        assert summary["outcome"] == "completed" and summary["lost_records"] == 0
+        assert summary["n_records"] == summary["n_setpoints"]
+        assert max(summary["max_lag_rad"]) <= 1e-6
+    finally:
+        srv.stop()
