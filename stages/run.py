@@ -21,7 +21,13 @@ from rxcomm import console
 from rxcomm.base_parameters import load_dynamics
 from rxcomm.dynamics import DynamicParameters, prior_parameters
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
-from rxcomm.execution.campaign import CampaignSettings, campaign_summary, measured_poses, run_campaign
+from rxcomm.execution.campaign import (
+    CampaignSettings,
+    campaign_summary,
+    check_poses,
+    measured_poses,
+    run_campaign,
+)
 from rxcomm.execution.log import read_run_log, write_run_log
 from rxcomm.execution.plan import prepare_plan
 from rxcomm.execution.session import RunSettings, StreamSettings, run_trajectory
@@ -221,6 +227,7 @@ def execute(
                 raise _with_context(result.error, result.stop_note, written)
             return summary
         cfg = load_poses(plan, robot)
+        check_poses(robot, [p.q_rad for p in cfg.poses])  # refused before touching the cell
         settings_c = CampaignSettings(
             feedforward=feedforward, speed_fraction=speed, fault_reset=fault_reset, stream=stream_settings
         )

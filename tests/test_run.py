@@ -415,14 +415,15 @@ def test_pose_list_needs_a_yaml_output(tmp_path, rx130l):
         run_stage.execute(cfg, ROBOT_DIR, tmp_path / "m.mcap", gateway="127.0.0.1:9", show_progress=False)
 
 
-def test_pose_outside_limits_is_refused(tmp_path, cell, rx130l):
+def test_pose_outside_limits_is_refused_before_contacting_the_gateway(tmp_path, rx130l):
     bad = Q0.copy()
     bad[4] = 3.0
     cfg = write_configs(tmp_path / "configs.yaml", rx130l, [Q0, bad], ["fit", "fit"])
     with pytest.raises(SafetyStop, match="pose 1 is outside the joint limits: joint_5"):
-        run_stage.execute(cfg, ROBOT_DIR, tmp_path / "m.yaml", gateway=gw(cell), show_progress=False)
+        run_stage.execute(cfg, ROBOT_DIR, tmp_path / "m.yaml", gateway="127.0.0.1:9", show_progress=False)
 
 
+@pytest.mark.slow
 def test_read_mcap_of_a_run_log_is_foxglove_shaped(tmp_path, cell, rx130l):
     plan = save_plan(tmp_path / "plan.mcap", cosine_plan(Q0, 0.25 * DQ, 0.6))
     out = tmp_path / "log.mcap"
