@@ -1,0 +1,435 @@
+"""Dynamic identification: log reading (run log MCAP, robot CSV), refusals, processing, estimation,
+physical consistency, recovery of the simulated cell's true parameters (truth read here only)."""
+
+from __future__ import annotations
+
+import math
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.dynamics import Dynamics
+from rxcomm.schemas.excitation import ExcitationSettings
+from rxcomm.schemas.truth import CellTruth
+from typer.testing import CliRunner
+
+import rxcomm
+from rxcomm.base_parameters import base_parameters, load_dynamics
+from rxcomm.cli import app
+from rxcomm.dynamics import RobotDynamics, prior_parameters, truth_parameters
+from rxcomm.errors import InputError
+from rxcomm.identification import (
+    IdentifySettings,
+    JointLog,
+    _link_from_theta,
+    _link_jacobian,
+    _theta_from_link,
+    check_log,
+    identify,
+    link_min_eigenvalues,
+    load_joint_log,
+    preprocess,
+    pseudo_inertia,
+    regressor,
+)
+from rxcomm.io.mcap_io import McapWriter
+from rxcomm.io.robot_csv import read_robot_csv, write_robot_csv
+from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
+from rxcomm.optim.excitation import ExcitationProblem, FourierTrajectory, design_excitation
+
+from .conftest import SAMPLES
+
+# --------------------------------------------------------------------------------------------- helpers
+
+
+def sampled(robot, traj: FourierTrajectory, periods: int = 1):
+    dt = robot.drives.cycle_s
+    t = np.arange(periods * round(traj.period_s / dt) + 1) * dt
+    return (t, *traj.evaluate(t))
+
+
+def measured(robot, params, t, q, qd, qdd, noise_nm=None, encoder_lsb=None, seed=0):
+    """What the gateway reports: the torque of `params` + white noise, quantised to 0.1 % of the rated
+    (continuous) torque; encoder-quantised positions."""
+    tau = RobotDynamics(robot, params).inverse_dynamics(q, qd, qdd)
+    rng = np.random.default_rng(seed)
+    if noise_nm is not None:
+        tau = tau + rng.standard_normal(tau.shape) * np.asarray(noise_nm)
+        lsb = 1e-3 * robot.tau_cont
+        tau = np.round(tau / lsb) * lsb
+    if encoder_lsb is not None:
+        q = np.round(q / encoder_lsb) * encoder_lsb
+    return q, tau
+
+
+def write_run_log(path: Path, t, q_actual, tau_actual, q_demand=None, tau_ff=None) -> Path:
+    """A run log in `run`'s format: kind rxcomm/RunLog, topic /run/joints."""
+    n = q_actual.shape[1]
+    q_demand = q_actual if q_demand is None else q_demand
+    tau_ff = np.zeros_like(tau_actual) if tau_ff is None else tau_ff
+    env = {
+        "kind": "rxcomm/RunLog",
+        "schema_version": 1,
+        "created": datetime.now(UTC),
+        "rxcomm_version": rxcomm.__version__,
+        "inputs": {},
+        "settings": {},
+        "summary": {
+            "underruns": 0,
+            "max_lag_rad": [0.0] * n,
+            "rms_lag_rad": [0.0] * n,
+            "max_tcp_error_m": 0.0,
+            "duration_s": float(t[-1] - t[0]),
+        },
+    }
+    with McapWriter(path, env) as w:
+        w.write_arrays(
+            "/run/joints",
+            np.asarray(t),
+            {
+                "q_demand": q_demand,
+                "q_actual": q_actual,
+                "tau_actual": tau_actual,
+                "tau_ff": tau_ff,
+                "following_error": q_demand - q_actual,
+            },
+            digits=12,
+        )
+    return path
+
+
+@pytest.fixture(scope="module")
+def cell_rx():
+    return read_yaml_model(SAMPLES / "rx130l" / "cell.yaml", Cell)
+
+
+@pytest.fixture(scope="module")
+def truth_rx():
+    return read_yaml_model(SAMPLES / "rx130l" / "truth.yaml", CellTruth)
+
+
+@pytest.fixture(scope="module")
+def bset_rx(rx130l):
+    return base_parameters(rx130l)
+
+
+@pytest.fixture(scope="module")
+def random_traj(rx130l, cell_rx, bset_rx):
+    """A random feasible Fourier trajectory (not optimised): enough excitation for the fast tests."""
+    prob = ExcitationProblem(rx130l, cell_rx.allowed_region, ExcitationSettings(check_samples=400), bset_rx)
+    return prob.trajectory(prob.random_feasible(np.random.default_rng(11)))
+
+
+@pytest.fixture(scope="module")
+def validation_traj(rx130l, cell_rx, bset_rx):
+    """Another trajectory: 3 harmonics at 1.1 rad/s from another rest pose."""
+    s = ExcitationSettings(harmonics=3, omega_f_rad_s=1.1, check_samples=400)
+    prob = ExcitationProblem(rx130l, cell_rx.allowed_region, s, bset_rx)
+    return prob.trajectory(prob.random_feasible(np.random.default_rng(12)))
+
+
+# --------------------------------------------------------------------------------------------- units
+
+
+def test_pseudo_inertia_log_cholesky_round_trip(rx130l):
+    prior = prior_parameters(rx130l)
+    assert np.all(link_min_eigenvalues(prior) > 0)  # CAD inertias are physical
+    for pi in prior.inertial:
+        assert np.allclose(_link_from_theta(_theta_from_link(pi)), pi, rtol=1e-9, atol=1e-12)
+    # a non-physical link (negative mass) has a pseudo-inertia that is not positive definite
+    bad = prior.inertial[2].copy()
+    bad[0] = -1.0
+    assert np.linalg.eigvalsh(pseudo_inertia(bad))[0] < 0
+    theta = np.random.default_rng(0).standard_normal(10)
+    num = np.empty((10, 10))
+    for k in range(10):
+        d = np.zeros(10)
+        d[k] = 1e-6
+        num[:, k] = (_link_from_theta(theta + d) - _link_from_theta(theta - d)) / 2e-6
+    assert np.allclose(_link_jacobian(theta), num, atol=1e-7)
+
+
+def test_run_log_round_trip(tmp_path, rx130l, random_traj):
+    t, q, qd, qdd = sampled(rx130l, random_traj)
+    tau = RobotDynamics(rx130l, prior_parameters(rx130l)).inverse_dynamics(q, qd, qdd)
+    path = write_run_log(tmp_path / "log.mcap", t[:2000], q[:2000], tau[:2000])
+    log = load_joint_log(path)
+    assert np.allclose(log.t, t[:2000]) and np.allclose(log.q, q[:2000]) and np.allclose(log.tau, tau[:2000])
+
+
+def test_run_log_of_another_kind_is_refused(tmp_path):
+    env = {
+        "kind": "rxcomm/Trajectory",
+        "schema_version": 1,
+        "created": datetime.now(UTC),
+        "rxcomm_version": rxcomm.__version__,
+        "inputs": {},
+        "settings": {},
+        "summary": {},
+    }
+    with McapWriter(tmp_path / "x.mcap", env) as w:
+        w.write_arrays("/trajectory", np.arange(3.0), {"q": np.zeros((3, 6))})
+    with pytest.raises(InputError, match="not a run log") as e:
+        load_joint_log(tmp_path / "x.mcap")
+    assert e.value.field == "envelope.kind"
+
+
+def test_csv_motor_side_currents_with_wrist_coupling(tmp_path, rx130l, random_traj):
+    assert rx130l.motor_coupling[5, 4] != 0  # the RX130L's J5 → motor 6 coupling
+    t, q, qd, qdd = sampled(rx130l, random_traj)
+    tau = RobotDynamics(rx130l, prior_parameters(rx130l)).inverse_dynamics(q, qd, qdd)
+    path = write_robot_csv(tmp_path / "robot.csv", rx130l, t[:3000], q[:3000], tau[:3000], comment="test")
+    text = path.read_text().splitlines()
+    assert text[1].startswith("time_s,motor1_rad") and "current6_a" in text[1]
+    # motor 6 turns with joint 5: its angle is 40·(q6 + 0.4·q5)
+    row = np.array(text[2].split(","), dtype=float)
+    assert row[6] == pytest.approx(40 * (q[0, 5] + 0.4 * q[0, 4]), rel=1e-8)
+    csv = read_robot_csv(path, rx130l)
+    assert (csv.positions, csv.torques) == ("motor", "current")
+    assert np.allclose(csv.q, q[:3000], atol=1e-9) and np.allclose(csv.tau, tau[:3000], rtol=1e-7, atol=1e-6)
+
+
+def test_csv_refusals(tmp_path, rx130l):
+    def write(text: str) -> Path:
+        p = tmp_path / "bad.csv"
+        p.write_text(text)
+        return p
+
+    head_q = ",".join(f"q{i}_rad" for i in range(1, 7))
+    head_tau = ",".join(f"tau{i}_nm" for i in range(1, 7))
+    row = ",".join(["0"] * 13)
+    with pytest.raises(InputError, match="several kinds"):
+        read_robot_csv(write(f"time_s,{head_q},motor1_rad,{head_tau}\n"), rx130l)
+    five = ",".join(f"q{i}_rad" for i in range(1, 6))
+    with pytest.raises(InputError, match="joint count mismatch: 5 position"):
+        read_robot_csv(write(f"time_s,{five},{head_tau}\n"), rx130l)
+    with pytest.raises(InputError, match="no time_s"):
+        read_robot_csv(write(f"t,{head_q},{head_tau}\n{row}\n"), rx130l)
+    with pytest.raises(InputError, match="not a numeric table"):
+        read_robot_csv(write(f"time_s,{head_q},{head_tau}\n{row}\n0.1,x{row[1:]}\n"), rx130l)
+    with pytest.raises(InputError, match="no torque columns"):
+        read_robot_csv(write(f"time_s,{head_q}\n"), rx130l)
+
+
+def _log(rx130l, traj, duration=None):
+    t, q, qd, qdd = sampled(rx130l, traj)
+    tau = RobotDynamics(rx130l, prior_parameters(rx130l)).inverse_dynamics(q, qd, qdd)
+    k = len(t) if duration is None else int(duration / rx130l.drives.cycle_s)
+    return JointLog(t[:k], q[:k], tau[:k], "log.mcap")
+
+
+def test_bad_logs_are_refused_with_file_and_field(rx130l, random_traj):
+    s = IdentifySettings()
+    log = _log(rx130l, random_traj, 2.0)
+
+    def with_t(t):
+        return JointLog(t, log.q, log.tau, log.source)
+
+    t = log.t.copy()
+    t[100] = t[99]
+    with pytest.raises(InputError, match="duplicated time stamp") as e:
+        check_log(with_t(t), rx130l, s)
+    assert (e.value.file, e.value.field) == ("log.mcap", "t")
+    t = log.t.copy()
+    t[100], t[101] = t[101], t[100]
+    with pytest.raises(InputError, match="not monotonic"):
+        check_log(with_t(t), rx130l, s)
+    t = log.t.copy()
+    t[1000:] += 0.5
+    with pytest.raises(InputError, match="gap of 0.50"):
+        check_log(with_t(t), rx130l, s)
+    tau = log.tau.copy()
+    tau[500:520, 2] = rx130l.tau_max[2]
+    with pytest.raises(InputError, match="saturated torque: joint_3") as e:
+        check_log(JointLog(log.t, log.q, tau, log.source), rx130l, s)
+    assert e.value.field == "tau"
+    with pytest.raises(InputError, match="joint count mismatch: the log has 5"):
+        check_log(JointLog(log.t, log.q[:, :5], log.tau[:, :5], log.source), rx130l, s)
+
+
+def test_lost_records_and_jitter_are_bridged(rx130l, random_traj):
+    log = _log(rx130l, random_traj, 2.0)
+    q = log.q.copy()
+    q[300:310] = np.nan  # ten lost trace records (4 ms): bridged
+    clean = check_log(JointLog(log.t, q, log.tau, log.source), rx130l, IdentifySettings())
+    assert np.all(np.isfinite(clean.q)) and np.allclose(clean.q[305], log.q[305], atol=1e-6)
+    q[300:400] = np.nan  # 40 ms: refused
+    with pytest.raises(InputError, match="gap"):
+        check_log(JointLog(log.t, q, log.tau, log.source), rx130l, IdentifySettings())
+
+
+def test_poor_excitation_names_what_is_not_identifiable(rx130l, bset_rx):
+    t = np.arange(0, 10, 0.0004)
+    q = np.zeros((len(t), 6))
+    q[:, 0] = 0.5 * np.sin(0.8 * t)  # only J1 moves
+    q[:, 2] = 1.0
+    qd = np.zeros_like(q)
+    qd[:, 0] = 0.4 * np.cos(0.8 * t)
+    qdd = np.zeros_like(q)
+    qdd[:, 0] = -0.32 * np.sin(0.8 * t)
+    tau = RobotDynamics(rx130l, prior_parameters(rx130l)).inverse_dynamics(q, qd, qdd)
+    with pytest.raises(InputError, match=r"poor excitation: cond\(W\) = ") as e:
+        identify(rx130l, JointLog(t, q, tau, "one-joint.mcap"), bset=bset_rx)
+    assert "joint_2, joint_3, joint_4, joint_5, joint_6 never moved" in e.value.reason
+    # the spring on the still J2 is not seen; J1's own friction is (it moved)
+    assert "spring.kL0" in e.value.reason and "joint_1.fc" not in e.value.reason
+
+
+def test_preprocess_differentiates_accurately():
+    t = np.arange(0, 20, 0.0004)
+    w = 2.0
+    q = np.column_stack([np.sin(w * t), 0.5 * np.cos(3 * w * t)])
+    data = preprocess(JointLog(t, q, q.copy()), IdentifySettings())
+    assert data.sample_hz == pytest.approx(25.0)
+    # not at rest at the ends (a worst case): ≤ 0.5 % of the amplitude there, 1e-5 inside
+    qd_true, qdd_true = w * np.cos(w * data.t), -0.5 * 9 * w**2 * np.cos(3 * w * data.t)
+    assert np.abs(data.qd[:, 0] - qd_true).max() < 5e-3 * w
+    assert np.abs(data.qdd[:, 1] - qdd_true).max() < 5e-3 * 18
+    assert np.abs(data.qdd[10:-10, 1] - qdd_true[10:-10]).max() < 1e-5 * 18
+
+
+def test_noise_free_prior_is_recovered(rx130l, bset_rx, random_traj, validation_traj):
+    prior = prior_parameters(rx130l)
+    log = _log(rx130l, random_traj)
+    val = _log(rx130l, validation_traj)
+    res = identify(rx130l, log, bset=bset_rx, validation_log=val)
+    assert np.all(res.validation.nrmse < 3e-3)
+    # every base parameter's error moves the torque by < 0.1 % of its RMS (a random trajectory leaves
+    # the wrist's 1e-5 kg·m² products of inertia poorly determined, but they do not matter)
+    w = bset_rx.base_regressor(regressor(rx130l, preprocess(log, IdentifySettings())))
+    tau_rms = np.linalg.norm(w @ bset_rx.project(prior))
+    effect = np.linalg.norm(w * (res.estimate.p_b - bset_rx.project(prior)), axis=0) / tau_rms
+    assert effect.max() < 1e-3, bset_rx.names[int(np.argmax(effect))]
+    assert res.physical_fit.mahalanobis < 1.0  # the prior is consistent
+
+
+def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
+    truth = truth_parameters(rx130l, truth_rx)
+    t, q, qd, qdd = sampled(rx130l, random_traj)
+    q_m, tau_m = measured(rx130l, truth, t, q, qd, qdd, truth_rx.noise.torque_noise_nm, 1e-6)
+    log = write_run_log(tmp_path / "excite-log.mcap", t, q_m, tau_m)
+    out = tmp_path / "dynamics.yaml"
+    res = CliRunner().invoke(
+        app, ["identify", "--robot", str(SAMPLES / "rx130l"), "--log", str(log), "-o", str(out)]
+    )
+    assert res.exit_code == 0, res.output
+    art = read_yaml_artefact(out, Dynamics)
+    assert art.summary["validation"].startswith("held out: last 20 %")
+    assert art.summary["n_base_params"] == len(art.base_parameters) == 59
+    assert len(art.summary["validation_nrmse"]) == 6 and max(art.summary["validation_nrmse"]) < 0.05
+    # what plan-cp, plan-ptp and run load reproduces the identified torques
+    params = load_dynamics(out, rx130l)
+    tau_pred = RobotDynamics(rx130l, params).inverse_dynamics(q[::500], qd[::500], qdd[::500])
+    tau_true = RobotDynamics(rx130l, truth).inverse_dynamics(q[::500], qd[::500], qdd[::500])
+    moving = np.abs(qd[::500]) > 0.05
+    span = tau_true.max(axis=0) - tau_true.min(axis=0)
+    assert np.all(np.abs(tau_pred - tau_true)[moving] / np.broadcast_to(span, tau_true.shape)[moving] < 0.05)
+
+
+def test_identify_stage_refuses_a_bad_log(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,q1_rad\n0,0\n")
+    res = CliRunner().invoke(
+        app,
+        ["identify", "--robot", str(SAMPLES / "rx130l"), "--log", str(bad), "-o", str(tmp_path / "d.yaml")],
+    )
+    assert res.exit_code == 2 and "bad.csv" in res.output
+    assert not (tmp_path / "d.yaml").exists()
+
+
+# --------------------------------------------------------------------------------------------- recovery
+
+
+@pytest.fixture(scope="module")
+def optimal_traj(rx130l, cell_rx, bset_rx):
+    d = design_excitation(
+        rx130l, cell_rx.allowed_region, ExcitationSettings(starts=2, baseline_trajectories=2), bset=bset_rx
+    )
+    assert d.cond <= 12.0
+    return d.trajectory
+
+
+def _z_scores(res, bset, truth):
+    est = res.estimate
+    return (est.p_b - bset.project(truth)) / np.sqrt(np.diag(est.cov))
+
+
+@pytest.mark.slow
+def test_recovery_from_the_optimal_excitation(
+    tmp_path, rx130l, truth_rx, bset_rx, optimal_traj, validation_traj
+):
+    truth = truth_parameters(rx130l, truth_rx)
+    noise, lsb = truth_rx.noise.torque_noise_nm, truth_rx.noise.encoder_lsb_rad
+    t, q, qd, qdd = sampled(rx130l, optimal_traj, periods=2)
+    q_m, tau_m = measured(rx130l, truth, t, q, qd, qdd, noise, lsb, seed=1)
+    log = write_run_log(tmp_path / "excite-log.mcap", t, q_m, tau_m)
+    tv, qv, qdv, qddv = sampled(rx130l, validation_traj)
+    qv_m, tauv_m = measured(rx130l, truth, tv, qv, qdv, qddv, noise, lsb, seed=2)
+    vlog = write_run_log(tmp_path / "iso-log.mcap", tv, qv_m, tauv_m)
+    res = identify(rx130l, load_joint_log(log), bset=bset_rx, validation_log=load_joint_log(vlog))
+    nrmse = res.validation.nrmse
+    assert np.all(nrmse[:3] <= 0.05) and np.all(nrmse[3:] <= 0.10), nrmse
+    z = _z_scores(res, bset_rx, truth)
+    assert np.all(np.abs(z) <= 3.0), [(bset_rx.names[i], z[i]) for i in np.flatnonzero(np.abs(z) > 3)]
+    assert res.estimate.cond <= 20.0
+
+
+@pytest.mark.slow
+def test_recovery_from_a_motor_side_csv(tmp_path, rx130l, truth_rx, bset_rx, optimal_traj, validation_traj):
+    truth = truth_parameters(rx130l, truth_rx)
+    noise, lsb = truth_rx.noise.torque_noise_nm, truth_rx.noise.encoder_lsb_rad
+    t, q, qd, qdd = sampled(rx130l, optimal_traj, periods=2)
+    q_m, tau_m = measured(rx130l, truth, t, q, qd, qdd, noise, lsb, seed=3)
+    csv = write_robot_csv(tmp_path / "robot.csv", rx130l, t, q_m, tau_m, positions="motor", torques="current")
+    tv, qv, qdv, qddv = sampled(rx130l, validation_traj)
+    qv_m, tauv_m = measured(rx130l, truth, tv, qv, qdv, qddv, noise, lsb, seed=4)
+    vcsv = write_robot_csv(tmp_path / "iso.csv", rx130l, tv, qv_m, tauv_m, positions="motor", torques="motor")
+    out = tmp_path / "dynamics.yaml"
+    res = CliRunner().invoke(
+        app,
+        [
+            "identify",
+            "--robot",
+            str(SAMPLES / "rx130l"),
+            "--log",
+            str(csv),
+            "--validate",
+            str(vcsv),
+            "-o",
+            str(out),
+        ]
+        + ["--plot"],
+    )
+    assert res.exit_code == 0, res.output
+    art = read_yaml_artefact(out, Dynamics)
+    nrmse = np.array(art.summary["validation_nrmse"])
+    assert np.all(nrmse[:3] <= 0.05) and np.all(nrmse[3:] <= 0.10), nrmse
+    assert art.summary["validation"] == "log: iso.csv"
+    assert (tmp_path / "dynamics.png").stat().st_size > 10_000
+    truth_b = bset_rx.project(truth)
+    est = np.array([b.value for b in art.base_parameters])
+    std = np.array([b.relative_std for b in art.base_parameters]) * np.abs(est)
+    assert np.all(np.abs(est - truth_b) <= 3.0 * std)
+
+
+@pytest.mark.slow
+def test_physical_option_gives_consistent_links(
+    tmp_path, rx130l, truth_rx, bset_rx, optimal_traj, validation_traj
+):
+    truth = truth_parameters(rx130l, truth_rx)
+    noise = truth_rx.noise.torque_noise_nm
+    t, q, qd, qdd = sampled(rx130l, optimal_traj, periods=2)
+    _, tau_m = measured(rx130l, truth, t, q, qd, qdd, noise, seed=5)
+    tv, qv, qdv, qddv = sampled(rx130l, validation_traj)
+    _, tauv_m = measured(rx130l, truth, tv, qv, qdv, qddv, noise, seed=6)
+    settings = IdentifySettings(physical=True)
+    res = identify(
+        rx130l, JointLog(t, q, tau_m), settings, bset=bset_rx, validation_log=JointLog(tv, qv, tauv_m)
+    )
+    assert np.all(link_min_eigenvalues(res.params) > 0)
+    assert np.all(res.params.coulomb_nm >= 0) and np.all(res.params.viscous_nm_s_per_rad >= 0)
+    assert res.physical_fit.mahalanobis < math.sqrt(bset_rx.n_base)  # consistent within the noise
+    assert np.all(res.validation.nrmse[:3] <= 0.05) and np.all(res.validation.nrmse[3:] <= 0.10)
+    assert np.allclose(bset_rx.project(res.params), res.p_b)
