@@ -125,7 +125,8 @@ def test_campaign_on_the_simulated_tracker(tmp_path, rx130l, truth):
         tmp_path / "configs.yaml", rx130l, [*poses, invisible], ["fit", "fit", "validation", "fit"]
     )
     out = tmp_path / "calib-meas.yaml"
-    summary = run_stage.execute(cfg, ROBOT_DIR, out, speed=0.5, show_progress=False)
+    # R = 1: the ratio otherwise follows the machine's load, and the physics with it
+    summary = run_stage.execute(cfg, ROBOT_DIR, out, speed=0.5, interpolation_ratio=1, show_progress=False)
     assert summary["n_poses"] == 4 and summary["n_valid"] == 3
     meas = yaml.safe_load(out.read_text())
     last = meas["poses"].pop()
@@ -136,8 +137,8 @@ def test_campaign_on_the_simulated_tracker(tmp_path, rx130l, truth):
     assert t2b.rpy_rad[0] == t2b.rpy_rad[1] == 0.0
     for p, q in zip(meas["poses"], poses, strict=True):
         assert p["valid"]
-        # the encoders, not the command: friction stops the arm a fraction of a mrad short
-        np.testing.assert_allclose(p["q_rad"], q, atol=2e-3)
+        # the encoders, not the command: friction holds the arm up to a few mrad short (wrist)
+        np.testing.assert_allclose(p["q_rad"], q, atol=5e-3)
         nominal = rz @ tcp_placement(rx130l, np.array(p["q_rad"])).translation + np.array(t2b.xyz_m)
         miss = np.linalg.norm(np.array(p["position_m"]) - nominal)
         # the real robot's geometric errors: millimetres, not centimetres, and not zero
