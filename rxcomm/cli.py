@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 
 from rxcomm import __version__
-from rxcomm.stages import calibrate, cell_sim, robot_info, run, select_configs
+from rxcomm.stages import calibrate, cell_sim, excite, identify, robot_info, run, select_configs
 
 app = typer.Typer(
     name="rxcomm",
@@ -44,6 +44,8 @@ app.command("select-configs")(select_configs.command)
 app.command("calibrate")(calibrate.command)
 app.command("run")(run.command)
 app.command("cell-sim")(cell_sim.command)
+app.command("excite")(excite.command)
+app.command("identify")(identify.command)
 
 
 def main() -> None:
