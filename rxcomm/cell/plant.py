@@ -10,12 +10,16 @@ Integration (per sub-step h, torque held constant over the cycle): semi-implicit
 with implicit viscous friction, and Coulomb friction solved at the velocity level as in time-stepping
 contact simulators (Moreau/Stewart–Trinkle):
 
-    A = M + h·F_v,   v* = A⁻¹·(M·q̇ + h·(τ − h_nl − τ_0 − τ_s)),   q̇⁺ = v* − h·A⁻¹·f,   q⁺ = q + h·q̇⁺
+    A·q̇⁺ = r − h·f,   A = M + h·F_v,   r = M·q̇ + h·(τ − h_nl − τ_0 − τ_s),   q⁺ = q + h·q̇⁺
 
-with f the friction torque such that, per joint, q̇⁺_i = 0 while |f_i| < F_c,i (sticking) or
-f_i = F_c,i·sgn(q̇⁺_i) (sliding). This is a box-constrained LCP with the SPD matrix h·A⁻¹, solved by
-projected Gauss–Seidel (warm-started; a one-matvec fast path when every joint slides). A joint held
-below break-away stays exactly still — no chattering, no creeping — and a joint reverses through zero
+with f the friction torque such that, per joint, q̇⁺_i = 0 while |f_i| ≤ F_c,i (sticking) or
+f_i = F_c,i·sgn(q̇⁺_i) (sliding): a box-constrained LCP. It is solved by an active set over which joints
+stick, started from the joints at rest: with the sticking set S and the sliding set F known,
+A_FF·q̇⁺_F = r_F − h·f_F gives the sliding velocities and h·f_S = r_S − A_SF·q̇⁺_F the holding torques;
+a sticking joint whose holding torque exceeds F_c breaks away, a sliding one whose velocity would
+change sign stops; repeat (one small solve when nothing changes, the usual case). Projected
+Gauss–Seidel on the equivalent LCP in h·A⁻¹ is the fallback should the set cycle. A joint held below
+break-away stays exactly still — no chattering, no creeping — and a joint reverses through rest
 without the sign flipping back and forth. A braked (disabled) joint is the same constraint with the
 brake's holding torque added to its friction capacity.
 """
@@ -83,8 +87,6 @@ class Plant:
         self.friction = np.zeros(n)  # last friction torque f (N·m), warm start of the next solve
         self._static_q: np.ndarray | None = None  # static torque at q, valid while the arm rests
         self._hfv = np.diag(self.h * self.fv)
-        self._rhs = np.zeros((n, n + 1))  # [right-hand side | h·I]: one LAPACK call gives v* and h·A⁻¹
-        self._rhs[:, 1:] = self.h * np.eye(n)
         m = pin.crba(self.model, self.data, np.linspace(0.3, 0.8, n))
         self._crba_full = bool(np.allclose(m, m.T))
 
@@ -126,128 +128,77 @@ class Plant:
         m = m + self.rotor
         b = pin.nonLinearEffects(self.model, self.data, q, v) + self.offset + self.spring_torque(q)
         a = m + self._hfv
-        rhs = self._rhs
-        rhs[:, 0] = m @ v + h * (tau - b)
-        _, x, info = lapack.dposv(a, rhs)
-        if info != 0:  # M is SPD for any physical parameter set; anything else is a broken truth file
-            raise InputError(
-                f"the true dynamics give a mass matrix that is not positive definite at q = "
-                f"{np.round(q, 4).tolist()} (LAPACK info {info}): check the link inertials",
-                field="dynamics.links",
-            )
-        vstar, g = x[:, 0], x[:, 1:]
-        f, stuck = _coulomb(g, a, h, vstar, cap, self.friction)
-        v_new = vstar - g @ f
-        if stuck is not None:
-            v_new[stuck] = 0.0  # exact: a solve leaves ~1e-16 rad/s, which would let a held joint creep
+        r = m @ v + h * (tau - b)
+        v_new, f = friction_step(a, r, h, cap, v)
         self.friction = f
         self.v = v_new
         self.q = q + h * v_new
 
 
-def _coulomb(
-    g: np.ndarray, a: np.ndarray, h: float, vstar: np.ndarray, cap: np.ndarray, warm: np.ndarray
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Friction torques f with q̇⁺ = v* − g·f sticking (q̇⁺_i = 0, |f_i| ≤ cap_i) or sliding against f,
-    and the mask of sticking joints (None: none); g = h·A⁻¹. Fast paths first (all sliding on, all
-    sticking), then an active-set iteration over which joints stick, projected Gauss–Seidel last.
-
-    Plain floats throughout: for six joints they cost a fraction of numpy's per-call overhead."""
-    gl, vs, cl = g.tolist(), vstar.tolist(), cap.tolist()
-    sign = [1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0) for v in vs]
-    f = [c * s for c, s in zip(cl, sign, strict=True)]
-    if all((v - sum(map(mul, row, f))) * s > 0.0 for v, row, s in zip(vs, gl, sign, strict=True)):
-        return np.array(f), None  # every joint keeps sliding the way it went
-    f = (a @ vstar / h).tolist()  # every joint stops
-    if all(abs(fi) <= c for fi, c in zip(f, cl, strict=True)):
-        return np.array(f), np.ones(len(f), dtype=bool)
-    solved = _active_set(gl, vs, cl)
-    if solved is None:
-        return _pgs(g, vstar, cap, warm)
-    return np.array(solved[0]), np.array(solved[1])
-
-
-def _active_set(g: list[list[float]], vs: list[float], cap: list[float]) -> tuple[list, list] | None:
-    """Which joints stick, by active-set iteration from the decoupled guess (friction alone stops the
-    joint). A sticking joint has q̇⁺ = 0 and |f| ≤ cap, a sliding one f = cap·sgn(q̇⁺). None if it
-    does not settle within 2n changes."""
-    n = len(vs)
-    rng = range(n)
-    stuck = [abs(vs[i]) <= g[i][i] * cap[i] for i in rng]
-    sign = [-1.0 if v < 0.0 else 1.0 for v in vs]
-    for _ in range(2 * n):
-        f = [0.0 if stuck[i] else cap[i] * sign[i] for i in rng]
-        idx = [i for i in rng if stuck[i]]
-        if idx:
-            a = [[g[i][j] for j in idx] for i in idx]
-            x = _solve_spd(a, [vs[i] - sum(map(mul, g[i], f)) for i in idx])
-            if x is None:
-                return None
-            for k, i in enumerate(idx):
-                f[i] = x[k]
-        changed = False
-        for i in rng:
-            if stuck[i]:
-                if abs(f[i]) > cap[i]:  # released: slides the way its friction was pushing
-                    stuck[i] = False
-                    sign[i] = 1.0 if f[i] > 0.0 else -1.0
-                    changed = True
-            elif (vs[i] - sum(map(mul, g[i], f))) * sign[i] <= 0.0:
-                stuck[i] = True  # it would reverse within the step: it stops instead
-                changed = True
-        if not changed:
-            return f, stuck
-    return None
+def friction_step(
+    a: np.ndarray, r: np.ndarray, h: float, cap: np.ndarray, v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(q̇⁺, f) solving A·q̇⁺ = r − h·f with Coulomb friction f (|f_i| ≤ cap_i, sticking joints exactly at
+    rest); `v` (the current velocity) seeds which joints slide and which way. See the module docstring."""
+    n = len(r)
+    free = v != 0.0
+    sign = np.sign(v)
+    for _ in range(2 * n + 2):
+        f = cap * sign  # sliding joints' friction; sticking joints' entries are replaced below
+        rf = r - h * f
+        if free.all():  # every joint moving: one solve, only reversals to check
+            vn = _spd_solve(a, rf)
+            if ((vn * sign) > 0.0).all():
+                return vn, f
+            hold = np.zeros(n)
+        else:
+            vn = np.zeros(n)
+            if free.any():
+                idx = np.flatnonzero(free)
+                vn[idx] = _spd_solve(a[idx[:, None], idx], rf[idx])
+            hold = (r - a @ vn) / h  # the friction that keeps each joint where it is (sticking ones)
+        # a sticking joint whose holding torque exceeds the cap breaks away (the way it pushed);
+        # a sliding one whose velocity would change sign within the step stops instead
+        bad = np.where(free, vn * sign <= 0.0, np.abs(hold) > cap)
+        if not bad.any():
+            return vn, np.where(free, f, hold)
+        sign = np.where(bad & ~free, np.sign(hold), sign)
+        free = free ^ bad
+    return _pgs(a, r, h, cap)
 
 
-def _solve_spd(a: list[list[float]], b: list[float]) -> list[float] | None:
-    """Gaussian elimination without pivoting (fine for SPD); a and b are overwritten."""
-    k = len(b)
-    for c in range(k):
-        p = a[c][c]
-        if p <= 0.0:
-            return None
-        for r in range(c + 1, k):
-            m = a[r][c] / p
-            if m != 0.0:
-                row_r, row_c = a[r], a[c]
-                for j in range(c, k):
-                    row_r[j] -= m * row_c[j]
-                b[r] -= m * b[c]
-    x = [0.0] * k
-    for r in range(k - 1, -1, -1):
-        acc = b[r]
-        row = a[r]
-        for j in range(r + 1, k):
-            acc -= row[j] * x[j]
-        x[r] = acc / row[r]
+def _spd_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    _, x, info = lapack.dposv(a, b)
+    if info != 0:  # M is SPD for any physical parameter set; anything else is a broken truth file
+        raise InputError(
+            f"the true dynamics give a mass matrix that is not positive definite (LAPACK info {info}): "
+            "check the link inertials",
+            field="dynamics.links",
+        )
     return x
 
 
-def _pgs(
-    g: np.ndarray, vstar: np.ndarray, cap: np.ndarray, warm: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Projected Gauss–Seidel on the same box LCP (always converges: g is SPD)."""
-    gl = g.tolist()
-    vs = vstar.tolist()
-    cl = cap.tolist()
-    fl = np.clip(warm, -cap, cap).tolist()
-    n = len(vs)
+def _pgs(a: np.ndarray, r: np.ndarray, h: float, cap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Projected Gauss–Seidel on the LCP in g = h·A⁻¹ (q̇⁺ = v* − g·f, v* = A⁻¹·r): always converges
+    (g is SPD), slowly when joints are strongly coupled. The fallback of `friction_step`."""
+    n = len(r)
+    x = _spd_solve(a, np.column_stack([r, h * np.eye(n)]))
+    vstar, g = x[:, 0], x[:, 1:]
+    gl, vs, cl = g.tolist(), vstar.tolist(), cap.tolist()
+    fl = [0.0] * n
     for _ in range(PGS_MAX_SWEEPS):
         change = 0.0
         for i in range(n):
             row = gl[i]
-            r = vs[i]
-            for j in range(n):
-                r -= row[j] * fl[j]
-            fi = fl[i] + r / row[i]
+            ri = vs[i] - sum(map(mul, row, fl))
+            fi = fl[i] + ri / row[i]
             c = cl[i]
             fi = c if fi > c else (-c if fi < -c else fi)
-            d = abs(fi - fl[i]) * row[i]
-            if d > change:
-                change = d
+            change = max(change, abs(fi - fl[i]) * row[i])
             fl[i] = fi
         if change < PGS_TOL_RAD_S:
             break
     f = np.array(fl)
-    return f, np.abs(f) < cap * (1.0 - 1e-9)
+    vn = vstar - g @ f
+    vn[np.abs(f) < cap * (1.0 - 1e-9)] = 0.0  # sticking joints exactly at rest
+    return vn, f

@@ -35,6 +35,8 @@ from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.cell.truth import SimTruth, load_truth
 from rxcomm.errors import InputError
 
+NOISE_BLOCK = 1024
+
 
 class SimSettings(BaseModel):
     """How the simulated cell runs (the physics itself comes from the truth file)."""
@@ -75,6 +77,8 @@ class SimulatedCell:
         self._rng = torque_rng
         self._lsb = truth.truth.noise.encoder_lsb_rad
         self._torque_sigma = np.array(truth.truth.noise.torque_noise_nm, dtype=float)
+        self._noise = np.empty((0, n))
+        self._noise_next = 0
         self.gains: DriveGains = drive_gains(robot, s.tuning)
         self.plant = Plant(robot, truth.params, q0, substeps=s.substeps)
         self.drives = CascadedDrives(self.gains, self._encoder())
@@ -120,7 +124,7 @@ class SimulatedCell:
         self.plant.step(tau, ~enabled)
         enc = self._encoder()
         self.drives.measure(enc)
-        noise = self._rng.standard_normal(self._n) * self._torque_sigma
+        noise = self._torque_noise()
         self._enabled = enabled
         self._fb = AxisFeedback(
             position_rad=enc,
@@ -148,6 +152,14 @@ class SimulatedCell:
 
     def _encoder(self) -> np.ndarray:
         return np.rint(self.plant.q / self._lsb) * self._lsb
+
+    def _torque_noise(self) -> np.ndarray:
+        """One row of torque-measurement noise; drawn NOISE_BLOCK cycles at a time (one call, not 1000)."""
+        if self._noise_next >= len(self._noise):
+            self._noise = self._rng.standard_normal((NOISE_BLOCK, self._n)) * self._torque_sigma
+            self._noise_next = 0
+        self._noise_next += 1
+        return self._noise[self._noise_next - 1]
 
 
 def simulated_cell(
