@@ -12,7 +12,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from rxcomm.cell.drives import CascadedDrives, drive_gains
+from rxcomm.cell.drives import drive_gains
 from rxcomm.cell.gateway_core import GatewayCore, Phase
 from rxcomm.cell.plant import Plant, _pgs, friction_step
 from rxcomm.cell.sim import SimSettings, SimulatedCell, simulated_cell
@@ -384,12 +384,17 @@ def test_cost_per_cycle_leaves_room_for_realtime(rx_truth, capsys, record_proper
 
 
 @pytest.mark.slow
-def test_second_robot_feedforward_and_hold():
+def test_second_robot_feedforward_cut(capsys):
+    """The same drives and plant on the M-900-class sample (500 µs cycle, no balancer spring)."""
     truth = load_truth(M9_TRUTH)
     qa, qb = np.array([-0.6, -0.2, 0.4, 0.0, 0.6, 0.0]), np.array([0.6, 0.4, -0.3, 0.0, 0.6, 0.0])
     pos, ff, n_hold = fast_move(truth, qa, qb)
-    lag_std, _ = lag_run(truth, pos, ff, n_hold, with_ff=False)
-    lag_ff, _ = lag_run(truth, pos, ff, n_hold, with_ff=True)
-    assert truth.robot.drives.cycle_s == 5e-4 and lag_std.max() >= 3.0 * lag_ff.max()
-    drives = CascadedDrives(drive_gains(truth.robot), qa)
-    assert drives.n == 6
+    lag_std, tcp_std = lag_run(truth, pos, ff, n_hold, with_ff=False)
+    lag_ff, tcp_ff = lag_run(truth, pos, ff, n_hold, with_ff=True)
+    with capsys.disabled():
+        print(
+            f"\nm900 max joint lag, mrad: standard {np.round(lag_std * 1e3, 3).tolist()}, feed-forward "
+            f"{np.round(lag_ff * 1e3, 4).tolist()}; TCP {tcp_std * 1e3:.2f} mm vs {tcp_ff * 1e3:.3f} mm"
+        )
+    assert truth.robot.drives.cycle_s == 5e-4 and truth.robot.drives.spring is None
+    assert np.all(lag_std[:3] >= 3.0 * lag_ff[:3]) and 0.5e-3 < tcp_std < 30e-3
