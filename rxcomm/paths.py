@@ -125,35 +125,27 @@ class ChainCurve:
         return out
 
 
-@dataclass(frozen=True, eq=False)
-class SplineCurve:
-    """C² cubic spline through waypoints (chord-length knots, not-a-knot), re-parametrised by arc length.
+class _ArcLengthCurve:
+    """A parametric curve P(u) re-parametrised by arc length: u(σ) is tabulated by Gauss–Legendre
+    quadrature on a fine sub-grid of `breaks` and refined by Newton steps, so |p'(σ)| = 1 to ~1e-9.
+    Subclasses give `_p(u, order)` and the parameter breaks."""
 
-    The arc-length map u(σ) is tabulated densely and refined by Newton steps, so |p'(σ)| = 1 to ~1e-9.
-    """
-
-    points: np.ndarray
-    _spline: CubicSpline = field(init=False, repr=False)
-    _s_tab: np.ndarray = field(init=False, repr=False)
-    _u_tab: np.ndarray = field(init=False, repr=False)
-
-    def __post_init__(self) -> None:
-        chord = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
-        u = np.concatenate([[0.0], np.cumsum(chord)])
-        bc = "not-a-knot" if len(self.points) > 3 else "natural"
-        sp = CubicSpline(u, self.points, bc_type=bc)
-        # Arc length by 5-point Gauss–Legendre on a fine sub-grid of every knot interval.
+    def _setup(self, breaks: np.ndarray) -> None:
         sub = np.linspace(0, 1, 65)
-        uu = np.concatenate([u[i] + (u[i + 1] - u[i]) * sub[:-1] for i in range(len(u) - 1)] + [[u[-1]]])
+        uu = np.concatenate(
+            [breaks[i] + (breaks[i + 1] - breaks[i]) * sub[:-1] for i in range(len(breaks) - 1)]
+            + [[breaks[-1]]]
+        )
         xg, wg = np.polynomial.legendre.leggauss(5)
         a, b = uu[:-1, None], uu[1:, None]
         nodes = (a + b) / 2 + (b - a) / 2 * xg
-        speed = np.linalg.norm(sp(nodes.ravel(), 1), axis=1).reshape(nodes.shape)
+        speed = np.linalg.norm(self._p(nodes.ravel(), 1), axis=1).reshape(nodes.shape)
         seg = ((b - a) / 2 * (speed * wg)).sum(axis=1)
-        s_tab = np.concatenate([[0.0], np.cumsum(seg)])
-        object.__setattr__(self, "_spline", sp)
-        object.__setattr__(self, "_s_tab", s_tab)
+        object.__setattr__(self, "_s_tab", np.concatenate([[0.0], np.cumsum(seg)]))
         object.__setattr__(self, "_u_tab", uu)
+
+    def _p(self, u: np.ndarray, order: int) -> np.ndarray:
+        raise NotImplementedError
 
     @property
     def length_m(self) -> float:
@@ -167,23 +159,79 @@ class SplineCurve:
         for _ in range(3):
             a = self._u_tab[i]
             nodes = (a + u)[:, None] / 2 + ((u - a) / 2)[:, None] * xg
-            sp = np.linalg.norm(self._spline(nodes.ravel(), 1), axis=1).reshape(nodes.shape)
+            sp = np.linalg.norm(self._p(nodes.ravel(), 1), axis=1).reshape(nodes.shape)
             s_u = self._s_tab[i] + (u - a) / 2 * (sp * wg).sum(axis=1)
-            u = u - (s_u - s) / np.linalg.norm(self._spline(u, 1), axis=1)
+            u = u - (s_u - s) / np.linalg.norm(self._p(u, 1), axis=1)
         return u
 
     def eval(self, s: np.ndarray, order: int = 0) -> np.ndarray:
         s = np.atleast_1d(np.asarray(s, dtype=float))
         u = self._u(s)
         if order == 0:
-            return self._spline(u)
-        d1, d2 = self._spline(u, 1), self._spline(u, 2)
+            return self._p(u, 0)
+        d1, d2 = self._p(u, 1), self._p(u, 2)
         n1 = np.linalg.norm(d1, axis=1)[:, None]
         if order == 1:
             return d1 / n1
         # p'' = P''·u'² + P'·u'', u' = 1/|P'|, u'' = −(P'·P'')/|P'|⁴
         dot = (d1 * d2).sum(axis=1)[:, None]
         return d2 / n1**2 - d1 * dot / n1**4
+
+
+@dataclass(frozen=True, eq=False)
+class SplineCurve(_ArcLengthCurve):
+    """C² cubic spline through waypoints (chord-length knots, not-a-knot), by arc length."""
+
+    points: np.ndarray
+    _spline: CubicSpline = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        chord = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+        u = np.concatenate([[0.0], np.cumsum(chord)])
+        bc = "not-a-knot" if len(self.points) > 3 else "natural"
+        object.__setattr__(self, "_spline", CubicSpline(u, self.points, bc_type=bc))
+        self._setup(u)
+
+    def _p(self, u: np.ndarray, order: int) -> np.ndarray:
+        return self._spline(u, order)
+
+
+@dataclass(frozen=True, eq=False)
+class BlendCurve(_ArcLengthCurve):
+    """A corner blend with continuous curvature: the quintic Bézier whose control points lie a third,
+    two thirds and all of `zone` along each segment from the corner. Its first three control points are
+    on the incoming line and its last three on the outgoing one, so tangent and curvature (zero) match
+    the straight segments at both ends: no curvature step, hence no joint-acceleration step, at the
+    junctions (a circular blend has one, which no finite torque rate can follow at speed)."""
+
+    corner: np.ndarray
+    d_in: np.ndarray
+    d_out: np.ndarray
+    zone: float
+    _ctrl: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        f = np.array([1.0, 2 / 3, 1 / 3])
+        ctrl = np.vstack(
+            [
+                self.corner - self.zone * f[:, None] * self.d_in,
+                self.corner + self.zone * f[::-1, None] * self.d_out,
+            ]
+        )
+        object.__setattr__(self, "_ctrl", ctrl)
+        self._setup(np.linspace(0.0, 1.0, 5))
+
+    def _p(self, u: np.ndarray, order: int) -> np.ndarray:
+        u = np.atleast_1d(np.asarray(u, dtype=float))[:, None]
+        c = self._ctrl
+        n = len(c) - 1
+        for _ in range(order):  # derivative control points
+            c = n * np.diff(c, axis=0)
+            n -= 1
+        from math import comb
+
+        basis = np.hstack([comb(n, k) * u**k * (1 - u) ** (n - k) for k in range(n + 1)])
+        return basis @ c
 
 
 @dataclass(frozen=True, eq=False)
@@ -280,7 +328,9 @@ def _circle_from_centre(c: Circle) -> ArcCurve:
     return ArcCurve(np.asarray(c.centre_m, dtype=float), e1, e2, float(c.radius_m), float(sweep))
 
 
-def _polyline(points: np.ndarray, blend: float) -> ChainCurve:
+def _polyline(points: np.ndarray, zone: float) -> ChainCurve:
+    """Straight segments through `points`; each interior corner rounded by a `BlendCurve` that leaves
+    and joins the segments `zone` metres from the corner (0: sharp corners)."""
     seg = np.diff(points, axis=0)
     lengths = np.linalg.norm(seg, axis=1)
     for i, length in enumerate(lengths):
@@ -289,18 +339,15 @@ def _polyline(points: np.ndarray, blend: float) -> ChainCurve:
                 f"zero-length segment: point {i + 1} equals point {i}", field=f"geometry.points_m[{i + 1}]"
             )
     dirs = seg / lengths[:, None]
-    # Corner i (between segment i-1 and i): turn angle and the tangent-point distance of its blend.
     cut = np.zeros(len(points))
-    turn = np.zeros(len(points))
     for i in range(1, len(points) - 1):
-        cosang = float(np.clip(dirs[i - 1] @ dirs[i], -1, 1))
-        turn[i] = np.arccos(cosang)
-        if turn[i] > np.pi - 1e-6:
+        turn = np.arccos(float(np.clip(dirs[i - 1] @ dirs[i], -1, 1)))
+        if turn > np.pi - 1e-6:
             raise InputError(
                 f"the path reverses at point {i}: no blend can round it", field=f"geometry.points_m[{i}]"
             )
-        if blend > 0 and turn[i] > 1e-9:
-            cut[i] = blend * np.tan(turn[i] / 2)
+        if zone > 0 and turn > 1e-9:
+            cut[i] = zone
     for i, length in enumerate(lengths):
         if cut[i] + cut[i + 1] > length + 1e-12:
             raise InputError(
@@ -316,10 +363,7 @@ def _polyline(points: np.ndarray, blend: float) -> ChainCurve:
             parts.append(LineCurve(a, b))
         corner = i + 1
         if corner < len(points) - 1 and cut[corner] > 0:
-            d1, d2 = dirs[corner - 1], dirs[corner]
-            t1 = points[corner] - d1 * cut[corner]
-            centre = points[corner] + _unit(d2 - d1) * blend / np.cos(turn[corner] / 2)
-            parts.append(ArcCurve(centre, (t1 - centre) / blend, d1, blend, float(turn[corner])))
+            parts.append(BlendCurve(points[corner], dirs[corner - 1], dirs[corner], cut[corner]))
     return ChainCurve(tuple(parts))
 
 
@@ -508,7 +552,7 @@ def iso9283_paths(
     limits: PathLimits | None = None,
     large_circle_diameter_ratio: float = 0.8,
     small_circle_diameter_ratio: float = 0.1,
-    corner_blend_m: float = 0.01,
+    corner_blend_m: float = 0.05,
 ) -> dict[str, PathSpec]:
     """The ISO 9283 test-plane paths of a cube as path specs, by file stem:
     `iso9283-line` (P2→P4), `iso9283-rectangle` (P2-P3-P4-P5-P2, corners blended), `iso9283-circle-large`

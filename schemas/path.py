@@ -10,8 +10,9 @@ Geometry (one per file, `geometry.type`):
 - `circle`: three points (`points_m`: arc from the first through the second to the third, or the full
   circle through them with `full: true`), or `centre_m` + `normal` + `radius_m` with the start
   direction `start_direction` and the swept angle `sweep_rad` (right-handed about `normal`);
-- `polyline`: straight segments through `points_m`, corners rounded by circular blends of
-  `blend_radius_m` (0: sharp corners, which no finite acceleration can follow);
+- `polyline`: straight segments through `points_m`, each corner rounded by a blend that leaves and
+  rejoins the segments `blend_radius_m` from the corner (a zone, as robot controllers define it), with
+  continuous curvature (0: sharp corners, which no finite acceleration can follow);
 - `spline`: a C² cubic spline through `points_m` (chord-length knots, not-a-knot ends).
 
 Orientation: `hold` keeps `rpy` along the path; `slerp` turns at a constant rate (per metre) from
@@ -79,7 +80,11 @@ class Circle(_Strict):
 class Polyline(_Strict):
     type: Literal["polyline"]
     points_m: list[Vec3] = Field(min_length=2)
-    blend_radius_m: float = Field(0.0, ge=0, description="radius of the circular blend at each corner")
+    blend_radius_m: float = Field(
+        0.0,
+        ge=0,
+        description="corner zone: the blend leaves and rejoins the segments this far from the corner",
+    )
 
 
 class Spline(_Strict):
