@@ -45,6 +45,7 @@ from rxcomm.robot import Robot
 from rxcomm.schemas.path import Branch
 
 ACTIVE_THRESHOLD = 0.98  # a limit counts as active at ≥ 98 % of its bound (LimitReport.active_fraction)
+MAX_RATIO = 1.01  # the sampled output may exceed no limit by more (DESIGN §9 summary, max_limit_ratio)
 
 
 class CpSettings(BaseModel):
@@ -283,6 +284,19 @@ def switch_points(
     return (g[idx] + g[idx + 1]) / 2
 
 
+def toppra_grid(jp: JointPath, intervals: int, a_max: np.ndarray) -> np.ndarray:
+    """Grid for toppra: half the nodes uniform in σ, half where the joint path bends most
+    (‖q''(σ)/a_max‖∞), so blends and the neighbourhood of singularities are resolved."""
+    length = jp.length_m
+    fine = np.linspace(0.0, length, 20 * intervals + 1)
+    bend = np.max(np.abs(jp(fine, 2)) / a_max, axis=1)
+    rho = 0.5 / length + 0.5 * bend / max(np.trapezoid(bend, fine), 1e-300)
+    cum = np.concatenate([[0.0], np.cumsum((rho[1:] + rho[:-1]) / 2 * np.diff(fine))])
+    grid = np.interp(np.linspace(0.0, cum[-1], intervals + 1), cum, fine)
+    grid[0], grid[-1] = 0.0, length
+    return grid
+
+
 def jerk_step(
     pd: PathDynamics, node: int, qs: np.ndarray, accel: float, rate_max: np.ndarray | None, eps: float
 ) -> float:
@@ -308,23 +322,24 @@ def nlp_grid(
     jp: JointPath,
     warm: PathProfile,
     intervals: int,
-    switches: np.ndarray | None = None,
+    focus: list[tuple[float, float]] | None = None,
     first_step_m: float = 0.0,
     last_step_m: float = 0.0,
 ) -> np.ndarray:
-    """Grid for the NLP. Node density: half uniform in σ, half in the warm start's time, nine times as
-    dense within three warm-start intervals of each switch point. At both ends the steps double from
-    `first_step_m` / `last_step_m` (the constant-jerk ramp from rest, `jerk_step`) up to the regular
-    spacing. The interior node nearest each joint reversal is moved onto it."""
+    """Grid for the NLP. Node density: half uniform in σ, half in the warm start's time, four times
+    that on the `focus` stretches (σ ranges, each widened by one regular spacing) — where the binding
+    limit switches, which a continuous σ̈ can only follow as fast as the grid allows. At both ends the
+    steps double from `first_step_m` / `last_step_m` (the constant-jerk ramp from rest, `jerk_step`)
+    up to the regular spacing. The interior node nearest each joint reversal is moved onto it."""
     length = jp.length_m
     fine = np.linspace(0.0, length, 20 * intervals + 1)
     t_fine = np.interp(fine, warm.sigma, warm.t_nodes)
     rho = 0.5 / length + 0.5 * np.gradient(t_fine, fine) / warm.duration_s
-    if switches is not None and len(switches):
+    if focus:
         width = length / intervals
-        base = np.interp(switches, fine, rho)
-        for sw, b in zip(switches, base, strict=True):
-            rho = rho + 8 * b * (np.abs(fine - sw) < 3 * width)
+        base = rho.copy()
+        for a, b in focus:
+            rho = rho + 3 * base * ((fine > a - width) & (fine < b + width))
     cum = np.concatenate([[0.0], np.cumsum((rho[1:] + rho[:-1]) / 2 * np.diff(fine))])
 
     def ramp(first: float, h: float) -> list[float]:
@@ -449,9 +464,10 @@ def _nlp_setup(
     limits: PlanLimits,
     warm: PathProfile,
     intervals: int,
+    focus: list[tuple[float, float]] | None = None,
 ) -> _NlpSetup:
-    """The NLP grid fitted to a warm-start profile (its switches and end accelerations) and the path
-    dynamics on it."""
+    """The NLP grid fitted to a warm-start profile (its end accelerations; its switch points, or the
+    `focus` stretches given) and the path dynamics on it."""
     g = warm.sigma
     pd_w = _coefficients(dynamics, jp, g)
     # End accelerations: toppra's first/last interval, or the NLP's first/last interior node.
@@ -460,7 +476,9 @@ def _nlp_setup(
         jerk_step(pd_w, node, jp(g[node], 1), abs(warm.sdd[k]), limits.tau_rate_max, dynamics.eps)
         for node, k in ((0, k0), (-1, k1))
     ]
-    grid = nlp_grid(jp, warm, intervals, switch_points(warm, jp, limits, pd_w), *steps)
+    if focus is None:
+        focus = [(s, s) for s in switch_points(warm, jp, limits, pd_w)]
+    grid = nlp_grid(jp, warm, intervals, focus, *steps)
     return _NlpSetup(
         grid,
         _coefficients(dynamics, jp, grid),
@@ -474,6 +492,16 @@ def _remap(fac: np.ndarray, old: np.ndarray, new: np.ndarray) -> np.ndarray:
     old nodes bounding its interval."""
     k = np.clip(np.searchsorted(old, new, side="right") - 1, 0, len(old) - 2)
     return np.minimum(fac[k], fac[k + 1])
+
+
+def _inactive(report: LimitReport, sigma: np.ndarray, grid: np.ndarray) -> list[tuple[float, float]]:
+    """σ stretches where no limit is active (the true optimum has one active everywhere: these show
+    where the grid is too coarse), leaving out the constant-jerk ramps at both ends."""
+    from rxcomm.path_ik import _ranges
+
+    mx = np.maximum.reduce([r.max(axis=1) for k, r in report.ratios.items() if k != "position"])
+    keep = (sigma > grid[1]) & (sigma < grid[-2])
+    return [(a, b) for a, b in _ranges(sigma, (mx < ACTIVE_THRESHOLD) & keep)]
 
 
 def plan_cp(
@@ -501,7 +529,7 @@ def plan_cp(
     t1 = time.perf_counter()
     check_statics(robot, jp, _coefficients(dynamics, jp, jp.sigma))
     limits = plan_limits(robot, settings)
-    grid = np.linspace(0.0, jp.length_m, settings.intervals + 1)
+    grid = toppra_grid(jp, settings.intervals, robot.a_max)
     curvature = np.linalg.norm(path.position(grid, 2), axis=1)
     say("time-optimal timing (toppra)")
     topp = time_optimal(jp.spline, jp.length_m, grid, limits, dynamics.exact, curvature)
@@ -558,7 +586,9 @@ def plan_cp(
             # Second pass on a grid fitted to this solution: dense where its binding limit switches.
             t2 = time.perf_counter()
             _tighten(report, s, sgrid, limits, scale, settings.target_ratio)
-            new = _nlp_setup(dynamics, jp, path, limits, profile, settings.intervals)
+            new = _nlp_setup(
+                dynamics, jp, path, limits, profile, settings.intervals, _inactive(report, s, sgrid)
+            )
             scale = {k: _remap(v, sgrid, new.grid) for k, v in scale.items()}
             setup, sgrid, regridded = new, new.grid, True
             timings["nlp_setup_s"] += time.perf_counter() - t2
@@ -569,8 +599,14 @@ def plan_cp(
             break
         refinements += 1
     timings["total_s"] = time.perf_counter() - t0
-    if report.max_by_limit().get("position", 0.0) > 1.0 + 1e-9:
-        raise InfeasibleError(f"path {path.name!r}: a joint leaves its position range along the path")
+    if report.max_ratio > MAX_RATIO:
+        name, joint, t_w, ratio = report.worst()
+        i = int(np.searchsorted(t, t_w))
+        raise InfeasibleError(
+            f"path {path.name!r}: {name} of {joint} reaches {ratio:.3f} × its limit at t = {t_w:.4f} s "
+            f"(σ = {s[min(i, len(s) - 1)]:.4f} m) after {refinements} local re-tightenings; "
+            "try more --intervals"
+        )
     return CpPlan(
         joint_path=jp,
         profile=profile,

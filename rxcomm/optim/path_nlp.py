@@ -200,7 +200,7 @@ def _solver(n_nodes: int, dof: int, torque_rate: bool, tcp_acc: bool, max_iter: 
         "ipopt.sb": "yes",
         "print_time": False,
         "ipopt.max_iter": max_iter,
-        "ipopt.tol": 1e-7,
+        "ipopt.tol": 1e-8,
         "ipopt.acceptable_tol": 1e-5,
         "ipopt.constr_viol_tol": 1e-8,
         "ipopt.mu_strategy": "adaptive",
