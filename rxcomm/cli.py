@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 
 from rxcomm import __version__
-from rxcomm.stages import calibrate, cell_sim, excite, identify, robot_info, run, select_configs
+from rxcomm.stages import calibrate, cell_sim, excite, identify, plan_cp, robot_info, run, select_configs
 
 app = typer.Typer(
     name="rxcomm",
@@ -46,6 +46,7 @@ app.command("run")(run.command)
 app.command("cell-sim")(cell_sim.command)
 app.command("excite")(excite.command)
 app.command("identify")(identify.command)
+app.command("plan-cp")(plan_cp.command)
 
 
 def main() -> None:
