@@ -302,6 +302,21 @@ def test_following_error_trips_the_axis(rx_truth):
     assert all(d.state is DriveState.QUICK_STOP_ACTIVE for d in core.drives[1:])
 
 
+def test_demand_is_clamped_to_the_software_limits(rx_truth):
+    q_max5 = rx_truth.robot.q_max[4]
+    q0 = Q_A.copy()
+    q0[4] = q_max5 - 0.02
+    cell = cell_at(rx_truth, q0)
+    on = np.ones(6, dtype=bool)
+    static = cell.plant.static_torque(q0)
+    demand = q0.copy()
+    for k in range(2500):  # 1 s ramp at 0.1 rad/s: 80 mrad beyond the limit at the end
+        demand[4] = q0[4] + 0.1 * k * cell.cycle_s
+        fb = cell.cycle(demand, static, on)
+    assert cell.plant.q[4] <= q_max5 + 1e-3  # held at the limit (a little overshoot on arrival)
+    assert fb.following_error_rad[4] > cell.following_error_limit_rad[4]  # the gateway would trip it
+
+
 def test_quick_stop_from_speed_stays_below_the_trip(rx_truth):
     pos, ff, n_hold = fast_move(rx_truth, Q_A, Q_B, hold_s=0.2)
     cell = cell_at(rx_truth, Q_A)
