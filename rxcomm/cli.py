@@ -11,7 +11,17 @@ from typing import Annotated
 import typer
 
 from rxcomm import __version__
-from rxcomm.stages import calibrate, cell_sim, excite, identify, plan_cp, robot_info, run, select_configs
+from rxcomm.stages import (
+    calibrate,
+    cell_sim,
+    excite,
+    identify,
+    plan_cp,
+    plan_ptp,
+    robot_info,
+    run,
+    select_configs,
+)
 
 app = typer.Typer(
     name="rxcomm",
@@ -47,6 +57,7 @@ app.command("cell-sim")(cell_sim.command)
 app.command("excite")(excite.command)
 app.command("identify")(identify.command)
 app.command("plan-cp")(plan_cp.command)
+app.command("plan-ptp")(plan_ptp.command)
 
 
 def main() -> None:

@@ -4,33 +4,44 @@ Formulation (DESIGN §7, "Planning facts"): the joints are a triple integrator d
 constant on each of N intervals of a normalised time s ∈ [0, 1]; t = T·s with the final time T a
 decision variable. The nodes carry (q, q̇, q̈); the torques come from the inverse dynamics at the nodes
 (no forward dynamics, no numerical integrator: integrating a constant jerk is exact). This is what
-makes it ~100× faster than the paper's forward-dynamics multiple shooting (`ptp_shooting`).
+makes it much faster than the paper's forward-dynamics multiple shooting (`ptp_shooting`).
 
     minimise   ∫₀ᵀ (k1 + k2·τᵀτ) dt          (τᵀτ by the trapezoid rule over the nodes)
     subject to (q, q̇, q̈)_{k+1} = exact integration of the jerk u_k over h = T/N
                q(0) = q_start, q(T) = q_goal, q̇ = q̈ = 0 at both ends (rest to rest; q̈ = 0 keeps the
                torque continuous with the holding torque before and after the motion)
-               q_min ≤ q ≤ q_max, |q̇| ≤ v_max, |τ| ≤ τ_max, |τ̇| ≤ τ̇_max,
-               optionally |q̈| ≤ a_max and the TCP inside a box
+               q_min ≤ q ≤ q_max, |q̇| ≤ v_max (at the nodes and the interval midpoints: q̇ is
+               quadratic in between), |τ| ≤ τ_max, |τ̇| ≤ τ̇_max, optionally |q̈| ≤ a_max and the
+               TCP inside a box
 
 Torque rate: the torque is differentiated exactly along the motion (forward-mode AD, CasADi
 `jtimes`): τ̇ = ∂τ/∂q·q̇ + ∂τ/∂q̇·q̈ + ∂τ/∂q̈·u. The jerk jumps at the nodes, so τ̇ does too; it is
 constrained on both sides of every node (with u_{k−1} and with u_k). Finite differences
 (τ_{k+1} − τ_k)/h were measured to under-check by 15 % (N = 50) and 6 % (N = 100) between nodes, the
-derivative by < 0.1 %. The rate limit applies to the torque *without Coulomb friction*: the smooth
-sign tanh(q̇/ε) of the NLP model steps by 2·Fc within ~2ε/q̈ ≈ 1 ms at every velocity reversal, a
-rate (≈ 4·10⁴ N·m/s on J2) set by ε, not by the drive; limiting it would make every reversal
-crawl. The Coulomb step is what a drive's friction compensation delivers anyway.
+derivative by < 0.1 %. The rate limit applies to the torque *without Coulomb friction*: a smooth sign
+tanh(q̇/ε) steps by 2·Fc within 2ε/|q̈| at every velocity reversal, a rate set by ε, not by the
+drive (with the identification's ε = 0.02 rad/s ≈ 4·10⁴ N·m/s on J2 against 1.2·10⁴); limiting it
+would make every reversal crawl. The Coulomb step is what a drive's friction compensation delivers.
+
+Friction smoothing: the PtP model uses ε = 0.1 rad/s (`PTP_COULOMB_EPS_RAD_S`; ≈ 6 °/s, 2–3 % of the
+joints' top speeds), not the identification's 0.02. With 0.02 the friction step of a reversing joint
+fits between two nodes, and the optimum hides it there: the torque checked only at the nodes was
+1.036–1.049 × its limit between them (N = 50–100). With 0.1 the step spans about an interval and the
+node constraints see it. Bounding each node's torque with its neighbours' friction instead also
+works, but multiplied IPOPT's linear-algebra time by ~6.
 
 Dense check with a margin: between nodes nothing is enforced, so the NLP uses every limit tightened to
 (1 − margin) (default 1 %); the optimum is then sampled at the drive cycle by exact integration of the
 piecewise-constant jerk, torques from the same inverse dynamics, and every limit is checked on those
-samples (`rxcomm.limits`): the max ratio is the summary's `max_limit_ratio`.
+samples (`rxcomm.limits`): the max ratio is the summary's `max_limit_ratio`. If a limit is still
+exceeded by more than `DENSE_TOLERANCE`, its margin grows by the excess and the NLP is solved again
+from that solution (bounds only; coarse grids need it, N ≥ 50 rarely does).
 
 Scaling: q in rad, q̇/v_max, q̈/a_ref, u/j_ref, T/T_ref with a_ref = τ_max/M_jj and j_ref = τ̇_max/M_jj
 (M_jj the joint-space inertia diagonal at a reference posture), torque and rate rows divided by their
-limits. IPOPT uses its L-BFGS Hessian approximation: the exact Hessian of the RNEA graph halves the
-iterations but costs more than it saves.
+limits. Derivatives are assembled from per-node windows (`PtpOcp`), and IPOPT uses the exact Hessian
+by default: measured on the RX130L line (N = 100) it converges in 25–35 iterations against 60–110 with
+L-BFGS, whose low-rank updates also cost extra back-solves every iteration.
 """
 
 from __future__ import annotations
@@ -38,7 +49,7 @@ from __future__ import annotations
 import hashlib
 import time
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import casadi as ca
@@ -46,7 +57,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from rxcomm.dynamics import COULOMB_EPS_NLP_RAD_S, DynamicParameters, prior_parameters
+from rxcomm.dynamics import DynamicParameters, prior_parameters
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.limits import (
     AccelerationLimit,
@@ -62,6 +73,9 @@ from rxcomm.symbolic import forward_kinematics_function, inverse_dynamics_functi
 from rxcomm.trajectory import Trajectory
 
 Vec3 = tuple[float, float, float]
+LIMIT_NAMES = ("position", "velocity", "acceleration", "torque", "torque_rate", "tcp_box")
+DENSE_TOLERANCE = 0.005  # re-solve with a wider margin when the dense check exceeds a limit by more
+PTP_COULOMB_EPS_RAD_S = 0.1  # friction smoothing of the PtP model (module doc)
 
 
 class PtpOptions(BaseModel):
@@ -87,11 +101,9 @@ class PtpOptions(BaseModel):
     max_iter: int = Field(3000, ge=1, description="IPOPT iteration cap")
     max_wall_s: float | None = Field(None, gt=0, description="IPOPT wall-time cap, s")
     tol: float = Field(1e-6, gt=0, description="IPOPT relative tolerance")
-    hessian: Literal["limited-memory", "exact"] = "limited-memory"
-    torque_rate: Literal["derivative", "difference"] = Field(
-        "derivative", description="τ̇ in the NLP: exact on both sides of each node, or (τ_{k+1} − τ_k)/h"
+    hessian: Literal["exact", "limited-memory"] = Field(
+        "exact", description="IPOPT's Hessian: exact (assembled from the nodes) or its L-BFGS approximation"
     )
-    expand: bool = Field(True, description="expand the NLP to CasADi SX (slower to build, faster to solve)")
 
     @model_validator(mode="after")
     def _objective(self) -> PtpOptions:
@@ -152,9 +164,10 @@ class PtpDynamics:
         cls,
         robot: Robot,
         params: DynamicParameters | None = None,
-        coulomb_eps_rad_s: float = COULOMB_EPS_NLP_RAD_S,
+        coulomb_eps_rad_s: float = PTP_COULOMB_EPS_RAD_S,
     ) -> PtpDynamics:
-        """From `rxcomm.symbolic` with `params` (default: the robot's priors), smooth Coulomb friction."""
+        """From `rxcomm.symbolic` with `params` (default: the robot's priors), Coulomb friction smoothed
+        as tanh(q̇/ε) with ε = `coulomb_eps_rad_s` (module doc: why wider than the identification's)."""
         params = prior_parameters(robot) if params is None else params
         inv_dyn = inverse_dynamics_function(robot, params, coulomb_eps_rad_s)
         qd = ca.SX.sym("qd", robot.n)
@@ -256,6 +269,19 @@ def node_function(dyn: PtpDynamics, tcp: bool = False) -> ca.Function:
     return ca.Function("ptp_node", [q, qd, qdd, ul, ur], outs, ["q", "qd", "qdd", "u_left", "u_right"], names)
 
 
+def _csc(nrow: int, ncol: int, rows: np.ndarray, cols: np.ndarray) -> tuple[ca.Sparsity, np.ndarray]:
+    """Sparsity of the (unique) entries (rows, cols) and the permutation putting them in CasADi's
+    column-major nonzero order."""
+    perm = np.lexsort((rows, cols))
+    colind = np.searchsorted(cols[perm], np.arange(ncol + 1))
+    return ca.Sparsity(nrow, ncol, colind.tolist(), rows[perm].tolist()), perm
+
+
+def _nonzeros(m: ca.SX) -> ca.SX:
+    """The structural nonzeros of `m` as a dense column, in CasADi's column-major order."""
+    return ca.vertcat(*m.nonzeros()) if m.nnz() else ca.SX.zeros(0, 1)
+
+
 def inertia_diagonal(inv_dyn: ca.Function, q) -> np.ndarray:
     """diag M(q) from the inverse dynamics (τ is affine in q̈: M e_j = ID(q, 0, e_j) − ID(q, 0, 0))."""
     q = np.asarray(q, float)
@@ -268,7 +294,13 @@ def inertia_diagonal(inv_dyn: ca.Function, q) -> np.ndarray:
 class PtpOcp:
     """The NLP for one dynamics, limit set, option set and grid; `solve` may be called for many end points.
 
-    Building it (CasADi expansion and sparse Jacobian) costs seconds; `cached_ocp` keeps a few.
+    Structure: every node k owns a *window* of variables (T, the states of nodes k−1, k, k+1 and the
+    jerks on both sides of k) and the constraint rows that depend only on them (the defects of
+    interval k, τ_k, τ̇ on both sides of k, the friction-flip rows, q̇ at the midpoint of interval k,
+    the TCP box). One SX function of a window gives the rows, its sparse Jacobian and the Hessian of
+    its Lagrangian; they are mapped over the N + 1 windows and scattered into IPOPT's sparse matrices
+    by index (custom `jac_g`, `grad_f`, `hess_lag`). This builds in a fraction of a second, where
+    letting CasADi expand and differentiate the whole NLP took 5–15 s for N = 100.
     `q_ref` and `t_ref_s` set the variable scaling only (inertia at `q_ref`, default mid-range).
     """
 
@@ -295,62 +327,63 @@ class PtpOcp:
         self.v_ref = np.asarray(limits.v_max, float)
         self.a_ref = np.asarray(limits.tau_max, float) / m_diag
         self.j_ref = np.asarray(limits.tau_rate_max, float) / m_diag
-        box = options.tcp_box_m is not None
-
-        # decision vector w = [T/T_ref, Q (n×N+1), V = q̇/v_ref, A = q̈/a_ref, U = u/j_ref (n×N)]
-        Tn = ca.MX.sym("T_scaled")
-        Q, V, A = (ca.MX.sym(s, n, N + 1) for s in "QVA")
-        U = ca.MX.sym("U", n, N)
-        w = ca.vertcat(Tn, ca.vec(Q), ca.vec(V), ca.vec(A), ca.vec(U))
         self._sizes = (1, n * (N + 1), n * (N + 1), n * (N + 1), n * N)
+        self.nx = sum(self._sizes)
 
-        T = self.t_ref * Tn
-        h = T / N
-        vr, ar, jr = (ca.DM(x) for x in (self.v_ref, self.a_ref, self.j_ref))
-        qd, qdd, u = ca.diag(vr) @ V, ca.diag(ar) @ A, ca.diag(jr) @ U
-        q0, qd0, qdd0 = Q[:, :-1], qd[:, :-1], qdd[:, :-1]
-        # exact integration of a constant jerk; defects scaled like the variables
-        d_q = Q[:, 1:] - (q0 + h * qd0 + h**2 / 2 * qdd0 + h**3 / 6 * u)
-        d_v = (qd[:, 1:] - (qd0 + h * qdd0 + h**2 / 2 * u)) / ca.repmat(vr, 1, N)
-        d_a = (qdd[:, 1:] - (qdd0 + h * u)) / ca.repmat(ar, 1, N)
+        window, kinds, valid = self._window_function()
+        var_index = self._window_variables()  # [N+1, m], −1 for padding
+        m = window.size1_in(0)
+        n_rows = len(kinds)
+        # global rows: node-major, the valid rows of each window
+        row_valid = np.array([[valid[i](k) for i in range(n_rows)] for k in range(N + 1)])  # [N+1, rows]
+        row_index = np.full((N + 1, n_rows), -1)
+        row_index[row_valid] = np.arange(int(row_valid.sum()))
+        self.row_kinds = np.array([kinds[i] for k in range(N + 1) for i in range(n_rows) if row_valid[k, i]])
+        ng = len(self.row_kinds)
 
-        tmax, rmax = ca.DM(limits.tau_max), ca.DM(limits.tau_rate_max)
-        rows = [ca.vec(d_q), ca.vec(d_v), ca.vec(d_a)]
-        if options.torque_rate == "derivative":
-            zero = ca.MX.zeros(n, 1)
-            u_ext = ca.horzcat(zero, u, zero)  # rest before and after the motion
-            outs = node_function(dynamics, box).map(N + 1)(Q, qd, qdd, u_ext[:, :-1], u_ext[:, 1:])
-            tau, rate_l, rate_r = outs[:3]
-            rate_s = ca.horzcat(rate_l[:, 1:], rate_r[:, :-1]) / ca.repmat(rmax, 1, 2 * N)
-        else:
-            f = _sx_function(dynamics.inv_dyn)
-            tau = f.map(N + 1)(Q, qd, qdd)
-            smooth = tau if dynamics.coulomb is None else tau - _sx_function(dynamics.coulomb).map(N + 1)(qd)
-            rate_s = (smooth[:, 1:] - smooth[:, :-1]) / h / ca.repmat(rmax, 1, N)
-            outs = [tau]
-            if box:
-                outs.append(_sx_function(dynamics.tcp_fk).map(N + 1)(Q)[0])
-        tau_rows = [tau]
-        if dynamics.coulomb is not None:
-            # The friction sign may flip anywhere between two nodes while the rest of the torque moves
-            # little: bound each node's torque with its neighbours' friction too, else the optimum
-            # hides up to 2·Fc of extra torque in the intervals where a joint reverses.
-            c = _sx_function(dynamics.coulomb).map(N + 1)(qd)
-            tau_rows += [tau[:, :-1] - c[:, :-1] + c[:, 1:], tau[:, 1:] - c[:, 1:] + c[:, :-1]]
-        tau_s = ca.horzcat(*tau_rows)
-        rows += [ca.vec(tau_s / ca.repmat(tmax, 1, tau_s.shape[1])), ca.vec(rate_s)]
-        self._g_sizes = [3 * n * N, tau_s.numel(), rate_s.numel()]
-        if box:
-            lo, hi = (np.asarray(c, float) for c in options.tcp_box_m)
-            centre, half = (lo + hi) / 2, (hi - lo) / 2
-            p_s = (outs[-1][:, 1:-1] - ca.repmat(ca.DM(centre), 1, N - 1)) / ca.repmat(ca.DM(half), 1, N - 1)
-            rows.append(ca.vec(p_s))
-            self._g_sizes.append(3 * (N - 1))
-
+        x = ca.MX.sym("x", self.nx)
+        p = ca.MX.sym("p", 0)
+        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ng)
+        x_pad = ca.vertcat(x, 0)
+        xi = ca.reshape(x_pad[np.where(var_index >= 0, var_index, self.nx).ravel().tolist()], m, N + 1)
         wts = np.ones(N + 1)
-        wts[[0, -1]] = 0.5
-        J = options.k1 * T + options.k2_per_nm2 * h * (ca.sum1(tau**2) @ ca.DM(wts))
-        self._eval = ca.Function("ptp_outputs", [w], [T, tau, J])
+        wts[[0, -1]] = 0.5  # trapezoid weights of ∫τᵀτ dt
+        wts = ca.DM(wts).T
+
+        rows, f_win = window.map(N + 1)(xi, wts)
+        g = ca.vec(rows)[np.flatnonzero(row_valid.ravel()).tolist()]
+        f = options.k1 * self.t_ref * x[0] + ca.sum2(f_win)
+
+        # Jacobian: window Jacobians scattered by index (each global row lives in one window)
+        xs, ws = window.sx_in()
+        rows_s, f_s = window(xs, ws)
+        jac_s = ca.jacobian(rows_s, xs)
+        sp_w = jac_s.sparsity()
+        jw = ca.Function("window_jac", [xs, ws], [_nonzeros(jac_s)])
+        r_loc, c_loc = (np.array(a) for a in sp_w.get_triplet())
+        nnz_w = sp_w.nnz()
+        g_rows = row_index[:, r_loc]  # [N+1, nnz_w]
+        g_cols = var_index[:, c_loc]
+        keep = (g_rows >= 0) & (g_cols >= 0)
+        src = (np.arange(N + 1)[:, None] * nnz_w + np.arange(nnz_w)[None, :])[keep]
+        jac_sp, jac_perm = _csc(ng, self.nx, g_rows[keep], g_cols[keep])
+        jac_nz = ca.vec(jw.map(N + 1)(xi, wts))[src[jac_perm].tolist()]
+        jac_g = ca.Function("jac_g", [x, p], [g, ca.MX(jac_sp, jac_nz)], ["x", "p"], ["g", "jac_g_x"])
+
+        # gradient of f: window gradients summed into the variables they share
+        gw = ca.Function("window_grad", [xs, ws], [ca.densify(ca.gradient(f_s, xs))])
+        cols = var_index.ravel()
+        ok = cols >= 0
+        assemble = ca.DM(
+            ca.Sparsity.triplet(self.nx, cols.size, cols[ok].tolist(), np.flatnonzero(ok).tolist()), 1.0
+        )
+        grad = ca.mtimes(assemble, ca.vec(gw.map(N + 1)(xi, wts)))
+        grad = grad + ca.DM([options.k1 * self.t_ref] + [0.0] * (self.nx - 1))
+        grad_f = ca.Function("grad_f", [x, p], [f, grad], ["x", "p"], ["f", "grad_f_x"])
+
+        nlp_opts: dict = {"print_time": False, "jac_g": jac_g, "grad_f": grad_f}
+        if options.hessian == "exact":
+            nlp_opts["hess_lag"] = self._hessian(window, xi, wts, x, p, lam_f, lam_g, var_index, row_index)
 
         ipopt = {
             "max_iter": options.max_iter,
@@ -366,36 +399,142 @@ class PtpOcp:
         }
         if options.max_wall_s is not None:
             ipopt["max_wall_time"] = float(options.max_wall_s)
-        self.solver = ca.nlpsol(
-            "ptp",
-            "ipopt",
-            {"x": w, "f": J, "g": ca.vertcat(*rows)},
-            {"ipopt": ipopt, "print_time": False, "expand": options.expand},
-        )
+        nlp_opts["ipopt"] = ipopt
+        self.solver = ca.nlpsol("ptp", "ipopt", {"x": x, "f": f, "g": g}, nlp_opts)
+        self._objective = ca.Function("objective", [x], [f])
         self.build_seconds = time.perf_counter() - t_build
 
+    # --- the window -----------------------------------------------------------------------------------
+    def _window_function(self):
+        """SX function (xi, wt) → (rows, f_k), the row kinds and per-row validity predicates k → bool."""
+        n, N, lim, opt, dyn = self.dof, self.N, self.limits, self.options, self.dynamics
+        m = 1 + 11 * n
+        xi, wt = ca.SX.sym("xi", m), ca.SX.sym("wt")
+        vr, ar, jr = (ca.DM(a) for a in (self.v_ref, self.a_ref, self.j_ref))
+        tmax, rmax = ca.DM(lim.tau_max), ca.DM(lim.tau_rate_max)
+        T = self.t_ref * xi[0]
+        h = T / N
+
+        def state(o):
+            return xi[o : o + n], vr * xi[o + n : o + 2 * n], ar * xi[o + 2 * n : o + 3 * n]
+
+        q, qd, qdd = state(1 + 3 * n)
+        q_p, qd_p, qdd_p = state(1 + 6 * n)
+        u_m, u = jr * xi[1 + 9 * n : 1 + 10 * n], jr * xi[1 + 10 * n :]
+        tau, rate_l, rate_r = node_function(dyn)(q, qd, qdd, u_m, u)[:3]
+        rows, kinds, valid = [], [], []
+
+        def add(expr, kind, ok):
+            rows.append(expr)
+            kinds.extend([kind] * expr.numel())
+            valid.extend([ok] * expr.numel())
+
+        def interval(k):
+            return k < N
+
+        # exact integration of a constant jerk over interval k; defects scaled like the variables
+        add(q_p - (q + h * qd + h**2 / 2 * qdd + h**3 / 6 * u), "defects", interval)
+        add((qd_p - (qd + h * qdd + h**2 / 2 * u)) / vr, "defects", interval)
+        add((qdd_p - (qdd + h * u)) / ar, "defects", interval)
+        add(tau / tmax, "torque", lambda k: 0 < k < N)  # the end torques are the holding torques
+        add(rate_l / rmax, "torque_rate", lambda k: k > 0)
+        add(rate_r / rmax, "torque_rate", interval)
+        # q̇ is quadratic between the nodes: bound it at the interval midpoints too (cheap rows)
+        add((qd + h / 2 * qdd + h**2 / 8 * u) / vr, "velocity", interval)
+        if opt.tcp_box_m is not None:
+            if dyn.tcp_fk is None:
+                raise ValueError("a TCP box needs PtpDynamics.tcp_fk")
+            lo, hi = (np.asarray(c, float) for c in opt.tcp_box_m)
+            p_tcp = _sx_function(dyn.tcp_fk)(q)[0]
+            add((p_tcp - ca.DM((lo + hi) / 2)) / ca.DM((hi - lo) / 2), "tcp_box", lambda k: 0 < k < N)
+        f_k = opt.k2_per_nm2 * h * wt * ca.sumsqr(tau)
+        fn = ca.Function("ptp_window", [xi, wt], [ca.vertcat(*rows), f_k], ["xi", "wt"], ["rows", "f"])
+        return fn, kinds, valid
+
+    def _window_variables(self) -> np.ndarray:
+        """Global index of every window variable, −1 where the window reaches past the ends."""
+        n, N = self.dof, self.N
+        o_q, o_v, o_a, o_u = 1, 1 + n * (N + 1), 1 + 2 * n * (N + 1), 1 + 3 * n * (N + 1)
+        idx = np.full((N + 1, 1 + 11 * n), -1)
+        j = np.arange(n)
+        for k in range(N + 1):
+            idx[k, 0] = 0
+            for s, node in enumerate((k - 1, k, k + 1)):
+                if 0 <= node <= N:
+                    base = 1 + 3 * n * s
+                    idx[k, base : base + n] = o_q + node * n + j
+                    idx[k, base + n : base + 2 * n] = o_v + node * n + j
+                    idx[k, base + 2 * n : base + 3 * n] = o_a + node * n + j
+            for s, iv in enumerate((k - 1, k)):
+                if 0 <= iv < N:
+                    idx[k, 1 + 9 * n + s * n : 1 + 10 * n + s * n] = o_u + iv * n + j
+        return idx
+
+    def _hessian(self, window, xi, wts, x, p, lam_f, lam_g, var_index, row_index) -> ca.Function:
+        """Exact Hessian of the Lagrangian, assembled from window Hessians (upper triangle)."""
+        N = self.N
+        xs, ws = window.sx_in()
+        rows, f_k = window(xs, ws)
+        lf, lr = ca.SX.sym("lam_f"), ca.SX.sym("lam_rows", rows.numel())
+        hess = ca.triu(ca.hessian(lf * f_k + ca.dot(lr, rows), xs)[0])
+        sp_w = hess.sparsity()
+        hw = ca.Function("window_hess", [xs, ws, lf, lr], [_nonzeros(hess)])
+        r_loc, c_loc = (np.array(a) for a in sp_w.get_triplet())
+        nnz_w = sp_w.nnz()
+        a, b = var_index[:, r_loc], var_index[:, c_loc]
+        keep = (a >= 0) & (b >= 0)
+        lo, hi = np.minimum(a, b)[keep], np.maximum(a, b)[keep]
+        src = (np.arange(N + 1)[:, None] * nnz_w + np.arange(nnz_w)[None, :])[keep]
+        # duplicates (variables shared by neighbouring windows) are summed by the assembly matrix
+        key = hi * self.nx + lo
+        uniq, inverse = np.unique(key, return_inverse=True)
+        sp = ca.Sparsity.triplet(self.nx, self.nx, (uniq % self.nx).tolist(), (uniq // self.nx).tolist())
+        # triplet() sorts column-major, as np.unique on hi * nx + lo already is
+        assemble = ca.DM(ca.Sparsity.triplet(len(uniq), (N + 1) * nnz_w, inverse.tolist(), src.tolist()), 1.0)
+        lam_pad = ca.vertcat(lam_g, 0)
+        lam_w = ca.reshape(
+            lam_pad[np.where(row_index >= 0, row_index, lam_g.numel()).ravel().tolist()], -1, N + 1
+        )
+        nz = ca.mtimes(assemble, ca.vec(_sx_function(hw).map(N + 1)(xi, wts, lam_f, lam_w)))
+        return ca.Function(
+            "hess_lag",
+            [x, p, lam_f, lam_g],
+            [ca.MX(sp, nz)],
+            ["x", "p", "lam_f", "lam_g"],
+            ["triu_hess_gamma_x_x"],
+        )
+
     # --- bounds and guesses -------------------------------------------------------------------------
-    def _bounds(self, q_start: np.ndarray, q_goal: np.ndarray):
-        n, N, lim, s = self.dof, self.N, self.limits, 1.0 - self.options.margin
+    def margins(self, **override: float) -> dict[str, float]:
+        """Per-limit margins: the options' margin for every limit, with `override`s."""
+        m = dict.fromkeys(LIMIT_NAMES, self.options.margin)
+        m.update(override)
+        return m
+
+    def _bounds(self, q_start: np.ndarray, q_goal: np.ndarray, margins: dict[str, float]):
+        n, N, lim = self.dof, self.N, self.limits
         half = (lim.q_max - lim.q_min) / 2
-        lo = np.minimum(lim.q_min + (1 - s) * half, np.minimum(q_start, q_goal))
-        hi = np.maximum(lim.q_max - (1 - s) * half, np.maximum(q_start, q_goal))
+        mp = margins["position"]
+        lo = np.minimum(lim.q_min + mp * half, np.minimum(q_start, q_goal))
+        hi = np.maximum(lim.q_max - mp * half, np.maximum(q_start, q_goal))
         q_lb, q_ub = np.tile(lo[:, None], N + 1), np.tile(hi[:, None], N + 1)
         q_lb[:, 0] = q_ub[:, 0] = q_start
         q_lb[:, -1] = q_ub[:, -1] = q_goal
-        v_b = np.full((n, N + 1), s)
+        v_b = np.full((n, N + 1), 1.0 - margins["velocity"])
         v_b[:, [0, -1]] = 0.0
-        a_lim = np.full(n, np.inf) if lim.a_max is None else s * lim.a_max / self.a_ref
+        a_lim = (
+            np.full(n, np.inf)
+            if lim.a_max is None
+            else (1.0 - margins["acceleration"]) * lim.a_max / self.a_ref
+        )
         a_b = np.tile(a_lim[:, None], N + 1)
         a_b[:, [0, -1]] = 0.0
         u_b = np.full(n * N, np.inf)
         lbx = np.concatenate([[1e-3 / self.t_ref], q_lb.ravel("F"), -v_b.ravel("F"), -a_b.ravel("F"), -u_b])
         ubx = np.concatenate([[100.0 / self.t_ref], q_ub.ravel("F"), v_b.ravel("F"), a_b.ravel("F"), u_b])
-        ng = sum(self._g_sizes)
-        lbg, ubg = np.zeros(ng), np.zeros(ng)
-        k = self._g_sizes[0]
-        lbg[k:], ubg[k:] = -s, s
-        return lbx, ubx, lbg, ubg
+        bound = {k: 1.0 - v for k, v in margins.items()} | {"defects": 0.0}
+        ubg = np.array([bound[k] for k in self.row_kinds])
+        return lbx, ubx, -ubg, ubg
 
     def _pack(self, guess: NodeGuess) -> np.ndarray:
         N = self.N
@@ -423,10 +562,15 @@ class PtpOcp:
             jerk=blk[4].reshape(N, n) * self.j_ref,
         )
 
-    def solve(self, q_start, q_goal, guess: NodeGuess) -> PtpSolution:
-        """Solve from `guess` (on this grid). Never raises on non-convergence: see `.success`, `.status`."""
+    def solve(
+        self, q_start, q_goal, guess: NodeGuess, margins: dict[str, float] | None = None
+    ) -> PtpSolution:
+        """Solve from `guess` (on this grid) with limits tightened by `margins` (default: the options').
+
+        Never raises on non-convergence: see `.success`, `.status`.
+        """
         q_start, q_goal = np.asarray(q_start, float), np.asarray(q_goal, float)
-        lbx, ubx, lbg, ubg = self._bounds(q_start, q_goal)
+        lbx, ubx, lbg, ubg = self._bounds(q_start, q_goal, margins or self.margins())
         x0 = np.clip(self._pack(guess), lbx, ubx)
         t0 = time.perf_counter()
         res = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
@@ -434,15 +578,14 @@ class PtpOcp:
         stats = self.solver.stats()
         w = np.asarray(res["x"]).ravel()
         sol = self._unpack(w)
-        T, tau, J = self._eval(w)
         return PtpSolution(
-            duration_s=float(T),
+            duration_s=sol.duration_s,
             q=sol.q,
             qd=sol.qd,
             qdd=sol.qdd,
             jerk=sol.jerk,
-            tau=np.asarray(tau).T,
-            objective=float(J),
+            tau=self.dynamics.torque(sol.q, sol.qd, sol.qdd),
+            objective=float(res["f"]),
             status=str(stats.get("return_status", "unknown")),
             success=bool(stats.get("success", False)),
             iterations=int(stats.get("iter_count", -1)),
@@ -548,6 +691,8 @@ class PtpResult:
     warm_start: KinematicProfile
     build_seconds: float
     tcp_box_ratio: float | None = None
+    margins: dict | None = None
+    resolves: int = 0
 
     @property
     def duration_s(self) -> float:
@@ -557,6 +702,12 @@ class PtpResult:
     def max_limit_ratio(self) -> float:
         r = self.report.max_ratio
         return r if self.tcp_box_ratio is None else max(r, self.tcp_box_ratio)
+
+    def active_fraction(self) -> float:
+        """Fraction of the samples where some limit (not position) is active: within 1 % of the bound
+        the NLP used (the limit tightened by its margin), the paper's time-optimality check."""
+        used = [v for k, v in (self.margins or {}).items() if k != "position" and k in self.report.ratios]
+        return self.report.active_fraction(threshold=1.0 - max(used, default=0.0) - 0.01)
 
     @property
     def tau_squared_integral(self) -> float:
@@ -621,11 +772,15 @@ def plan_ptp(
     *,
     warm_start: KinematicProfile | None = None,
     ocp: PtpOcp | None = None,
+    max_resolves: int = 2,
 ) -> PtpResult:
     """Plan the optimal rest-to-rest motion from `q_start` to `q_goal` (rad).
 
     Raises InputError (exit 2) for end points outside the limits, PtpNotConverged (exit 3) when IPOPT
     fails. `warm_start` overrides the ruckig profile; `ocp` a built NLP (default: `cached_ocp`).
+    If the dense check finds a limit exceeded by more than `DENSE_TOLERANCE` between the nodes, that
+    limit's margin grows by the excess and the NLP is solved again from the solution (at most
+    `max_resolves` times; coarse grids need it, N ≥ 50 rarely does).
     """
     options = options or PtpOptions()
     limits = PtpLimits.from_robot(robot, acceleration=options.acceleration_limits)
@@ -642,13 +797,29 @@ def plan_ptp(
     t0 = time.perf_counter()
     ocp = ocp or cached_ocp(dynamics, limits, options)
     build = time.perf_counter() - t0
-    sol = ocp.solve(q_start, q_goal, NodeGuess.from_profile(warm_start, ocp.N))
-    if not sol.success:
-        raise PtpNotConverged(sol.status, sol)
-    traj = sample_solution(sol, dynamics, robot.drives.cycle_s, q_goal=q_goal)
-    report = dense_report(traj, dynamics, limits, robot.joint_names)
-    box = None if options.tcp_box_m is None else tcp_box_ratio(robot, traj.q, options.tcp_box_m)
-    return PtpResult(traj, report, sol, warm_start, build, box)
+    margins = ocp.margins()
+    guess = NodeGuess.from_profile(warm_start, ocp.N)
+    seconds, iterations = 0.0, 0
+    for attempt in range(1 + max_resolves):
+        sol = ocp.solve(q_start, q_goal, guess, margins)
+        seconds, iterations = seconds + sol.solve_seconds, iterations + sol.iterations
+        sol = replace(sol, solve_seconds=seconds, iterations=iterations)
+        if not sol.success:
+            raise PtpNotConverged(sol.status, sol)
+        traj = sample_solution(sol, dynamics, robot.drives.cycle_s, q_goal=q_goal)
+        report = dense_report(traj, dynamics, limits, robot.joint_names)
+        ratios = report.max_by_limit()
+        if options.tcp_box_m is not None:
+            ratios["tcp_box"] = tcp_box_ratio(robot, traj.q, options.tcp_box_m)
+        over = {k: r for k, r in ratios.items() if r > 1.0 + DENSE_TOLERANCE}
+        if not over or attempt == max_resolves:
+            break
+        # between the nodes a limit was exceeded: tighten that limit by the excess and solve again
+        # from this solution (only bounds change, the NLP is reused)
+        for k, r in over.items():
+            margins[k] += r - 1.0 + options.margin
+        guess = NodeGuess(sol.duration_s, sol.q, sol.qd, sol.qdd, sol.jerk)
+    return PtpResult(traj, report, sol, warm_start, build, ratios.get("tcp_box"), margins, attempt)
 
 
 def kinematic_fallback(

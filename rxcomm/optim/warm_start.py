@@ -91,33 +91,44 @@ def feasible_profile(
     max_ratio: Callable[[KinematicProfile], float],
     *,
     target: float = 1.0,
-    iterations: int = 30,
+    iterations: int = 40,
 ) -> tuple[KinematicProfile, float]:
     """The fastest time-scaled ruckig profile whose `max_ratio(profile)` (a dense limit check) is ≤ `target`.
 
-    Bisects the speed factor s ∈ (0, 1] of `scaled_profile`. Returns (profile, its ratio). Raises
-    InfeasibleError if even a very slow profile fails (e.g. a static torque above its limit).
+    Bisects the speed factor s of `scaled_profile` (after doubling it while the profile still fits, so
+    conservative kinematic limits do not make a slow fallback). Returns (profile, its ratio). Raises
+    InfeasibleError if even a very slow profile fails (e.g. a holding torque above its limit).
     """
-    fast = scaled_profile(q_start, q_goal, v_max, a_max, j_max, 1.0)
-    r = max_ratio(fast)
-    if r <= target:
-        return fast, r
-    lo, hi = 1e-3, 1.0
-    slow = scaled_profile(q_start, q_goal, v_max, a_max, j_max, lo)
-    r_slow = max_ratio(slow)
-    if r_slow > target:
-        raise InfeasibleError(
-            f"no kinematic fallback: even at {lo:g}× speed the limit ratio is {r_slow:.3f} > {target}"
-        )
-    best, best_r = slow, r_slow
-    for _ in range(iterations):
-        mid = 0.5 * (lo + hi)
-        p = scaled_profile(q_start, q_goal, v_max, a_max, j_max, mid)
-        rm = max_ratio(p)
-        if rm <= target:
-            lo, best, best_r = mid, p, rm
+
+    def at(speed: float) -> tuple[KinematicProfile, float]:
+        p = scaled_profile(q_start, q_goal, v_max, a_max, j_max, speed)
+        return p, max_ratio(p)
+
+    lo, hi = 1.0, 1.0
+    best, best_r = at(1.0)
+    if best_r <= target:
+        while hi < 64.0:  # grow until infeasible
+            hi *= 2.0
+            p, r = at(hi)
+            if r > target:
+                break
+            lo, best, best_r = hi, p, r
         else:
-            hi = mid
+            return best, best_r
+    else:
+        lo = 1e-3
+        best, best_r = at(lo)
+        if best_r > target:
+            raise InfeasibleError(
+                f"no kinematic fallback: even at {lo:g}× speed the limit ratio is {best_r:.3f} > {target}"
+            )
+    for _ in range(iterations):
         if hi - lo < 1e-3 * hi:
             break
+        mid = 0.5 * (lo + hi)
+        p, r = at(mid)
+        if r <= target:
+            lo, best, best_r = mid, p, r
+        else:
+            hi = mid
     return best, best_r
