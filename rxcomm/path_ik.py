@@ -206,7 +206,7 @@ def _fmt_ranges(r: list[tuple[float, float]]) -> str:
 
 
 def reachability_scan(
-    robot: Robot, path: CartesianPath, selector: BranchSelector, n: int = 41
+    robot: Robot, path: CartesianPath, selector: BranchSelector, n: int = 33
 ) -> list[tuple[float, float]]:
     """σ intervals (on a grid of n points) where no IK solution on the branch exists within limits."""
     data = robot.create_data()
@@ -216,7 +216,7 @@ def reachability_scan(
     for i, pose in enumerate(path.poses(s)):
         q = solve_pose(robot, data, pose, selector, seed=prev) if prev is not None else None
         if q is None:
-            q = solve_pose(robot, data, pose, selector, n_starts=32)
+            q = solve_pose(robot, data, pose, selector, n_starts=12)
         bad[i] = q is None
         prev = q
     return _ranges(s, bad)
@@ -311,16 +311,19 @@ def _branch_text(branch: Branch | None) -> str:
 
 
 def _raise_stuck(robot, path, selector, data, s, q, q_new, err) -> None:
-    """Continuation cannot advance past σ = s: unreachable, or a singularity the branch cannot pass."""
-    sm = selector.sigma_min(data, q)
-    if err < NEWTON_TOL * 100 or sm < 0.05:
+    """Continuation cannot advance past σ = s: the path leaves the reachable workspace on this branch
+    (its boundary is itself singular: the arm stretches), or crosses a singularity inside it."""
+    ranges = [
+        r for r in reachability_scan(robot, path, BranchSelector(robot, selector.branch)) if r[1] >= s - 1e-9
+    ]
+    if ranges:
         raise InfeasibleError(
-            f"path {path.name!r} passes through a singularity near σ = {s:.4f} m: the IK branch cannot "
-            f"be followed (σ_min = {sm:.2e}; {_null_joints(selector, data, q)} move without moving the TCP)"
+            f"path {path.name!r} is unreachable on branch {_branch_text(selector.branch)} at "
+            f"{_fmt_ranges(ranges)} (IK stops at σ = {s:.4f} m of {path.length_m:.4f} m, where "
+            f"{_null_joints(selector, data, q)} reach the edge of the workspace)"
         )
-    ranges = reachability_scan(robot, path, BranchSelector(robot, selector.branch))
-    where = _fmt_ranges(ranges) if ranges else f"σ = {s:.4f} m"
+    sm = selector.sigma_min(data, q)
     raise InfeasibleError(
-        f"path {path.name!r} is unreachable on branch {_branch_text(selector.branch)} at {where} "
-        f"(IK stops at σ = {s:.4f} m of {path.length_m:.4f} m)"
+        f"path {path.name!r} passes through a singularity near σ = {s:.4f} m: the IK branch cannot "
+        f"be followed (σ_min = {sm:.2e}; {_null_joints(selector, data, q)} move without moving the TCP)"
     )
