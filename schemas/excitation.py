@@ -55,9 +55,17 @@ class ExcitationSettings(BaseModel):
     torque_fraction: float = Field(
         0.8, gt=0, le=1, description="of peak torque, on the prior model (the real arm may be heavier)"
     )
+    torque_rate_reserve: float = Field(
+        0.2,
+        ge=0,
+        lt=1,
+        description="of the torque-rate limit kept for the smooth dynamics where Coulomb friction reverses",
+    )
     region_margin_m: float = Field(0.0, ge=0, description="kept inside each allowed-region box")
     coulomb_eps_rad_s: float = Field(
-        0.05, gt=0, description="tanh width of the Coulomb column in the NLP (reported cond uses sign)"
+        0.05,
+        gt=0,
+        description="tanh width of the Coulomb column in the NLP objective (reported cond uses sign)",
     )
     start_rad: list[float] | None = Field(
         None, description="fixed rest pose q(0) = q(T); optimised (inside the limits and region) when None"

@@ -12,8 +12,9 @@ from typer.testing import CliRunner
 
 from rxcomm.base_parameters import base_parameters
 from rxcomm.cli import app
-from rxcomm.dynamics import RobotDynamics, prior_parameters
+from rxcomm.dynamics import COULOMB_EPS_NLP_RAD_S, RobotDynamics, prior_parameters
 from rxcomm.errors import InfeasibleError, InputError
+from rxcomm.execution.plan import prepare_plan
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.limits import check_limits
 from rxcomm.optim.excitation import (
@@ -122,17 +123,33 @@ def test_peak_constraint_jacobian_matches_finite_differences(small_problem):
         d = np.zeros_like(x)
         d[i] = 1e-7
         num[:, i] = (fun(x + d) - fun(x - d)) / 2e-7
+    peaks = slice(0, len(j) - prob.n * 2 * prob.n_h)  # the velocity-reversal rows are tested below
     # rows whose peak does not move to another grid sample within ±1e-7 (almost all)
-    ok = np.abs(j - num).max(axis=1) < 1e-5 * (1 + np.abs(j).max(axis=1))
+    ok = np.abs(j - num)[peaks].max(axis=1) < 1e-5 * (1 + np.abs(j[peaks]).max(axis=1))
     assert ok.mean() > 0.97
     assert fun(x).min() >= -1e-9  # a random feasible start satisfies every peak constraint
+
+
+def test_velocity_reversal_constraint_matches_finite_differences(small_problem):
+    prob = small_problem
+    x = prob.random_feasible(np.random.default_rng(8))
+    r, j = prob.crossings(x)
+    assert (r > 0).sum() >= 6  # every joint reverses at least once in a period
+    jf = j.reshape(r.size, -1)[:, prob.free_mask.ravel()]
+    num = np.empty_like(jf)
+    for i in range(len(x)):
+        d = np.zeros_like(x)
+        d[i] = 1e-7
+        num[:, i] = (prob.crossings(x + d)[0] - prob.crossings(x - d)[0]).ravel() / 2e-7
+    live = r.ravel() > 0.25  # rows left without gradient far from their limit
+    assert np.allclose(jf[live], num[live], rtol=1e-4, atol=1e-6 * np.abs(jf).max())
 
 
 def test_random_feasible_holds_every_limit_densely(rx130l, small_problem):
     prob = small_problem
     x = prob.random_feasible(np.random.default_rng(5))
     traj = prob.trajectory(x)
-    samples = sample_trajectory(rx130l, traj, 1, prob.prior, SMALL.coulomb_eps_rad_s)
+    samples = sample_trajectory(rx130l, traj, 1, prob.prior)
     assert prob.design_ratios(samples).max() <= 1.0 + 1e-3
     assert 1 < prob.cond(x)[0] < 1e6
 
@@ -153,11 +170,14 @@ def test_small_design_is_feasible_at_the_drive_cycle_and_beats_baseline(rx130l, 
             pts[name] <= np.array(box.max_m) + 1e-9
         )
     assert d.max_limit_ratio <= 1.0
-    tau = RobotDynamics(rx130l, prior_parameters(rx130l), SMALL.coulomb_eps_rad_s).inverse_dynamics(
+    tau = RobotDynamics(rx130l, prior_parameters(rx130l), COULOMB_EPS_NLP_RAD_S).inverse_dynamics(
         s.q, s.qd, s.qdd
     )
     assert np.allclose(tau, s.tau_ff)
     assert d.cond < d.baseline_cond
+    # and `run` accepts it: its own dense check of every limit, torque rate included, at the drive cycle
+    plan = prepare_plan(rx130l, s, prior_parameters(rx130l), rx130l.drives.cycle_s, limit_tolerance=0.0)
+    assert plan.report.max_ratio <= 1.0
 
 
 def test_fixed_start_is_kept_and_bad_start_refused(rx130l, cell_rx, bset_rx):

@@ -33,6 +33,7 @@ from rxcomm.identification import (
     preprocess,
     pseudo_inertia,
     regressor,
+    validate,
 )
 from rxcomm.io.mcap_io import McapWriter
 from rxcomm.io.robot_csv import read_robot_csv, write_robot_csv
@@ -295,7 +296,7 @@ def test_noise_free_prior_is_recovered(rx130l, bset_rx, random_traj, validation_
     log = _log(rx130l, random_traj)
     val = _log(rx130l, validation_traj)
     res = identify(rx130l, log, bset=bset_rx, validation_log=val)
-    assert np.all(res.validation.nrmse < 3e-3)
+    assert np.all(res.validation.nrmse < 1e-2)
     # every base parameter's error moves the torque by < 0.1 % of its RMS (a random trajectory leaves
     # the wrist's 1e-5 kg·m² products of inertia poorly determined, but they do not matter)
     w = bset_rx.base_regressor(regressor(rx130l, preprocess(log, IdentifySettings())))
@@ -303,6 +304,21 @@ def test_noise_free_prior_is_recovered(rx130l, bset_rx, random_traj, validation_
     effect = np.linalg.norm(w * (res.estimate.p_b - bset_rx.project(prior)), axis=0) / tau_rms
     assert effect.max() < 1e-3, bset_rx.names[int(np.argmax(effect))]
     assert res.physical_fit.mahalanobis < 1.0  # the prior is consistent
+
+
+def test_a_joint_standing_still_is_judged_by_its_static_friction_band(rx130l, bset_rx, random_traj):
+    prior = prior_parameters(rx130l)
+    t, q, qd, qdd = sampled(rx130l, random_traj)
+    q[:, 3], qd[:, 3], qdd[:, 3] = 0.3, 0.0, 0.0  # J4 held still (as on an ISO path)
+    tau = RobotDynamics(rx130l, prior).inverse_dynamics(q, qd, qdd)
+    stuck = tau.copy()
+    stuck[:, 3] += 0.5 * prior.coulomb_nm[3]  # static friction somewhere inside ±Fc
+    data = preprocess(JointLog(t, q, stuck), IdentifySettings())
+    val = validate(rx130l, prior, data, "test")
+    assert val.standstill_fraction[3] == 1.0 and val.rms_nm[3] < 1e-9
+    stuck[:, 3] += 2.0 * prior.coulomb_nm[3]  # outside the band: an error of 1.5 Fc − Fc
+    val = validate(rx130l, prior, preprocess(JointLog(t, q, stuck), IdentifySettings()), "test")
+    assert val.rms_nm[3] == pytest.approx(1.5 * prior.coulomb_nm[3], rel=1e-3)
 
 
 def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
