@@ -18,6 +18,7 @@ from rxcomm.stages import (
     identify,
     plan_cp,
     plan_ptp,
+    report,
     robot_info,
     run,
     select_configs,
@@ -58,6 +59,7 @@ app.command("excite")(excite.command)
 app.command("identify")(identify.command)
 app.command("plan-cp")(plan_cp.command)
 app.command("plan-ptp")(plan_ptp.command)
+app.command("report")(report.command)
 
 
 def main() -> None:

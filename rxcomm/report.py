@@ -1,0 +1,203 @@
+"""The commissioning report: every stage's headline figures beside the paper's, with the figures.
+
+Pure functions over artefact summaries (plain mappings read from the YAML files) → Markdown text.
+Reading the files is the `report` stage's job.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+# Paper Table 2 (RX130L, 3D-Creator tracker): max |e| before → after, x y z in mm, α β γ in degrees.
+PAPER_TABLE2_MAX = {
+    "x": (7.779, 0.272),
+    "y": (19.026, 0.310),
+    "z": (12.614, 0.414),
+    "alpha": (1.140, 0.128),
+    "beta": (1.817, 0.191),
+    "gamma": (1.160, 0.131),
+}
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One headline number: ours, the paper's, and what it answers."""
+
+    what: str
+    ours: str
+    paper: str = ""
+
+
+@dataclass(frozen=True)
+class Section:
+    title: str
+    figures: Sequence[Figure]
+    image: str | None = None
+    note: str = ""
+    table: str = ""
+
+
+def _f(x: object, scale: float = 1.0, digits: int = 3, unit: str = "") -> str:
+    if x is None:
+        return "—"
+    if isinstance(x, list | tuple):
+        return "[" + ", ".join(_f(v, scale, digits) for v in x) + "]" + (f" {unit}" if unit else "")
+    return f"{float(x) * scale:.{digits}g}" + (f" {unit}" if unit else "")
+
+
+def configs_section(s: Mapping, image: str | None) -> Section:
+    return Section(
+        "Optimal measurement poses (paper §3.3)",
+        [
+            Figure("candidates → selected", f"{s['n_candidates']} → {s['n_selected']}", "≈ 4000 → 32"),
+            Figure("observation index σ_min(ΘᵀΘ)", _f(s["observation_index"], digits=4)),
+            Figure(
+                "naive baseline (evenly spaced candidates)", _f(s["baseline_observation_index"], digits=4)
+            ),
+            Figure("improvement ratio", _f(s["improvement_ratio"]), "18.5 (vs a linear scan)"),
+            Figure("compute time", _f(s["seconds"], unit="s"), "about 5 min"),
+        ],
+        image,
+        note="Our baseline is the same number of evenly spaced feasible candidates, not a linear scan of "
+        "one joint range; the index is bounded by the weakest identifiable combination (J5 offset vs J6 "
+        "misalignment over a 0.11 m lever), which every pose set sees alike.",
+    )
+
+
+def calibration_table(tables: Sequence[Mapping]) -> str:
+    """The paper's Table 2 on held-out poses: max |e| and peak-to-peak per axis, before and after."""
+    by = {(t["pose_set"], t["model"]): t for t in tables}
+    lines = [
+        "| axis | nominal max | calibrated max | calibrated p-p | frames-only max | paper max before→after |",
+        "|---|---|---|---|---|---|",
+    ]
+    nominal, cal, frames = (by.get(("heldout", m)) for m in ("nominal", "calibrated", "frames_only"))
+    if nominal is None or cal is None:
+        return ""
+    for i, row in enumerate(cal["rows"]):
+        q = row["quantity"]
+        scale, unit = (1e3, "mm") if row["unit"] == "m" else (180 / np.pi, "°")
+        fr = frames["rows"][i]["max_abs"] * scale if frames else float("nan")
+        pb, pa = PAPER_TABLE2_MAX[q]
+        before = nominal["rows"][i]["max_abs"] * scale
+        lines.append(
+            f"| {q} | {before:.3f} {unit} | {row['max_abs'] * scale:.3f} {unit} "
+            f"| ±{row['peak_to_peak'] * scale / 2:.3f} {unit} | {fr:.3f} {unit} | {pb} → {pa} {unit} |"
+        )
+    return "\n".join(lines)
+
+
+def calibration_section(s: Mapping, tables: Sequence[Mapping]) -> Section:
+    return Section(
+        "Geometric calibration (paper §3.1–3.4, Table 2)",
+        [
+            Figure("identifiable parameters", str(s["n_identifiable"]), "39 → 30 by QR"),
+            Figure(
+                "held-out max position error: nominal → calibrated",
+                f"{_f(s['nominal_heldout_max_position_error_m'], 1e3)} → "
+                f"{_f(s['heldout_max_position_error_m'], 1e3)} mm",
+                "max per axis 19.0 → 0.41 mm",
+            ),
+            Figure(
+                "held-out max orientation error after",
+                _f(np.degrees(s["heldout_max_orientation_error_rad"]), unit="°"),
+                "0.19°",
+            ),
+            Figure(
+                "base + tool frames only (honest baseline)",
+                _f(s["frames_only_heldout_max_position_error_m"], 1e3, unit="mm"),
+            ),
+            Figure("compute time", _f(s["seconds"], unit="s")),
+        ],
+        table=calibration_table(tables),
+        note="Errors are measured on held-out poses the fit never saw, on the simulated cell's tracker "
+        "(σ = 0.05 mm, 0.1 mrad).",
+    )
+
+
+def excitation_section(s: Mapping, image: str | None) -> Section:
+    return Section(
+        "Optimal exciting trajectory (paper §4.2)",
+        [
+            Figure("cond(W), unit-norm columns", _f(s["cond"]), "N = 5, ω_f = 0.8 rad/s, k = 80"),
+            Figure("random feasible Fourier trajectory (median)", _f(s["baseline_cond"])),
+            Figure("cond(W) unnormalised", _f(s.get("cond_raw"))),
+            Figure("densely sampled max limit ratio", _f(s.get("max_limit_ratio"), digits=4), "≤ 1"),
+            Figure("duration", _f(s["duration_s"], unit="s")),
+            Figure("compute time", _f(s["seconds"], unit="s")),
+        ],
+        image,
+    )
+
+
+def dynamics_section(s: Mapping, image: str | None) -> Section:
+    return Section(
+        "Dynamic identification (paper §4.1, §4.3, Fig. 5b)",
+        [
+            Figure("base parameters", str(s["n_base_params"])),
+            Figure(
+                "validation NRMSE per joint", _f(s["validation_nrmse"], 100, 3, "%"), "Fig. 5b: close match"
+            ),
+            Figure("validation RMS error per joint", _f(s["validation_rms_nm"], unit="N·m")),
+            Figure("compute time", _f(s["seconds"], unit="s")),
+        ],
+        image,
+    )
+
+
+def trajectory_section(title: str, s: Mapping, image: str | None, paper_duration: str) -> Section:
+    return Section(
+        title,
+        [
+            Figure("duration", _f(s["duration_s"], digits=4, unit="s"), paper_duration),
+            Figure("max limit ratio, sampled at the drive cycle", _f(s["max_limit_ratio"], digits=4), "≤ 1"),
+            Figure("fraction of time with a limit active", _f(s["active_fraction"]), "≈ 1 (time-optimal)"),
+            Figure("solve time", _f(s["solve_seconds"], unit="s")),
+        ],
+        image,
+    )
+
+
+def ptp_vs_cp_figure(cp: Mapping, ptp: Mapping) -> Figure:
+    return Figure(
+        "PtP / CP duration between the same end states",
+        _f(ptp["duration_s"] / cp["duration_s"]),
+        "0.67 s / 1.04 s = 0.64",
+    )
+
+
+def execution_section(ff: Mapping, noff: Mapping | None, image: str | None) -> Section:
+    figs = [
+        Figure("max joint lag with feed-forward", _f(ff["max_lag_rad"], 1e3, unit="mrad")),
+        Figure("max TCP error with feed-forward", _f(ff["max_tcp_error_m"], 1e3, unit="mm")),
+        Figure("underruns", str(ff["underruns"])),
+    ]
+    if noff is not None:
+        figs += [
+            Figure("max joint lag without feed-forward", _f(noff["max_lag_rad"], 1e3, unit="mrad")),
+            Figure("max TCP error without feed-forward", _f(noff["max_tcp_error_m"], 1e3, unit="mm")),
+            Figure(
+                "lag reduction by feed-forward (worst joint)",
+                f"×{max(noff['max_lag_rad']) / max(ff['max_lag_rad']):.1f}",
+                "Fig. 2: model-based ≪ standard",
+            ),
+        ]
+    return Section("Execution with model-based feed-forward (paper §2.3, Fig. 2)", figs, image)
+
+
+def render(title: str, preamble: str, sections: Sequence[Section]) -> str:
+    out = [f"# {title}", "", preamble, ""]
+    for sec in sections:
+        out += [f"## {sec.title}", "", "| figure | rxcomm | paper |", "|---|---|---|"]
+        out += [f"| {f.what} | {f.ours} | {f.paper} |" for f in sec.figures]
+        out.append("")
+        if sec.table:
+            out += [sec.table, ""]
+        if sec.note:
+            out += [sec.note, ""]
+        if sec.image:
+            out += [f"![{sec.title}]({sec.image})", ""]
+    return "\n".join(out)
