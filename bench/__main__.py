@@ -21,7 +21,7 @@ from rich.table import Table
 from bench.table import Row
 
 # Each module exposes `rows(quick: bool) -> list[Row]`.
-SECTIONS = ["bench.foundation", "bench.calibration", "bench.run", "bench.identification"]
+SECTIONS = ["bench.foundation", "bench.calibration", "bench.run", "bench.identification", "bench.plan_ptp"]
 
 
 def _fmt(x: float | None, unit: str) -> str:

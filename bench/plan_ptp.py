@@ -1,0 +1,98 @@
+"""plan-ptp rows: the N = 100 OCP solve beside the paper's forward-dynamics multiple shooting of the same
+problem (timed in the same run, under a wall-time cap), and the PtP duration beside plan-cp's."""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+from rxcomm.stages.plan_cp import plan_dynamics, read_path
+
+from bench.table import Row
+from rxcomm.optim.cp import CpSettings, plan_cp
+from rxcomm.optim.ptp import PtpDynamics, PtpLimits, PtpOcp, PtpOptions, plan_ptp
+from rxcomm.optim.ptp_shooting import ShootingOcp
+from rxcomm.robot import load_robot
+
+LINE = "samples/rx130l/paths/line-near-singularity.yaml"
+
+
+def bench_plan_ptp(quick: bool = False, shooting_cap_s: float | None = None) -> list[Row]:
+    """One N = 100 solve (median over repeats; build and solve timed apart), L-BFGS and the
+    forward-dynamics multiple shooting on the same end points, and PtP vs CP on the paper's line."""
+    robot = load_robot("samples/rx130l")
+    _, path = read_path(LINE, robot)
+    cp_settings = CpSettings()
+    cp = plan_cp(robot, path, plan_dynamics(robot, None, cp_settings.coulomb_eps_rad_s), cp_settings)
+    q0, q1 = cp.q[0], cp.q[-1]
+    dyn = PtpDynamics.from_parameters(robot)
+    limits = PtpLimits.from_robot(robot)
+    repeats = 1 if quick else 3
+
+    def timed(options: PtpOptions) -> tuple[float, float, object]:
+        builds, solves, res = [], [], None
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            ocp = PtpOcp(dyn, limits, options)
+            builds.append(time.perf_counter() - t0)
+            res = plan_ptp(robot, dyn, q0, q1, options, ocp=ocp)
+            solves.append(res.solution.solve_seconds)
+        return statistics.median(builds), statistics.median(solves), res
+
+    build100, solve100, res100 = timed(PtpOptions(n_intervals=100))
+    _, solve50, res50 = timed(PtpOptions(n_intervals=50))
+    _, solve_lbfgs, res_lbfgs = timed(PtpOptions(n_intervals=100, hessian="limited-memory"))
+
+    cap = shooting_cap_s or (30.0 if quick else 180.0)
+    n_shoot = 20 if quick else 100
+    shoot = ShootingOcp(dyn, limits, PtpOptions(n_intervals=n_shoot, max_wall_s=cap))
+    sol = shoot.solve(q0, q1, res100.warm_start)
+    shoot_label = (
+        f"FD multiple shooting N={n_shoot}, RK4 ({sol.status}, {sol.iterations} it, "
+        f"T = {sol.duration_s:.3f} s, cap {cap:.0f} s)"
+    )
+    return [
+        Row(
+            "plan-ptp",
+            f"OCP solve N=100 ({res100.solution.iterations} it, exact Hessian)",
+            "s",
+            solve100,
+            paper="≈ 3 min (MUSCOD-II)",
+            peer_name=shoot_label,
+            peer=sol.solve_seconds + shoot.build_seconds,
+            target="≤ 3 s",
+        ),
+        Row("plan-ptp", "NLP build N=100 (window derivatives)", "s", build100),
+        Row(
+            "plan-ptp",
+            f"OCP solve N=100 vs L-BFGS ({res_lbfgs.solution.iterations} it)",
+            "s",
+            solve100,
+            peer_name="same NLP, IPOPT L-BFGS",
+            peer=solve_lbfgs,
+        ),
+        Row("plan-ptp", f"OCP solve N=50 ({res50.solution.iterations} it)", "s", solve50),
+        Row(
+            "plan-ptp",
+            "PtP duration, end points of the line near the wrist singularity",
+            "s",
+            res100.duration_s,
+            paper="0.67 s vs CP 1.04 s (0.64)",
+            peer_name="plan-cp on the line (same run)",
+            peer=cp.duration_s,
+            target="≤ 0.7 × CP",
+        ),
+        Row(
+            "plan-ptp",
+            "max limit ratio, dense at 400 µs",
+            "",
+            res100.max_limit_ratio,
+            peer_name="FD shooting: max defect",
+            peer=sol.max_defect,
+            target="≤ 1.01",
+        ),
+    ]
+
+
+def rows(quick: bool) -> list[Row]:
+    return bench_plan_ptp(quick)
