@@ -18,4 +18,5 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.calibration:Calibration",
     "rxcomm.schemas.run_log:RunLog",
     "rxcomm.schemas.excitation:Excitation",
+    "rxcomm.schemas.path:PathSpec",
 ]
