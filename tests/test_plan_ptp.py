@@ -8,15 +8,23 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
+from rxcomm.schemas.calibration import Calibration, ParameterEstimate
+from rxcomm.schemas.cell import Placement
+from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.path import Branch
+from rxcomm.schemas.truth import CellTruth
 from rxcomm.stages.plan_cp import plan_dynamics, read_path
-from rxcomm.stages.plan_ptp import solve_pose_ik
+from rxcomm.stages.plan_ptp import calibrated_robot, solve_pose_ik
 from typer.testing import CliRunner
 
+from rxcomm.base_parameters import base_parameters, dynamics_artefact_fields
 from rxcomm.cli import app
-from rxcomm.dynamics import RobotDynamics, prior_parameters
+from rxcomm.dynamics import RobotDynamics, prior_parameters, truth_parameters
 from rxcomm.errors import InputError
-from rxcomm.kinematics import cardan_xyz
+from rxcomm.geometric_errors import ErrorModel
+from rxcomm.geometric_errors import parameter_names as geometric_parameter_names
+from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
+from rxcomm.kinematics import cardan_xyz, tcp_pose
 from rxcomm.optim.cp import CpSettings, plan_cp
 from rxcomm.optim.ptp import (
     PTP_COULOMB_EPS_RAD_S,
@@ -336,3 +344,59 @@ def test_ocp_reuse_gives_the_same_answer(m900):
     np.testing.assert_allclose(s2.q[-1], q0, atol=1e-9)
     tr = sample_solution(s1, dyn, m900.drives.cycle_s, q1)
     np.testing.assert_allclose(tr.q[-1], q1)
+
+
+def test_cli_uses_identified_dynamics(tmp_path, m900):
+    """With --dynamics the torques are the identified model's, not the URDF prior's."""
+    truth = read_yaml_model(SAMPLES / "m900" / "truth.yaml", CellTruth)
+    true = truth_parameters(m900, truth)
+    bset = base_parameters(m900, n_samples=300, seed=0)
+    fields = dynamics_artefact_fields(m900, bset, bset.project(true), full=true)
+    summary = {"n_base_params": bset.n_base, "validation_nrmse": [0.0] * 6, "validation_rms_nm": [0.0] * 6}
+    dyn_file = write_yaml_artefact(
+        tmp_path / "dynamics.yaml",
+        Dynamics(**Dynamics.envelope({}, {}, {**summary, "seconds": 0.0}), **fields),
+    )
+    out = tmp_path / "ptp.mcap"
+    r = RUNNER.invoke(
+        app,
+        ["plan-ptp", "--robot", str(SAMPLES / "m900"), "--start", "-0.5,0.3,-0.4,0.2,0.6,0.0",
+         "--goal", "0.6,0.1,-0.1,-0.4,0.9,1.0", "-N", "12", "--dynamics", str(dyn_file), "-o", str(out)],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    traj, env = load_trajectory_mcap(out)
+    assert env["settings"]["dynamics_model"] == "identified" and "dynamics" in env["inputs"]
+    ident = RobotDynamics(m900, true, coulomb_eps_rad_s=PTP_COULOMB_EPS_RAD_S)
+    prior = RobotDynamics(m900, prior_parameters(m900), coulomb_eps_rad_s=PTP_COULOMB_EPS_RAD_S)
+    s = slice(None, None, 40)
+    np.testing.assert_allclose(
+        traj.tau_ff[s], ident.inverse_dynamics(traj.q[s], traj.qd[s], traj.qdd[s]), atol=1e-8
+    )
+    assert np.abs(traj.tau_ff[s] - prior.inverse_dynamics(traj.q[s], traj.qd[s], traj.qdd[s])).max() > 1.0
+
+
+def test_pose_ik_honours_the_calibration(tmp_path, rx130l):
+    """A TCP pose is reached by the calibrated robot (mm-level errors), not the nominal one."""
+    names = geometric_parameter_names(rx130l)
+    values = {"joint_2.tx": 0.003, "joint_3.tz": -0.002, "joint_2.rz": 0.004, "tool.tz": 0.001}
+    params = [
+        ParameterEstimate(name=n, value=values.get(n, 0.0), std=None, estimated=n in values) for n in names
+    ]
+    cal = Calibration(
+        **Calibration.envelope(
+            {}, {}, dict.fromkeys(Calibration.REQUIRED_SUMMARY_KEYS, 0.0) | {"n_identifiable": 30}
+        ),
+        robot=rx130l.name, joint_names=list(rx130l.joint_names), measurement="pose",
+        tracker_to_base=Placement(), tracker_to_base_source="cell", parameters=params, dropped=[],
+        frames_only_parameters=[], error_tables=[], fit_poses=[], heldout_poses=[], outlier_poses=[],
+    )  # fmt: skip
+    cal_file = write_yaml_artefact(tmp_path / "calibration.yaml", cal)
+    robot = calibrated_robot(rx130l, cal_file)
+    pose = _line_pose(LINE_START_M)
+    branch = Branch(shoulder="front", elbow="up", wrist="positive")
+    q_cal = solve_pose_ik(robot, pose, branch, "start")
+    q_nom = solve_pose_ik(rx130l, pose, branch, "start")
+    errors = ErrorModel.from_mapping(rx130l, values)
+    p_cal, _ = tcp_pose(rx130l, q_cal, errors)
+    np.testing.assert_allclose(p_cal, LINE_START_M, atol=1e-8)
+    assert np.linalg.norm(tcp_pose(rx130l, q_nom, errors)[0] - LINE_START_M) > 1e-3  # nominal IK misses
