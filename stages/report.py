@@ -66,7 +66,7 @@ def build_report(build: Path) -> tuple[str, list[str]]:
                 "Time-optimal continuous path (paper §5.1–5.3, Figs. 7–8)",
                 cp["summary"],
                 _img(build, "cp.png"),
-                "1.04 s (straight line, ISO test)",
+                "1.04 s (straight line passing near a singularity)",
             )
         )
     ptp = need("ptp.yaml", "rxcomm/Trajectory")
