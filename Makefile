@@ -10,7 +10,7 @@ CELL   ?= $(ROBOT)/cell.yaml
 BUILD  ?= build
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup test test-fast lint bench commission clean schemas
+.PHONY: setup test test-fast lint bench commission commission-ci clean schemas
 .DELETE_ON_ERROR:
 
 setup: $(STAMP)
@@ -48,6 +48,8 @@ N_POSES   ?= 32
 CP_PATH   ?= $(ROBOT)/paths/line-near-singularity.yaml
 VAL_PATH  ?= $(ROBOT)/paths/iso9283-circle-large.yaml
 RUN_SIM   := --robot $(ROBOT) --approach --interpolation-ratio 1
+SELECT_OPTS ?=
+EXCITE_OPTS ?=
 B         := $(BUILD)
 # Reads a trajectory summary's joint state for plan-ptp (the CP plan's end states).
 QOF        = $$($(PY) -c "import sys, yaml; print(','.join(repr(v) for v in yaml.safe_load(open('$(1)'))['summary']['$(2)']))")
@@ -56,7 +58,7 @@ $(B)/robot-info.txt: $(STAMP) $(ROBOT)/drives.yaml | $(B)
 	$(RX) robot-info $(ROBOT) > $@.part && mv $@.part $@ && cat $@
 
 $(B)/configs.yaml: $(STAMP) $(ROBOT)/drives.yaml $(CELL) | $(B)
-	$(RX) select-configs --robot $(ROBOT) --cell $(CELL) -n $(N_POSES) --plot -o $@
+	$(RX) select-configs --robot $(ROBOT) --cell $(CELL) -n $(N_POSES) $(SELECT_OPTS) --plot -o $@
 
 # The measurement campaign: point-to-point moves need no path accuracy, so a coarse setpoint ratio.
 $(B)/calib-meas.yaml: $(B)/configs.yaml
@@ -66,7 +68,7 @@ $(B)/calibration.yaml: $(B)/calib-meas.yaml $(CELL)
 	$(RX) calibrate --robot $(ROBOT) --measurements $< --cell $(CELL) --urdf-out $(B)/calibrated.urdf -o $@
 
 $(B)/excitation.yaml: $(STAMP) $(ROBOT)/drives.yaml $(CELL) | $(B)
-	$(RX) excite --robot $(ROBOT) --cell $(CELL) --plot -o $@
+	$(RX) excite --robot $(ROBOT) --cell $(CELL) $(EXCITE_OPTS) --plot -o $@
 
 $(B)/excite-log.mcap: $(B)/excitation.yaml
 	$(RX) run $(B)/excitation-trajectory.mcap $(RUN_SIM) -o $@
@@ -108,5 +110,10 @@ $(B)/report.md: $(B)/robot-info.txt $(B)/configs.yaml $(B)/calibration.yaml $(B)
 commission: $(B)/report.md
 	@echo "commissioning report: $(B)/report.md"
 
+# CI: the same chain, reduced (fewer poses and candidates, fewer excitation starts), in its own dir.
+commission-ci:
+	$(MAKE) commission BUILD=build-ci N_POSES=16 SELECT_OPTS="--max-candidates 1500 --restarts 2" \
+		EXCITE_OPTS="--starts 2"
+
 clean:
-	rm -rf $(BUILD)
+	rm -rf $(BUILD) build-ci
