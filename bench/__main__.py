@@ -21,7 +21,14 @@ from rich.table import Table
 from bench.table import Row
 
 # Each module exposes `rows(quick: bool) -> list[Row]`.
-SECTIONS = ["bench.foundation", "bench.calibration", "bench.run", "bench.identification", "bench.plan_ptp"]
+SECTIONS = [
+    "bench.foundation",
+    "bench.calibration",
+    "bench.run",
+    "bench.identification",
+    "bench.plan_ptp",
+    "bench.plan_cp",
+]
 
 
 def _fmt(x: float | None, unit: str) -> str:

@@ -69,8 +69,12 @@ class CpSettings(BaseModel):
         1.002, ge=1.0, le=1.01, description="re-solve while a sampled limit exceeds this"
     )
     max_refinements: int = Field(4, ge=0, le=10)
-    regrid: bool = Field(
-        True, description="NLP: solve again on a grid fitted to the first solution's switches"
+    regrid_below: float = Field(
+        0.97,
+        ge=0,
+        le=1,
+        description="NLP: solve again on a grid refined where no limit is active if the first solution "
+        "has one active less than this fraction of the time (0: never)",
     )
 
     @model_validator(mode="after")
@@ -546,7 +550,7 @@ def plan_cp(
     timings["nlp_s"] = 0.0
     timings.setdefault("nlp_setup_s", 0.0)
     refinements = 0
-    regridded = not (use_nlp and settings.regrid)
+    regridded = not use_nlp or settings.regrid_below <= 0.0
     while True:
         if use_nlp:
             say("optimal timing (path NLP)")
@@ -554,7 +558,7 @@ def plan_cp(
             nlp = optimise_path(
                 jp.spline, setup.grid, setup.pd, setup.dpd, limits, warm,
                 coulomb_eps_rad_s=dynamics.eps, k1=settings.k1, k2=settings.k2, curvature=setup.curvature,
-                scale=scale,
+                scale=scale, duals=None if nlp is None else nlp.duals,
             )  # fmt: skip
             timings["nlp_s"] += time.perf_counter() - t3
             if not nlp.ok:
@@ -582,8 +586,13 @@ def plan_cp(
         report = check_limits(robot, t, q, qd, qdd, tau, limits=_limit_objects(robot, limits))
         timings["check_s"] = timings.get("check_s", 0.0) + time.perf_counter() - t4
         warm = profile
+        if (
+            not regridded
+            and report.active_fraction(ACTIVE_THRESHOLD, exclude=("position",)) >= settings.regrid_below
+        ):
+            regridded = True  # good enough: keep this grid
         if not regridded:
-            # Second pass on a grid fitted to this solution: dense where its binding limit switches.
+            # Second pass on a grid fitted to this solution: dense where no limit is active.
             t2 = time.perf_counter()
             _tighten(report, s, sgrid, limits, scale, settings.target_ratio)
             new = _nlp_setup(

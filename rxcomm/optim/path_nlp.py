@@ -67,6 +67,7 @@ class NlpResult:
     status: str
     solve_seconds: float
     build_seconds: float
+    duals: tuple[np.ndarray, np.ndarray] | None = None  # (λ_x, λ_g), to warm-start a re-solve
 
 
 def _layout(n_nodes: int, dof: int) -> dict[str, tuple[int, int]]:
@@ -93,7 +94,9 @@ class _Solver:
 
 
 @functools.lru_cache(maxsize=16)
-def _solver(n_nodes: int, dof: int, torque_rate: bool, tcp_acc: bool, max_iter: int) -> _Solver:
+def _solver(
+    n_nodes: int, dof: int, torque_rate: bool, tcp_acc: bool, max_iter: int, warm: bool = False
+) -> _Solver:
     """Build (once per process and shape) the IPOPT solver for n_nodes = N + 1 grid nodes."""
     t0 = time.perf_counter()
     lay = _layout(n_nodes, dof)
@@ -205,6 +208,13 @@ def _solver(n_nodes: int, dof: int, torque_rate: bool, tcp_acc: bool, max_iter: 
         "ipopt.constr_viol_tol": 1e-8,
         "ipopt.mu_strategy": "adaptive",
     }
+    if warm:  # re-solves start from a solution and its multipliers: skip the barrier's first phase
+        opts |= {
+            "ipopt.mu_init": 1e-4,
+            "ipopt.warm_start_init_point": "yes",
+            "ipopt.warm_start_bound_push": 1e-6,
+            "ipopt.warm_start_mult_bound_push": 1e-6,
+        }
     solver = ca.nlpsol("path_nlp", "ipopt", {"x": x, "p": p, "f": obj, "g": ca.vertcat(*cons)}, opts)
     extras = ca.Function("path_nlp_extras", [x, p], [dt, tt], ["x", "p"], ["dt", "tau_sq"])
     return _Solver(solver, lay, np.concatenate(lbg), np.concatenate(ubg), extras, time.perf_counter() - t0)
@@ -228,13 +238,15 @@ def optimise_path(
     k2: float = 0.0,
     curvature: np.ndarray | None = None,
     scale: dict[str, np.ndarray] | None = None,
+    duals: tuple[np.ndarray, np.ndarray] | None = None,
     smoothing: float = 0.0,
     max_iter: int = 500,
 ) -> NlpResult:
     """Solve the path NLP on `grid` (N+1 nodes). `pd`/`dpd` are the path dynamics at the nodes and
     their σ-derivatives (keys m, c, v, g); `warm` a profile to start from (e.g. toppra's);
     `coulomb_eps_rad_s` the smoothing of the Coulomb sign used for the output torques too; `scale`
-    local limit factors per node (`PlanLimits.at_nodes`); `smoothing` an optional weight on Σ(Δσ̈)²."""
+    local limit factors per node (`PlanLimits.at_nodes`); `duals` the multipliers of a previous solve
+    of the same size (warm start); `smoothing` an optional weight on Σ(Δσ̈)²."""
     grid = np.asarray(grid, dtype=float)
     n_nodes, dof = len(grid), pd.m.shape[1]
     if n_nodes < 4:
@@ -246,7 +258,7 @@ def optimise_path(
     if tcp_acc and curvature is None:
         raise ValueError("a TCP acceleration limit needs the path curvature at the nodes")
     cached = _solver.cache_info().currsize
-    sv = _solver(n_nodes, dof, torque_rate, tcp_acc, max_iter)
+    sv = _solver(n_nodes, dof, torque_rate, tcp_acc, max_iter, duals is not None)
     build = sv.build_seconds if _solver.cache_info().currsize > cached else 0.0
     qs, qss = spline(grid, 1), spline(grid, 2)
     mid = (grid[:-1] + grid[1:]) / 2
@@ -292,7 +304,10 @@ def optimise_path(
     a0 = np.gradient(b0, grid) / 2
     a0[[0, -1]] = 0.0
     t1 = time.perf_counter()
-    sol = sv.nlpsol(x0=np.concatenate([b0, a0]), p=pvec, lbx=lbx, ubx=ubx, lbg=sv.lbg, ubg=sv.ubg)
+    args = {"x0": np.concatenate([b0, a0]), "p": pvec, "lbx": lbx, "ubx": ubx, "lbg": sv.lbg, "ubg": sv.ubg}
+    if duals is not None:
+        args |= {"lam_x0": duals[0], "lam_g0": duals[1]}
+    sol = sv.nlpsol(**args)
     solve = time.perf_counter() - t1
     stats = sv.nlpsol.stats()
     x = np.array(sol["x"]).ravel()
@@ -310,4 +325,5 @@ def optimise_path(
         status=str(stats["return_status"]),
         solve_seconds=solve,
         build_seconds=build,
+        duals=(np.array(sol["lam_x"]).ravel(), np.array(sol["lam_g"]).ravel()),
     )

@@ -66,7 +66,10 @@ class PathProfile:
             object.__setattr__(self, name, a)
         sd = np.maximum(self.sd, 0.0)
         object.__setattr__(self, "sd", sd)
-        dts = np.array([self._interval_time(k) for k in range(len(self.sigma) - 1)])
+        if self.kind == "constant":
+            dts = 2 * np.diff(self.sigma) / np.maximum(sd[:-1] + sd[1:], 1e-12)
+        else:
+            dts = np.array([self._interval_time(k) for k in range(len(self.sigma) - 1)])
         object.__setattr__(self, "t_nodes", np.concatenate([[0.0], np.cumsum(dts)]))
 
     @property

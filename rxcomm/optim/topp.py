@@ -291,5 +291,20 @@ def time_optimal(
                 p + 1,
             )
         result = ToppResult(True, PathProfile(grid, sd, np.append(sdd, sdd[-1]), "constant"), passes=p + 1)
+        if p + 1 < passes and not _torque_binds(pd, tau_max, sd, sdd, x_ref, x_max):
+            break  # the conservative viscous bound is slack everywhere: tightening it changes nothing
         x_ref = np.maximum(sd**2, 0.01 * x_max)
     return result
+
+
+def _torque_binds(pd, tau_max, sd, sdd, x_ref, x_max, tol: float = 0.99) -> bool:
+    """Whether the linearised torque rows reach `tol` of their limit anywhere on the solution."""
+    u = np.append(sdd, sdd[-1])[:, None]
+    x = (sd**2)[:, None]
+    sr, sm = np.sqrt(x_ref)[:, None], np.sqrt(x_max)[:, None]
+    upper = np.where(pd.v >= 0, pd.v * (x + sr**2) / (2 * sr), pd.v * x / sm)
+    lower = np.where(pd.v >= 0, pd.v * x / sm, pd.v * (x + sr**2) / (2 * sr))
+    base = pd.m * u + pd.c * x + pd.g
+    hi = np.maximum(base + upper, base + upper + pd.f)
+    lo = np.minimum(base + lower, base + lower + pd.f)
+    return bool(np.max(np.maximum(hi, -lo) / tau_max) >= tol)
