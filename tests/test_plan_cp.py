@@ -337,3 +337,38 @@ def test_statics_violation_exits_3(tmp_path, weak_robot_dir):
     res = invoke(weak_robot_dir, SINGULAR, tmp_path)
     assert res.exit_code == 3
     assert "joint_2" in res.output and "σ =" in res.output and not (tmp_path / "o.mcap").exists()
+
+
+@pytest.mark.slow
+def test_identified_dynamics_drive_the_torque_limits(tmp_path, rx130l):
+    """A heavier arm (inertials × 1.6, as from identification) through --dynamics: the torques of the
+    plan follow the identified model, still within the limits."""
+    from rxcomm.schemas.dynamics import Dynamics
+
+    from rxcomm.base_parameters import base_parameters, dynamics_artefact_fields
+    from rxcomm.dynamics import DynamicParameters
+    from rxcomm.io.yaml_io import write_yaml_artefact
+
+    prior = prior_parameters(rx130l)
+    heavy = DynamicParameters.from_vector(
+        rx130l.joint_names,
+        np.concatenate([prior.inertial.ravel() * 1.6, prior.vector()[prior.inertial.size :]]),
+        True,
+    )
+    bset = base_parameters(rx130l, n_samples=300, seed=0)
+    fields = dynamics_artefact_fields(rx130l, bset, bset.project(heavy), full=heavy)
+    summary = {"n_base_params": bset.n_base, "validation_nrmse": [0.0] * 6, "validation_rms_nm": [0.0] * 6}
+    art = Dynamics(**Dynamics.envelope({}, {}, {**summary, "seconds": 0.0}), **fields)
+    dyn_file = write_yaml_artefact(tmp_path / "dynamics.yaml", art)
+    light = plan_file(ISO_LINE, tmp_path)
+    s = plan_file(ISO_LINE, tmp_path, dynamics=dyn_file)
+    print(
+        f"\nmax torque ratio: prior {light['max_torque_ratio']:.3f}, "
+        f"identified ×1.6 {s['max_torque_ratio']:.3f}"
+    )
+    assert s["max_torque_ratio"] > light["max_torque_ratio"] + 0.1
+    assert s["max_limit_ratio"] <= 1.01
+    traj, env = load_trajectory_mcap(tmp_path / "iso9283-line.mcap")
+    assert env["settings"]["dynamics_model"] == "identified" and "dynamics" in env["inputs"]
+    tau = RobotDynamics(rx130l, heavy, 0.02).inverse_dynamics(traj.q, traj.qd, traj.qdd)
+    np.testing.assert_allclose(traj.tau_ff, tau, atol=1e-6)  # τ_ff is the identified model's
