@@ -3,6 +3,7 @@ problem (timed in the same run, under a wall-time cap), and the PtP duration bes
 
 from __future__ import annotations
 
+import shutil
 import statistics
 import time
 
@@ -42,6 +43,10 @@ def bench_plan_ptp(quick: bool = False, shooting_cap_s: float | None = None) -> 
     build100, solve100, res100 = timed(PtpOptions(n_intervals=100))
     _, solve50, res50 = timed(PtpOptions(n_intervals=50))
     _, solve_lbfgs, res_lbfgs = timed(PtpOptions(n_intervals=100, hessian="limited-memory"))
+    compiled = None
+    if shutil.which("gcc") or shutil.which("cc"):
+        PtpOcp(dyn, limits, PtpOptions(n_intervals=100, compile=True))  # compile once (cached on disk)
+        compiled = timed(PtpOptions(n_intervals=100, compile=True))[1]
 
     cap = shooting_cap_s or (30.0 if quick else 180.0)
     n_shoot = 20 if quick else 100
@@ -72,6 +77,11 @@ def bench_plan_ptp(quick: bool = False, shooting_cap_s: float | None = None) -> 
             peer=solve_lbfgs,
         ),
         Row("plan-ptp", f"OCP solve N=50 ({res50.solution.iterations} it)", "s", solve50),
+        *(
+            []
+            if compiled is None
+            else [Row("plan-ptp", "OCP solve N=100, node functions compiled (--compile)", "s", compiled)]
+        ),
         Row(
             "plan-ptp",
             "PtP duration, end points of the line near the wrist singularity",

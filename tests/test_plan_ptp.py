@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import shutil
 
+import casadi as ca
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -400,3 +402,30 @@ def test_pose_ik_honours_the_calibration(tmp_path, rx130l):
     p_cal, _ = tcp_pose(rx130l, q_cal, errors)
     np.testing.assert_allclose(p_cal, LINE_START_M, atol=1e-8)
     assert np.linalg.norm(tcp_pose(rx130l, q_nom, errors)[0] - LINE_START_M) > 1e-3  # nominal IK misses
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("gcc") is None and shutil.which("cc") is None, reason="no C compiler")
+def test_compiled_node_functions_match_and_are_cached(tmp_path, monkeypatch, m900):
+    monkeypatch.setenv("RXCOMM_CACHE_DIR", str(tmp_path))
+    dyn, lim = PtpDynamics.from_parameters(m900), PtpLimits.from_robot(m900)
+    plain = PtpOcp(dyn, lim, PtpOptions(n_intervals=10))
+    opts = PtpOptions(n_intervals=10, compile=True)
+    fast = PtpOcp(dyn, lim, opts)
+    x = np.random.default_rng(0).uniform(0.2, 0.8, plain.nx)
+    lam = np.random.default_rng(1).normal(size=len(plain.row_kinds))
+    for name, args in (("nlp_jac_g", (x, [])), ("nlp_grad_f", (x, [])), ("nlp_hess_l", (x, [], 1.0, lam))):
+        a, b = plain.solver.get_function(name)(*args), fast.solver.get_function(name)(*args)
+        a, b = (a, b) if isinstance(a, tuple) else ((a,), (b,))
+        for u, v in zip(a, b, strict=True):
+            np.testing.assert_allclose(
+                np.asarray(ca.densify(v)), np.asarray(ca.densify(u)), rtol=1e-9, atol=1e-9
+            )
+    libs = sorted(p.name for p in tmp_path.glob("*.so"))
+    assert len(libs) == 3  # Jacobian, gradient, Hessian of the node window
+    again = PtpOcp(dyn, lim, opts)  # from the cache: no compiler run
+    assert again.build_seconds < 5.0
+    assert sorted(p.name for p in tmp_path.glob("*.so")) == libs
+    q0, q1 = np.array([0.0, 0.2, -0.2, 0.0, 0.5, 0.0]), np.array([0.4, 0.3, -0.1, 0.2, 0.6, 0.3])
+    res = plan_ptp(m900, dyn, q0, q1, opts, ocp=again)
+    assert res.solution.success and res.max_limit_ratio <= 1.01
