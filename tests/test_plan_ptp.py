@@ -43,6 +43,7 @@ from rxcomm.optim.ptp import (
     node_function,
     plan_ptp,
     sample_solution,
+    tcp_box_ratio,
 )
 from rxcomm.optim.ptp_shooting import ShootingOcp, forward_dynamics_function
 from rxcomm.optim.warm_start import feasible_profile, ruckig_profile, scaled_profile
@@ -429,3 +430,14 @@ def test_compiled_node_functions_match_and_are_cached(tmp_path, monkeypatch, m90
     q0, q1 = np.array([0.0, 0.2, -0.2, 0.0, 0.5, 0.0]), np.array([0.4, 0.3, -0.1, 0.2, 0.6, 0.3])
     res = plan_ptp(m900, dyn, q0, q1, opts, ocp=again)
     assert res.solution.success and res.max_limit_ratio <= 1.01
+
+
+def test_tcp_box_keeps_the_tcp_inside(m900):
+    dyn = PtpDynamics.from_parameters(m900)
+    q0, q1 = np.array([-0.8, 0.3, -0.4, 0.2, 0.6, 0.0]), np.array([0.8, 0.3, -0.4, -0.4, 0.9, 1.0])
+    box = ((-1.0, -1.0, 0.0), (0.30, 1.0, 2.0))  # the free motion swings the TCP out to x ≈ 0.36 m
+    free = plan_ptp(m900, dyn, q0, q1, PtpOptions(n_intervals=20))
+    boxed = plan_ptp(m900, dyn, q0, q1, PtpOptions(n_intervals=20, tcp_box_m=box))
+    assert tcp_box_ratio(m900, free.trajectory.q, box) > 1.05  # (|x − centre| / half-size)
+    assert boxed.tcp_box_ratio <= 1.01 and boxed.max_limit_ratio <= 1.01
+    assert boxed.duration_s >= free.duration_s * 0.999  # a constraint more cannot make it faster
