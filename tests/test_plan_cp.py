@@ -372,3 +372,47 @@ def test_identified_dynamics_drive_the_torque_limits(tmp_path, rx130l):
     assert env["settings"]["dynamics_model"] == "identified" and "dynamics" in env["inputs"]
     tau = RobotDynamics(rx130l, heavy, 0.02).inverse_dynamics(traj.q, traj.qd, traj.qdd)
     np.testing.assert_allclose(traj.tau_ff, tau, atol=1e-6)  # τ_ff is the identified model's
+
+
+@pytest.mark.slow
+def test_calibration_moves_the_joint_path_to_the_calibrated_model(tmp_path, rx130l):
+    """--calibration: IK along the path on the calibrated robot, so its TCP (not the nominal one)
+    follows the path."""
+    import pinocchio as pin
+    from rxcomm.schemas.calibration import Calibration, ParameterEstimate
+    from rxcomm.schemas.cell import Placement
+
+    from rxcomm.geometric_errors import ErrorModel
+    from rxcomm.io.yaml_io import write_yaml_artefact
+
+    errors = {"joint_2.tx": 0.003, "joint_3.ry": 0.004, "tool.tz": -0.002}
+    summary = dict.fromkeys(Calibration.REQUIRED_SUMMARY_KEYS, 0.0)
+    cal = Calibration(
+        **Calibration.envelope({}, {}, summary),
+        robot=rx130l.name,
+        joint_names=list(rx130l.joint_names),
+        measurement="pose",
+        tracker_to_base=Placement(),
+        tracker_to_base_source="cell",
+        parameters=[ParameterEstimate(name=k, value=v, std=None, estimated=True) for k, v in errors.items()],
+        dropped=[],
+        frames_only_parameters=[],
+        error_tables=[],
+        fit_poses=[],
+        heldout_poses=[],
+        outlier_poses=[],
+    )
+    cal_file = write_yaml_artefact(tmp_path / "calibration.yaml", cal)
+    plan_file(ISO_LINE, tmp_path, calibration=cal_file, method="toppra", torque_rate=False)
+    traj, env = load_trajectory_mcap(tmp_path / "iso9283-line.mcap")
+    assert env["settings"]["calibrated"] and "calibration" in env["inputs"]
+    calibrated = ErrorModel.from_mapping(rx130l, errors).apply(rx130l)
+    path = load_path(ISO_LINE)
+    err_cal, err_nom = [], []
+    for robot, errs in ((calibrated, err_cal), (rx130l, err_nom)):
+        d = robot.create_data()
+        for i in range(0, traj.n, 200):
+            pin.framesForwardKinematics(robot.model, d, traj.q[i])
+            p = d.oMf[robot.tcp_frame_id].translation
+            errs.append(np.linalg.norm(p - path.position([traj.extra["sigma"][i]])[0]))
+    assert max(err_cal) < 1e-6 < 1e-3 < max(err_nom)  # exact on the calibrated model, mm off nominally
