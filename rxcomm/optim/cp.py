@@ -5,17 +5,23 @@
 1. IK along the path on one branch (`rxcomm.path_ik.solve_path_ik`): q(σ) as a C² spline.
 2. Statics first: |g(q(σ))| ≤ τmax (and + Coulomb friction, to move at all) on every knot, naming the
    joint and σ, because toppra reports infeasibility only as "uncontrollable".
-3. toppra (`rxcomm.optim.topp.time_optimal`) on N uniform intervals: the time-optimal profile under
-   joint velocity/acceleration/torque (+ TCP) limits with a piecewise-constant σ̈.
-4. For k2 > 0 or torque-rate limits (and by default, to polish toppra's profile), the path NLP
-   (`rxcomm.optim.path_nlp`) on N intervals placed half by σ, half by toppra's time, graded at both
-   ends and with nodes where a joint reverses, warm-started from toppra.
+3. toppra (`rxcomm.optim.topp.time_optimal`) on N intervals, half uniform in σ, half where the joint
+   path bends (blends, the neighbourhood of a singularity): the time-optimal profile under joint
+   velocity/acceleration/torque (+ TCP) limits with a piecewise-constant σ̈. `method="toppra"` stops
+   here (fast; its torque steps at every node, so no torque-rate limit can hold).
+4. By default the path NLP (`rxcomm.optim.path_nlp`: continuous σ̈, k2 > 0, torque-rate limits) on N
+   intervals placed half by σ, half by toppra's time, denser at toppra's switch points, with
+   constant-jerk end ramps as short as the torque rate allows (`jerk_step`) and nodes where a joint
+   reverses; warm-started from toppra. If that solution leaves more than 3 % of the time without an
+   active limit (the true optimum has one everywhere: the grid is too coarse there), a second pass on a
+   grid refined on exactly those stretches, warm-started with the first pass's multipliers.
 5. Sampling at the drive cycle, exactly (`PathProfile.sample`): q = q(σ), q̇ = q'σ̇, q̈ = q'σ̈ + q''σ̇²,
    τ_ff from the inverse dynamics with smoothed Coulomb friction (the same the NLP models).
 6. Every limit checked on the samples (`rxcomm.limits.check_limits` + TCP limits). Between grid nodes
-   the sampled values can exceed a limit by a fraction of a percent (toppra's interpolation, the NLP's
-   node-wise constraints); each limit and joint found above `target_ratio` is scaled down by its
-   excess and the timing re-solved (at most `max_refinements` times), so the output stays ≤ 1.01.
+   sampled values can exceed a limit by a fraction of a percent (toppra's interpolation, the NLP's
+   node-wise constraints); where a limit is above `target_ratio` (1.002) it is tightened locally, at the
+   nodes of that interval, by its excess and the timing re-solved (at most `max_refinements` times).
+   A plan still above 1.01 × a limit is refused (`InfeasibleError`).
 
 Dynamics come in as functions (`PlanDynamics`): an exact-sign inverse dynamics for the path
 coefficients and a smooth one for the output torques; `PlanDynamics.from_parameters` builds both from

@@ -20,9 +20,15 @@ with Coulomb friction smoothed exactly as the output feed-forward is (`rxcomm.dy
     dτ/dt = (m'·a + m·a' + c'·b + 2c·a + g')·s + v'·b + v·a + Fc·(1 − tanh²)·(q''·b + q'·a)/ε,
 
 a' = dσ̈/dσ of the interval, constrained at both ends of every interval (callers put nodes where a joint
-reverses, where the friction term peaks). No symbolic robot model is needed: along a fixed path the
-dynamics are numbers at the nodes. The solver is built once per (N, dof, options) with all path data
-as parameters and cached, so re-solves (tightened limits, other paths of the same size) skip the build.
+reverses, where the friction term peaks); inside the end ramps the friction band's peak is bounded in
+closed form. Joint accelerations are also constrained at interval midpoints: where a joint is at its
+limit exactly where it reverses (q' = 0), σ̈ drops out of the node rows and would zig-zag.
+
+No symbolic robot model is needed: along a fixed path the dynamics are numbers at the nodes. The NLP is
+an MX graph (builds in ~0.1 s; SX took 2.5 s) with all path data and per-node limits as parameters,
+built once per (N, dof, options) and cached; re-solves are warm-started with the previous multipliers.
+IPOPT runs to tol 1e-8: the time is nearly flat in the shape of the switches between limits, and a
+looser tolerance stops with transitions that leave no limit active for several nodes.
 """
 
 from __future__ import annotations
