@@ -87,6 +87,7 @@ def plan_dynamics(robot: Robot, dynamics: Path | None, eps: float) -> PlanDynami
 def summary_of(plan: CpPlan, robot: Robot) -> dict[str, object]:
     rep = plan.report
     limit, joint, t_worst, _ = rep.worst()
+    joint = "TCP" if limit.startswith("tcp") else joint
     sd = plan.sigma_dot
     n = len(sd)
     sm, sm_at = plan.joint_path.min_sigma_min

@@ -15,7 +15,7 @@ from precomputed arrays (rows normalised by their limits, so F and g are constan
 - `JointAccelerationConstraint`, `SpeedBoundConstraint`: toppra's joint acceleration and velocity
   constraints with limits per gridpoint (re-solves tighten limits locally, where a sampled value
   exceeded one); the speed bound also carries the TCP speed limit (σ̇ ≤ v, σ being TCP arc length).
-- `TcpAccelerationConstraint`: ‖p'·u + p''·x‖ ≤ a as a 16-gon inscribed in the circle (≤ 2 % inside).
+- `TcpAccelerationConstraint`: ‖p'·u + p''·x‖ ≤ a as a 32-gon inscribed in the circle (≤ 0.5 % inside).
 
 Dynamics come in as a batched `inv_dyn(q, qd, qdd)`; nothing here imports a robot model. Failure is a
 returned status with the σ where the path became uncontrollable, not an exception.
@@ -183,7 +183,7 @@ class SpeedBoundConstraint(LinearConstraint):
 class TcpAccelerationConstraint(LinearConstraint):
     """‖p'(σ)·σ̈ + p''(σ)·σ̇²‖ ≤ a_max, a polygon inside the circle in the (tangent, normal) plane."""
 
-    SIDES = 16
+    SIDES = 32
 
     def __init__(self, curvature: np.ndarray, a_max: np.ndarray):
         super().__init__()
