@@ -446,7 +446,7 @@ def test_master_stall_trips_the_watchdog_exit_4(tmp_path, cell, rx130l, monkeypa
     def stalling(self, reply):  # the master hangs for 0.8 s, longer than the 500 ms watchdog
         real(self, reply)
         calls["n"] += 1
-        if calls["n"] == 100:
+        if calls["n"] == 700:  # after the ~1 s prefill (≈ 420 blocks), so records exist
             time.sleep(0.8)
 
     monkeypatch.setattr(ses._Recorder, "__call__", stalling)

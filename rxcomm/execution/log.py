@@ -89,8 +89,8 @@ def run_summary(robot: Robot, result: RunResult, tcp_error: np.ndarray | None = 
             "duration_s": (log.n_records - 1) * log.plan.sample_s,
         }
     else:
-        none6 = [None] * robot.n
-        out |= {"max_lag_rad": none6, "rms_lag_rad": none6, "max_tcp_error_m": None, "duration_s": 0.0}
+        # Nothing was recorded (stopped before the first trace record): not measured, not zero.
+        out |= {"max_lag_rad": None, "rms_lag_rad": None, "max_tcp_error_m": None, "duration_s": 0.0}
     out |= {
         "outcome": result.outcome,
         "stop_reason": None if result.error is None else str(result.error),
