@@ -87,9 +87,8 @@ $(B)/cp.mcap: $(CP_PATH) $(B)/dynamics.yaml $(B)/calibration.yaml
 	$(RX) plan-cp --robot $(ROBOT) --path $(CP_PATH) --dynamics $(B)/dynamics.yaml \
 		--calibration $(B)/calibration.yaml --plot -o $@
 
-# Joint acceleration limits too (the paper had none): `run` refuses a plan beyond drives.yaml's.
 $(B)/ptp.mcap: $(B)/cp.mcap
-	$(RX) plan-ptp --acceleration-limits --robot $(ROBOT) --start=$(call QOF,$(B)/cp.yaml,q_start) --goal=$(call QOF,$(B)/cp.yaml,q_goal) \
+	$(RX) plan-ptp --robot $(ROBOT) --start=$(call QOF,$(B)/cp.yaml,q_start) --goal=$(call QOF,$(B)/cp.yaml,q_goal) \
 		--dynamics $(B)/dynamics.yaml --calibration $(B)/calibration.yaml --plot -o $@
 
 # The paper's Fig. 2: the same CP plan with and without model-based feed-forward.

@@ -787,3 +787,17 @@ def load_calibration(path: str | Path) -> tuple[ErrorModel, pin.SE3]:
 def parameter_names_from(joint_names: list[str] | tuple[str, ...]) -> tuple[str, ...]:
     """`parameter_names` from joint names alone (no robot needed)."""
     return tuple(f"{g}.{c}" for g in ("base", *joint_names, "tool") for c in COMPONENTS)
+
+
+def load_calibrated_robot(robot: Robot, path: str | Path) -> Robot:
+    """`robot` with a calibration artefact's geometric errors applied: kinematics, IK and dynamics
+    of the returned robot all honour the calibration (planners take it with `--calibration`)."""
+    art = read_yaml_artefact(path, Calibration)
+    if tuple(art.joint_names) != robot.joint_names:
+        raise InputError(
+            f"calibration is for joints {art.joint_names}, the robot has {list(robot.joint_names)}",
+            file=path,
+            field="joint_names",
+        )
+    errors = ErrorModel.from_mapping(robot, {p.name: p.value for p in art.parameters}, file=str(path))
+    return errors.apply(robot)

@@ -18,16 +18,16 @@ import numpy as np
 import typer
 from pydantic import ValidationError
 from rich.markup import escape
-from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.trajectory import TrajectorySummary
 
 from rxcomm import console
+from rxcomm.calibration import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text
 from rxcomm.io.validate import check_kind, validate_model
-from rxcomm.io.yaml_io import dump_yaml, load_yaml, read_yaml_artefact, read_yaml_model
+from rxcomm.io.yaml_io import dump_yaml, load_yaml, read_yaml_model
 from rxcomm.optim.cp import CpPlan, CpSettings, PlanDynamics, path_deviation_m, plan_cp
 from rxcomm.paths import CartesianPath, build_path, iso9283_cube, iso9283_paths
 from rxcomm.robot import Robot, load_robot
@@ -58,21 +58,6 @@ def read_path(path: Path, robot: Robot) -> tuple[PathSpec, CartesianPath]:
         return spec, build_path(spec)
     except InputError as e:
         raise InputError(e.reason, file=path, field=e.field) from e
-
-
-def calibrated_robot(robot: Robot, path: Path) -> Robot:
-    """The robot with the calibration's geometric errors applied (IK then honours them)."""
-    from rxcomm.geometric_errors import ErrorModel
-
-    cal = read_yaml_artefact(path, Calibration)
-    if tuple(cal.joint_names) != robot.joint_names:
-        raise InputError(
-            f"calibration is for joints {cal.joint_names}, the robot has {list(robot.joint_names)}",
-            file=path,
-            field="joint_names",
-        )
-    errors = ErrorModel.from_mapping(robot, {p.name: p.value for p in cal.parameters}, file=str(path))
-    return errors.apply(robot)
 
 
 def plan_dynamics(robot: Robot, dynamics: Path | None, eps: float) -> PlanDynamics:
@@ -317,7 +302,7 @@ def run(
     robot = load_robot(robot_dir)
     inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}
     if calibration is not None:
-        robot = calibrated_robot(robot, calibration)
+        robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
     spec, cpath = read_path(path, robot)
     try:

@@ -16,15 +16,13 @@ import numpy as np
 import pinocchio as pin
 import typer
 from pydantic import ValidationError
-from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
 
 from rxcomm import console
 from rxcomm.base_parameters import load_dynamics
+from rxcomm.calibration import load_calibrated_robot
 from rxcomm.errors import InputError
-from rxcomm.geometric_errors import ErrorModel
-from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.kinematics import cardan_xyz_matrix, inverse_kinematics
 from rxcomm.optim.ptp import (
     PtpDynamics,
@@ -128,19 +126,6 @@ def parse_box(text: str | None) -> tuple[tuple[float, ...], tuple[float, ...]] |
     return tuple(v[:3]), tuple(v[3:])
 
 
-def calibrated_robot(robot: Robot, path: Path) -> Robot:
-    """The robot with the calibration's geometric errors applied (kinematics and dynamics use it)."""
-    cal = read_yaml_artefact(path, Calibration)
-    if tuple(cal.joint_names) != robot.joint_names:
-        raise InputError(
-            f"calibration is for joints {cal.joint_names}, the robot has {list(robot.joint_names)}",
-            file=path,
-            field="joint_names",
-        )
-    errors = ErrorModel.from_mapping(robot, {p.name: p.value for p in cal.parameters}, file=str(path))
-    return errors.apply(robot)
-
-
 # --- outputs ----------------------------------------------------------------------------------------
 def summary_of(result: PtpResult, q_start, q_goal, margin: float) -> dict[str, object]:
     rep, sol = result.report, result.solution
@@ -224,8 +209,12 @@ def command(
     intervals: Annotated[int, typer.Option("-N", "--intervals", help="Jerk intervals of the OCP grid.")] = 50,
     margin: Annotated[float, typer.Option(help="Limits tightened by this fraction in the NLP.")] = 0.01,
     acceleration_limits: Annotated[
-        bool, typer.Option(help="Also limit joint accelerations to drives.yaml (the paper does not).")
-    ] = False,
+        bool,
+        typer.Option(
+            help="Limit joint accelerations to drives.yaml, as `run` checks. --no-acceleration-limits "
+            "solves the paper's problem (torque, torque rate, velocity, position only), which `run` refuses."
+        ),
+    ] = True,
     tcp_box: Annotated[
         str | None, typer.Option(help="Keep the TCP in 'xmin,ymin,zmin,xmax,ymax,zmax' (m, base frame).")
     ] = None,
@@ -298,7 +287,7 @@ def run(
     robot = load_robot(robot_dir)
     inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
     if calibration is not None:
-        robot = calibrated_robot(robot, calibration)
+        robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
     params = None
     if dynamics is not None:

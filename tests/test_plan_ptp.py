@@ -16,10 +16,11 @@ from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.truth import CellTruth
 from rxcomm.stages.plan_cp import plan_dynamics, read_path
-from rxcomm.stages.plan_ptp import calibrated_robot, solve_pose_ik
+from rxcomm.stages.plan_ptp import solve_pose_ik
 from typer.testing import CliRunner
 
 from rxcomm.base_parameters import base_parameters, dynamics_artefact_fields
+from rxcomm.calibration import load_calibrated_robot
 from rxcomm.cli import app
 from rxcomm.dynamics import RobotDynamics, prior_parameters, truth_parameters
 from rxcomm.errors import InputError
@@ -394,7 +395,7 @@ def test_pose_ik_honours_the_calibration(tmp_path, rx130l):
         frames_only_parameters=[], error_tables=[], fit_poses=[], heldout_poses=[], outlier_poses=[],
     )  # fmt: skip
     cal_file = write_yaml_artefact(tmp_path / "calibration.yaml", cal)
-    robot = calibrated_robot(rx130l, cal_file)
+    robot = load_calibrated_robot(rx130l, cal_file)
     pose = _line_pose(LINE_START_M)
     branch = Branch(shoulder="front", elbow="up", wrist="positive")
     q_cal = solve_pose_ik(robot, pose, branch, "start")
