@@ -68,7 +68,7 @@ def main() -> int:
             _fmt(r.peer, r.unit),
             "—" if r.ratio is None else f"{r.ratio:.3g}",
         )
-    Console(width=200).print(table)
+    Console(width=240).print(table)
     if failed:
         print(f"sections that failed: {', '.join(failed)}", file=sys.stderr)
         return 1
