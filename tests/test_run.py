@@ -332,9 +332,11 @@ def test_ctrl_c_quick_stops_disables_and_keeps_the_log(tmp_path, cell, rx130l, m
 
     def interrupting(self, reply):
         real(self, reply)
-        calls["n"] += 1
-        if calls["n"] == 200:
-            raise KeyboardInterrupt
+        # The 20th reply carrying trace records: mid-motion, whatever ratio and prefill the run chose.
+        if reply.trace is not None and reply.trace.count > 0:
+            calls["n"] += 1
+            if calls["n"] == 20:
+                raise KeyboardInterrupt
 
     monkeypatch.setattr(ses._Recorder, "__call__", interrupting)
     with pytest.raises(SafetyStop, match="Ctrl-C"):
@@ -440,13 +442,14 @@ def test_master_stall_trips_the_watchdog_exit_4(tmp_path, cell, rx130l, monkeypa
     out = tmp_path / "log.mcap"
     from rxcomm.execution import session as ses
 
-    calls = {"n": 0}
+    stalled = {"done": False}
     real = ses._Recorder.__call__
 
     def stalling(self, reply):  # the master hangs for 0.8 s, longer than the 500 ms watchdog
         real(self, reply)
-        calls["n"] += 1
-        if calls["n"] == 700:  # after the ~1 s prefill (≈ 420 blocks), so records exist
+        # Once motion has produced trace records (whatever ratio and prefill the run chose).
+        if not stalled["done"] and reply.trace is not None and reply.trace.count > 0:
+            stalled["done"] = True
             time.sleep(0.8)
 
     monkeypatch.setattr(ses._Recorder, "__call__", stalling)
