@@ -347,7 +347,9 @@ class Session:
         if error is not None:
             executed = rec.last_execute
             self._drain_trace(rec)  # the records up to the stop trail it: fetch them for the log
-            rec.last_execute = executed
+            # The drain's status knows the setpoints completed before the stop (the streaming replies
+            # may predate it); a gateway that clears its buffer on a stop reports 0: keep the larger.
+            rec.last_execute = max(executed, rec.last_execute)
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
         after = self._underrun_count()
         gw = rec.gateway_arrays(self.ratio, self.cycle_s)

@@ -144,7 +144,7 @@ class GatewayClient:
         t0 = time.perf_counter()
         try:
             rsp = fn(**kwargs)
-        except ModbusException as e:
+        except (ModbusException, OSError) as e:  # OSError: the peer reset or closed the socket
             self.close()  # never reuse a connection that may deliver a stale answer
             raise GatewayError(f"{what}: {e}") from e
         self.timing.add(time.perf_counter() - t0)
