@@ -11,25 +11,26 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-import yaml
+from rxcomm.schemas.calibration import Calibration
+from rxcomm.schemas.configs import Configs
+from rxcomm.schemas.dynamics import Dynamics
+from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.excitation import Excitation
+from rxcomm.schemas.run_log import RunLog
+from rxcomm.schemas.trajectory import TrajectorySummary
 
 from rxcomm import __version__, console
 from rxcomm import report as rep
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text
+from rxcomm.io.yaml_io import read_yaml_artefact
 
 
-def _load(path: Path, kind: str) -> dict | None:
+def _load(path: Path, model: type[Artefact]) -> dict | None:
+    """The artefact as plain data, validated by its schema (InputError names file and field)."""
     if not path.exists():
         return None
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise InputError(f"not valid YAML: {e}", file=path) from e
-    if not isinstance(data, dict) or data.get("kind") != kind:
-        found = data.get("kind") if isinstance(data, dict) else None
-        raise InputError(f"expected kind {kind!r}, found {found!r}", file=path, field="kind")
-    return data
+    return read_yaml_artefact(path, model).model_dump(mode="json")
 
 
 def _img(build: Path, name: str) -> str | None:
@@ -40,26 +41,26 @@ def build_report(build: Path) -> tuple[str, list[str]]:
     """(Markdown, names of the missing artefacts)."""
     missing: list[str] = []
 
-    def need(name: str, kind: str) -> dict | None:
-        d = _load(build / name, kind)
+    def need(name: str, model: type[Artefact]) -> dict | None:
+        d = _load(build / name, model)
         if d is None:
             missing.append(name)
         return d
 
     sections: list[rep.Section] = []
-    configs = need("configs.yaml", "rxcomm/Configs")
+    configs = need("configs.yaml", Configs)
     if configs:
         sections.append(rep.configs_section(configs["summary"], _img(build, "configs.png")))
-    cal = need("calibration.yaml", "rxcomm/Calibration")
+    cal = need("calibration.yaml", Calibration)
     if cal:
         sections.append(rep.calibration_section(cal["summary"], cal["error_tables"]))
-    exc = need("excitation.yaml", "rxcomm/Excitation")
+    exc = need("excitation.yaml", Excitation)
     if exc:
         sections.append(rep.excitation_section(exc["summary"], _img(build, "excitation.png")))
-    dyn = need("dynamics.yaml", "rxcomm/Dynamics")
+    dyn = need("dynamics.yaml", Dynamics)
     if dyn:
         sections.append(rep.dynamics_section(dyn["summary"], _img(build, "dynamics.png")))
-    cp = need("cp.yaml", "rxcomm/Trajectory")
+    cp = need("cp.yaml", TrajectorySummary)
     if cp:
         sections.append(
             rep.trajectory_section(
@@ -69,7 +70,7 @@ def build_report(build: Path) -> tuple[str, list[str]]:
                 "1.04 s (straight line passing near a singularity)",
             )
         )
-    ptp = need("ptp.yaml", "rxcomm/Trajectory")
+    ptp = need("ptp.yaml", TrajectorySummary)
     if ptp:
         sec = rep.trajectory_section(
             "Time-optimal point-to-point (paper §5.4–5.5, Fig. 9)",
@@ -82,8 +83,8 @@ def build_report(build: Path) -> tuple[str, list[str]]:
                 sec.title, [*sec.figures, rep.ptp_vs_cp_figure(cp["summary"], ptp["summary"])], sec.image
             )
         sections.append(sec)
-    ff = need("run-ff.yaml", "rxcomm/RunLog")
-    noff = need("run-noff.yaml", "rxcomm/RunLog")
+    ff = need("run-ff.yaml", RunLog)
+    noff = need("run-noff.yaml", RunLog)
     if ff:
         sections.append(
             rep.execution_section(ff["summary"], noff["summary"] if noff else None, _img(build, "run-ff.png"))
