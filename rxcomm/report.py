@@ -48,22 +48,31 @@ def _f(x: object, scale: float = 1.0, digits: int = 3, unit: str = "") -> str:
     return f"{float(x) * scale:.{digits}g}" + (f" {unit}" if unit else "")
 
 
-def configs_section(s: Mapping, image: str | None) -> Section:
+def configs_section(s: Mapping, image: str | None, criterion: str = "det-root") -> Section:
     return Section(
         "Optimal measurement poses (paper §3.3)",
         [
             Figure("candidates → selected", f"{s['n_candidates']} → {s['n_selected']}", "≈ 4000 → 32"),
-            Figure("observation index σ_min(ΘᵀΘ)", _f(s["observation_index"], digits=4)),
+            Figure(
+                f"observation index ({criterion}, in average candidates)",
+                _f(s["observation_index"], digits=4),
+            ),
             Figure(
                 "naive baseline (evenly spaced candidates)", _f(s["baseline_observation_index"], digits=4)
             ),
             Figure("improvement ratio", _f(s["improvement_ratio"]), "18.5 (vs a linear scan)"),
+            Figure(
+                "expected rms position error after calibration: selected / naive",
+                f"{_f(s.get('expected_position_error_m'), 1e3)} / "
+                f"{_f(s.get('baseline_expected_position_error_m'), 1e3)} mm",
+            ),
             Figure("compute time", _f(s["seconds"], unit="s"), "about 5 min"),
         ],
         image,
         note="Our baseline is the same number of evenly spaced feasible candidates, not a linear scan of "
-        "one joint range; the index is bounded by the weakest identifiable combination (J5 offset vs J6 "
-        "misalignment over a 0.11 m lever), which every pose set sees alike.",
+        "one joint range. With 6-D measurements and 32 poses for 30 parameters any diverse set is within "
+        "about 10 % of the best possible prediction error, so the gain over it is modest; the expected "
+        "errors are at the tracker noise of cell.yaml.",
     )
 
 

@@ -73,7 +73,9 @@ class TrackerSpec(_Strict):
     `tracker_to_base` is the *nominal* pose of the robot base in the tracker frame (from the cell
     layout); calibration estimates the real one (`base.*` errors). A TCP is visible when its distance
     to the tracker is within the range, the direction to it is within `half_angle_rad` of `view_axis`,
-    and the probe axis points at the tracker within `probe_half_angle_rad`.
+    and the probe axis points at the tracker within `probe_half_angle_rad`. Pose selection keeps its
+    candidates `visibility_margin_rad` inside both cones: the real robot's geometric errors turn the
+    probe by milliradians, enough to take a pose chosen on the nominal cone's edge out of view.
     """
 
     tracker_to_base: Placement
@@ -83,6 +85,9 @@ class TrackerSpec(_Strict):
     range_max_m: float = Field(gt=0)
     probe_axis_in_tcp: Vec3 = Field((0.0, 0.0, 1.0), description="probe normal in the TCP frame")
     probe_half_angle_rad: float = Field(math.pi / 3, gt=0, le=math.pi)
+    visibility_margin_rad: float = Field(
+        0.02, ge=0, description="pose selection stays this far inside the view and probe cones, rad"
+    )
     measures: Literal["pose", "position"] = Field("pose", description="6D probe (pose) or position only")
     position_sigma_m: float = Field(5e-5, gt=0, description="datasheet position noise (1σ), m")
     orientation_sigma_rad: float = Field(1e-4, gt=0, description="datasheet orientation noise (1σ), rad")
@@ -91,6 +96,8 @@ class TrackerSpec(_Strict):
     def _check(self) -> TrackerSpec:
         if self.range_min_m >= self.range_max_m:
             raise ValueError("range_min_m must be below range_max_m")
+        if self.visibility_margin_rad >= min(self.half_angle_rad, self.probe_half_angle_rad):
+            raise ValueError("visibility_margin_rad must be smaller than both cone half-angles")
         for name in ("view_axis_in_tracker", "probe_axis_in_tcp"):
             if math.hypot(*getattr(self, name)) < 1e-9:
                 raise ValueError(f"{name} must not be zero")

@@ -5,9 +5,13 @@ the exchange algorithm, then `validation` poses (random feasible candidates not 
 `calibrate` holds out. `baseline_poses_rad` is the naive set (evenly spaced candidates in grid order,
 the paper's "linear scan") of the same size, kept for comparison; `run` does not drive to it.
 
-The observation index is computed on Θ̃ = W·Θ·S over the identifiable parameters (rows: position m,
-orientation rad × L; columns: translations m, rotations rad × L; L = `characteristic_length_m`), so
-it is in m² and does not depend on the tracker frame; see `rxcomm.optim.pose_selection`.
+The observation index is computed on Θ̃ = W·Θ·S·T over the identifiable parameters (rows: position
+m, orientation rad × σ_p/σ_o; columns: translations m, rotations rad × L, L =
+`characteristic_length_m`, then whitened by the candidates' mean information), so Λ counts "average
+candidate poses" and does not depend on the tracker frame or on units; see
+`rxcomm.optim.pose_selection`. The summary's `expected_position_error_m` (and the baseline's) is the
+rms position error over the candidates that calibrating from the set should leave, at the tracker
+noise of `cell.yaml` (orientation likewise, rad).
 """
 
 from __future__ import annotations

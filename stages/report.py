@@ -50,7 +50,9 @@ def build_report(build: Path) -> tuple[str, list[str]]:
     sections: list[rep.Section] = []
     configs = need("configs.yaml", Configs)
     if configs:
-        sections.append(rep.configs_section(configs["summary"], _img(build, "configs.png")))
+        sections.append(
+            rep.configs_section(configs["summary"], _img(build, "configs.png"), configs["criterion"])
+        )
     cal = need("calibration.yaml", Calibration)
     if cal:
         sections.append(rep.calibration_section(cal["summary"], cal["error_tables"]))

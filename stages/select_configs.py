@@ -3,7 +3,8 @@
 Reads the robot and the cell, streams the joint grid through the cell checks, runs the exchange
 algorithm of `rxcomm.optim.pose_selection` and writes `configs.yaml` (kind `rxcomm/Configs`): the
 selected `fit` poses, then `validation` poses for calibrate to hold out, the index, the naive
-baseline's index and their ratio. `--plot` writes NAME.png with the poses.
+baseline's index and their ratio, and the rms prediction error each set should leave after
+calibration at the tracker noise of `cell.yaml`. `--plot` writes NAME.png with the poses.
 """
 
 from __future__ import annotations
@@ -53,6 +54,10 @@ def configs_artefact(
         "observation_index": sel.selection.observation_index,
         "baseline_observation_index": sel.baseline_index,
         "improvement_ratio": sel.improvement_ratio,
+        "expected_position_error_m": sel.expected_error[0],
+        "baseline_expected_position_error_m": sel.baseline_expected_error[0],
+        "expected_orientation_error_rad": sel.expected_error[1],
+        "baseline_expected_orientation_error_rad": sel.baseline_expected_error[1],
         "seconds": seconds,
         "n_validation": int(len(sel.q_validation)),
         "n_grid": cand.n_grid,
@@ -130,8 +135,11 @@ def command(
     ] = 4000,
     criterion: Annotated[
         CriterionOption,
-        typer.Option(help="Observation index: min-eig σ_min(ΘᵀΘ) (paper), det-root det^(1/p), cond."),
-    ] = CriterionOption.min_eig,
+        typer.Option(
+            help="Observation index: det-root det(Λ)^(1/p) (predicts best), min-eig σ_min(ΘᵀΘ) "
+            "(the paper's), cond λ_max/λ_min."
+        ),
+    ] = CriterionOption.det_root,
     restarts: Annotated[int, typer.Option(help="Restarts of the exchange algorithm (best kept).")] = 5,
     n_validation: Annotated[
         int, typer.Option(help="Extra random feasible poses to measure for validation (held out).")
@@ -164,7 +172,7 @@ def run(
     n: int = 32,
     intervals: int = 13,
     max_candidates: int = 4000,
-    criterion: str = "min-eig",
+    criterion: str = "det-root",
     restarts: int = 5,
     n_validation: int = 16,
     seed: int = 0,

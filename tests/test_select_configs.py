@@ -19,9 +19,11 @@ from rxcomm.optim.pose_selection import (
     _score,
     _Search,
     evenly_spaced,
+    expected_errors,
     feasibility,
     grid_axes,
     information_blocks,
+    normalise_to_candidates,
     observation_index,
     select_measurement_poses,
     select_poses,
@@ -93,7 +95,7 @@ def test_incremental_information_matrix_equals_recomputed(rx_blocks):
     _, blocks = rx_blocks
     res = select_poses(blocks, 32, "min-eig", restarts=2, seed=1)
     assert len(res.indices) == 32 and len(set(res.indices.tolist())) == 32
-    assert observation_index(blocks[res.indices]) == pytest.approx(res.observation_index, rel=1e-9)
+    assert observation_index(blocks[res.indices], "min-eig") == pytest.approx(res.observation_index, rel=1e-9)
 
 
 @pytest.mark.parametrize("criterion", ["min-eig", "det-root", "cond"])
@@ -115,12 +117,64 @@ def test_exchange_beats_random_and_naive_sets(rx_blocks):
     _, blocks = rx_blocks
     res = select_poses(blocks, 32, "min-eig", restarts=3, seed=0)
     rng = np.random.default_rng(9)
-    randoms = [observation_index(blocks[rng.choice(len(blocks), 32, replace=False)]) for _ in range(50)]
-    naive = observation_index(blocks[evenly_spaced(len(blocks), 32)])
+    randoms = [
+        observation_index(blocks[rng.choice(len(blocks), 32, replace=False)], "min-eig") for _ in range(50)
+    ]
+    naive = observation_index(blocks[evenly_spaced(len(blocks), 32)], "min-eig")
     assert res.observation_index > max(randoms) and res.observation_index > naive
-    # The index is pinned by physics: the J5/J6 misalignment difference has a 0.11 m lever in every
+    # In the unwhitened metre scaling (rows m, rad × L) the index is pinned by physics: the J5/J6
+    # misalignment difference has a 0.11 m lever in every
     # pose, so no set of 32 reaches much more than 32·(0.11/L)²/2 ≈ 0.06 (L = 1.81 m).
     assert 0.05 < res.observation_index < 0.07
+
+
+def test_normalised_blocks_count_average_candidates(rx_blocks):
+    _, blocks = rx_blocks
+    norm = normalise_to_candidates(blocks)
+    mean_info = np.einsum("nri,nrj->ij", norm, norm) / len(norm)
+    np.testing.assert_allclose(mean_info, np.eye(blocks.shape[2]), atol=1e-9)
+    # det-root changes by one constant factor only, so it ranks pose sets alike.
+    rng = np.random.default_rng(4)
+    sets = [rng.choice(len(blocks), 32, replace=False) for _ in range(5)]
+    factor = [observation_index(norm[s], "det-root") / observation_index(blocks[s], "det-root") for s in sets]
+    np.testing.assert_allclose(factor, factor[0], rtol=1e-9)
+
+
+def test_expected_errors_match_monte_carlo_least_squares(rx130l, rx_blocks):
+    """The analytic rms prediction error equals that of simulated weighted least-squares fits."""
+    cand, _ = rx_blocks
+    sigma_p, sigma_o = 5e-5, 1e-4
+    weight = sigma_p / sigma_o
+    ident = identifiable_parameters(rx130l, random_poses(rx130l, 60, np.random.default_rng(0)))
+    blocks = information_blocks(rx130l, cand.q[:800], ident, orientation_weight_m=weight)
+    chosen = np.random.default_rng(5).choice(len(blocks), 32, replace=False)
+    pos, ori = expected_errors(blocks, chosen, sigma_p, weight)
+    rng = np.random.default_rng(6)
+    design = blocks[chosen].reshape(-1, blocks.shape[2]) / sigma_p  # rows with unit noise
+    pinv = np.linalg.pinv(design)
+    sq_pos, sq_ori = [], []
+    for _ in range(400):
+        pred = blocks @ (pinv @ rng.standard_normal(design.shape[0]))  # estimate − truth, predicted
+        sq_pos.append(np.mean(np.sum(pred[:, :3] ** 2, axis=1)))
+        sq_ori.append(np.mean(np.sum((pred[:, 3:] / weight) ** 2, axis=1)))
+    assert np.sqrt(np.mean(sq_pos)) == pytest.approx(pos, rel=0.05)
+    assert np.sqrt(np.mean(sq_ori)) == pytest.approx(ori, rel=0.05)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["rx130l", "m900"])
+def test_default_selection_predicts_better_than_the_naive_set(name):
+    """At the defaults (13 intervals, 4,000 candidates, det-root) the selected set should leave a
+    smaller rms prediction error than evenly spaced candidates; the bench measures it through
+    noisy calibrations."""
+    from rxcomm.robot import load_robot
+
+    robot = load_robot(SAMPLES / name)
+    sel = select_measurement_poses(robot, _cell(name), 32)
+    assert sel.selection.observation_index > sel.baseline_index
+    assert sel.baseline_expected_error[0] > 1.05 * sel.expected_error[0]
+    assert sel.baseline_expected_error[1] > 1.03 * sel.expected_error[1]
+    assert sel.expected_error[0] < 0.06e-3  # ≈ tracker σ·sqrt(p/m) with p = 30 parameters, m = 192 rows
 
 
 def test_too_few_or_singular_candidates(rx_blocks):
