@@ -50,7 +50,13 @@ def _write_run_log(path: Path, log: JointLog) -> Path:
         "rxcomm_version": rxcomm.__version__,
         "inputs": {},
         "settings": {},
-        "summary": {"underruns": 0, "max_lag_rad": [0.0] * n, "rms_lag_rad": [0.0] * n},
+        "summary": {
+            "underruns": 0,
+            "max_lag_rad": [0.0] * n,
+            "rms_lag_rad": [0.0] * n,
+            "sample_s": float(log.t[1] - log.t[0]),
+            "interpolation_ratio": 1,
+        },
     }
     with McapWriter(path, env) as w:
         w.write_arrays("/run/joints", log.t, {"q_actual": log.q, "tau_actual": log.tau}, digits=10)

@@ -7,21 +7,33 @@ stamps, gaps longer than `max_gap_s` (shorter ones, and lost records (NaN rows),
 linearly), a joint count other than the robot's and torques at the drives' peak (saturated: the
 measured torque is then not the one the model predicts).
 
+**Alignment.** A run log's record pairs the position at the *end* of a drive cycle with the torque
+commanded *during* it (docs/gateway.md §4.5): that torque accelerated the arm from the position one
+cycle earlier, so it is paired with the position sampled `torque_lag_s` = one drive cycle before
+its record (`JointLog.torque_lag_s`; 0 for a CSV unless `IdentifySettings.torque_lag_s` says
+otherwise). Left unaligned, the 0.4 ms skew leaves h·dτ/dt in the residual (≈ 0.1 N·m rms on J2),
+which the fit absorbs into friction.
+
 **Processing** (`preprocess`). Resampling onto a uniform grid when the sampling jitters; zero-phase
 Butterworth low-pass (`scipy.signal.sosfiltfilt`) of positions *and* torques with the same filter, so
 both keep the same phase and gain below the cut-off; q̇, q̈ by central differences of the filtered
-positions; the ends trimmed (filter transients); decimation to `decimate_hz` (≈ 2.5 × the cut-off: the
-filtered noise is then nearly uncorrelated from sample to sample, which the standard deviations assume).
+positions; the ends trimmed (filter transients); decimation to `decimate_hz` (2 × the cut-off: the
+filtered noise's sample-to-sample correlation is then 0.1, at 2.5 × it is 0.32, enough to make the
+standard deviations, which assume uncorrelated rows, 15–25 % optimistic).
 
 **Estimation** (`estimate`). τ = Y(q, q̇, q̈)·p with `rxcomm.dynamics.joint_torque_regressor` (links,
 rotor inertia, Coulomb (exact sign), viscous, offset, spring), reduced to the base parameters
 (`BaseParameterSet`, the paper's κ regrouping, recorded in dynamics.yaml). Rows of joint j where
 |q̇_j| < `min_speed_rad_s` are rejected: there the Coulomb term's sign is uncertain and the real
-friction (stiction) is not Fc·sgn(q̇). Ordinary least squares, then weighted least squares with each
-joint's rows divided by its noise standard deviation σ_j² = ‖r_j‖²/(m_j − p) from the OLS residuals
-(Gautier's WLS); covariance (WᵀΣ⁻¹W)⁻¹ and relative standard deviations σ_p/|p|. Normal equations
-on unit-norm columns (cond ≲ 10³ here) keep every decomposition p × p. A regressor whose unit-column
-condition number exceeds `max_cond` is refused, naming the base parameters the log does not excite.
+friction (stiction) is not Fc·sgn(q̇). So are the rows within `stick_guard_s` (default 1/cutoff) of
+such a sample at the source rate: the low-pass spreads the stick phase's friction (anything within
+±Fc) over that time, which parallel filtering of sgn(q̇) cannot reproduce; near reversals the
+residual is 2–6× the noise, beyond 1/cutoff at the noise. Ordinary least squares, then weighted
+least squares with each joint's rows divided by its noise standard deviation σ_j² = ‖r_j‖²/(m_j − p)
+from the OLS residuals (Gautier's WLS); covariance (WᵀΣ⁻¹W)⁻¹ and relative standard deviations
+σ_p/|p|. Normal equations on unit-norm columns (cond ≲ 10³ here) keep every decomposition p × p. A
+regressor whose unit-column condition number exceeds `max_cond` is refused, naming the base
+parameters the log does not excite.
 
 **Physical consistency.** A base estimate is realisable by a physical robot if some full parameter
 vector with K·p = p_b has every link's pseudo-inertia J = [[½tr(I)·1 − I, m·c], [(m·c)ᵀ, m]]
@@ -52,6 +64,7 @@ from typing import Literal
 import numpy as np
 import scipy.linalg as sla
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.ndimage import maximum_filter1d
 from scipy.optimize import least_squares
 from scipy.signal import butter, sosfiltfilt
 
@@ -79,7 +92,11 @@ class IdentifySettings(BaseModel):
 
     cutoff_hz: float = Field(10.0, gt=0, description="low-pass cut-off of positions and torques")
     filter_order: int = Field(4, ge=1, le=8, description="Butterworth order (doubled by the zero-phase pass)")
-    decimate_hz: float = Field(25.0, gt=0, description="sample rate after filtering and differentiation")
+    decimate_hz: float = Field(
+        20.0,
+        gt=0,
+        description="sample rate after filtering and differentiation (2 × cutoff: rows uncorrelated)",
+    )
     min_speed_rad_s: float = Field(
         0.05, ge=0, description="rows of a joint slower than this are rejected (friction sign uncertain)"
     )
@@ -92,6 +109,14 @@ class IdentifySettings(BaseModel):
         1e4, gt=1, description="refuse a log whose unit-column base regressor is worse conditioned"
     )
     max_gap_s: float = Field(0.01, ge=0, description="longer gaps (or lost-record runs) are an error")
+    torque_lag_s: float | None = Field(
+        None,
+        description="the torque paired with a position sample is logged this much later; "
+        "None: the log's own (one drive cycle for a run log, 0 for a CSV)",
+    )
+    stick_guard_s: float | None = Field(
+        None, ge=0, description="rows this close to a joint's slow sample are rejected; default 1/cutoff_hz"
+    )
     saturation_fraction: float = Field(
         0.995, gt=0, le=1, description="|τ| at or above this fraction of peak torque counts as saturated"
     )
@@ -104,12 +129,19 @@ class IdentifySettings(BaseModel):
 
 @dataclass(frozen=True, eq=False)
 class JointLog:
-    """Joint-side samples: `t` [N] s, `q` [N, n] rad, `tau` [N, n] N·m; `source` the file."""
+    """Joint-side samples: `t` [N] s, `q` [N, n] rad, `tau` [N, n] N·m; `source` the file.
+
+    `torque_lag_s`: the torque that acted at a position sample's instant is logged this much later
+    (one drive cycle in a run log, see the module docstring). `cycles_per_sample`: drive cycles per
+    record (a run's interpolation ratio R): with R > 1 each torque is one cycle's of R, taken at one
+    phase of the setpoint interpolation, which biases the inertias (≈ 0.3 % on J2 at R = 3)."""
 
     t: np.ndarray
     q: np.ndarray
     tau: np.ndarray
     source: str = ""
+    torque_lag_s: float = 0.0
+    cycles_per_sample: int = 1
 
     def __post_init__(self) -> None:
         for f in ("t", "q", "tau"):
@@ -133,7 +165,9 @@ class JointLog:
     def window(self, t0: float, t1: float) -> JointLog:
         """Samples with t0 ≤ t < t1."""
         k = (self.t >= t0) & (self.t < t1)
-        return JointLog(self.t[k], self.q[k], self.tau[k], self.source)
+        return JointLog(
+            self.t[k], self.q[k], self.tau[k], self.source, self.torque_lag_s, self.cycles_per_sample
+        )
 
 
 def load_joint_log(path: str | Path, robot: Robot | None = None) -> JointLog:
@@ -167,7 +201,19 @@ def load_joint_log(path: str | Path, robot: Robot | None = None) -> JointLog:
             file=path,
             field=f"{RUN_LOG_TOPIC}.tau_actual",
         )
-    return JointLog(td.t, td["q_actual"], td["tau_actual"], str(path))
+    summary = contents.envelope.get("summary") or {}
+    try:  # the drive cycle: records are R drive cycles apart
+        ratio = int(summary["interpolation_ratio"])
+        cycle_s = float(summary["sample_s"]) / ratio
+    except (KeyError, TypeError, ValueError, ZeroDivisionError):
+        if robot is None:
+            raise InputError(
+                "the run log's summary lacks sample_s / interpolation_ratio (the drive cycle)",
+                file=path,
+                field="summary",
+            ) from None
+        cycle_s, ratio = robot.drives.cycle_s, 1
+    return JointLog(td.t, td["q_actual"], td["tau_actual"], str(path), cycle_s, max(ratio, 1))
 
 
 def check_log(log: JointLog, robot: Robot, settings: IdentifySettings) -> JointLog:
@@ -232,7 +278,7 @@ def check_log(log: JointLog, robot: Robot, settings: IdentifySettings) -> JointL
     tu = tf[0] + np.arange(n_steps + 1) * step
     q = np.column_stack([np.interp(tu, tf, c) for c in log.q[finite].T])
     tau = np.column_stack([np.interp(tu, tf, c) for c in log.tau[finite].T])
-    return JointLog(tu, q, tau, log.source)
+    return JointLog(tu, q, tau, log.source, log.torque_lag_s, log.cycles_per_sample)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -242,7 +288,8 @@ def check_log(log: JointLog, robot: Robot, settings: IdentifySettings) -> JointL
 @dataclass(frozen=True, eq=False)
 class Processed:
     """Filtered, differentiated, decimated samples: `t` [M], `q`, `qd`, `qdd`, `tau` [M, n], and
-    `coulomb` [M, n]: sgn(q̇) taken at the source rate and low-passed like the torque."""
+    `coulomb` [M, n]: sgn(q̇) taken at the source rate and low-passed like the torque; `near_stick`
+    [M, n]: within the stick guard of a sample where the joint was slower than min_speed_rad_s."""
 
     t: np.ndarray
     q: np.ndarray
@@ -250,6 +297,7 @@ class Processed:
     qdd: np.ndarray
     tau: np.ndarray
     coulomb: np.ndarray
+    near_stick: np.ndarray
     sample_hz: float
     source_hz: float
 
@@ -262,6 +310,7 @@ class Processed:
             self.qdd[k],
             self.tau[k],
             self.coulomb[k],
+            self.near_stick[k],
             self.sample_hz,
             self.source_hz,
         )
@@ -280,13 +329,21 @@ def preprocess(log: JointLog, settings: IdentifySettings) -> Processed:
     sos = butter(settings.filter_order, fc, fs=fs, output="sos")
     # Odd extension over 2/fc at the ends: the filter's start-up transient stays in the trimmed part.
     pad = min(len(log.t) - 1, int(2.0 * fs / fc))
+    lag = log.torque_lag_s if settings.torque_lag_s is None else settings.torque_lag_s
+    tau = log.tau
+    if lag:  # the torque that acted at t (the ends, clamped, are trimmed below)
+        tau = np.column_stack([np.interp(log.t + lag, log.t, c) for c in tau.T])
     q = sosfiltfilt(sos, log.q, axis=0, padlen=pad)
-    tau = sosfiltfilt(sos, log.tau, axis=0, padlen=pad)
+    tau = sosfiltfilt(sos, tau, axis=0, padlen=pad)
     qd = np.gradient(q, step, axis=0)
     qdd = np.gradient(qd, step, axis=0)
     # Parallel filtering of the one discontinuous column: the measured torque's Coulomb jumps are
     # smeared by the low-pass over ~1/cutoff, so the regressor's sgn(q̇) gets the same filter.
     coulomb = sosfiltfilt(sos, np.sign(qd), axis=0, padlen=pad)
+    guard = 1.0 / fc if settings.stick_guard_s is None else settings.stick_guard_s
+    near_stick = maximum_filter1d(
+        np.abs(qd) < settings.min_speed_rad_s, size=2 * int(round(guard * fs)) + 1, axis=0
+    )
     trim = 2.0 / fc if settings.trim_s is None else settings.trim_s
     k0 = int(math.ceil(trim / step))
     stride = max(1, int(round(fs / settings.decimate_hz)))
@@ -297,7 +354,9 @@ def preprocess(log: JointLog, settings: IdentifySettings) -> Processed:
             file=log.source or None,
             field="t",
         )
-    return Processed(log.t[idx], q[idx], qd[idx], qdd[idx], tau[idx], coulomb[idx], fs / stride, fs)
+    return Processed(
+        log.t[idx], q[idx], qd[idx], qdd[idx], tau[idx], coulomb[idx], near_stick[idx], fs / stride, fs
+    )
 
 
 def regressor(robot: Robot, data: Processed) -> np.ndarray:
@@ -385,7 +444,7 @@ def estimate(
     w = bset.base_regressor(regressor(robot, data))
     y = data.tau.ravel()
     joint = np.tile(np.arange(n), len(data.t))
-    keep = np.abs(data.qd.ravel()) >= settings.min_speed_rad_s
+    keep = ~data.near_stick.ravel()
     w, y, joint = w[keep], y[keep], joint[keep]
     cond, cond_raw, weak = excitation_report(w, bset.names, settings.max_cond)
     if cond > settings.max_cond or len(y) <= nb:
@@ -393,7 +452,8 @@ def estimate(
         parts = []
         if still:
             parts.append(
-                f"{', '.join(still)} never moved faster than min_speed_rad_s = {settings.min_speed_rad_s}"
+                f"{', '.join(still)} never moved faster than min_speed_rad_s = {settings.min_speed_rad_s} "
+                "for longer than the stick guard (default 1/cutoff_hz)"
             )
         shown = [b for b in weak if b.split(".")[0] not in still]
         if shown:

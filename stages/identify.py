@@ -75,7 +75,9 @@ def command(
         Method.wls
     ),
     cutoff_hz: Annotated[float, typer.Option(help="Low-pass cut-off of positions and torques, Hz.")] = 10.0,
-    decimate_hz: Annotated[float, typer.Option(help="Sample rate after filtering, Hz.")] = 25.0,
+    decimate_hz: Annotated[
+        float, typer.Option(help="Sample rate after filtering, Hz (2 × cut-off keeps rows uncorrelated).")
+    ] = 20.0,
     min_speed: Annotated[
         float, typer.Option(help="Rows of joints slower than this are rejected, rad/s.")
     ] = 0.05,
@@ -85,6 +87,17 @@ def command(
     max_gap: Annotated[
         float, typer.Option(help="Longest gap in the log bridged by interpolation, s.")
     ] = 0.01,
+    torque_lag: Annotated[
+        float | None,
+        typer.Option(
+            help="The torque acting at a position sample is logged this much later, s "
+            "(default: one drive cycle for a run log, 0 for a CSV)."
+        ),
+    ] = None,
+    stick_guard: Annotated[
+        float | None,
+        typer.Option(help="Reject rows this close to a joint's slow samples, s (default 1/cutoff)."),
+    ] = None,
     plot: Annotated[bool, typer.Option(help="Write OUTPUT.png: measured vs predicted torques.")] = False,
 ) -> None:
     """Identify the base dynamic parameters (+ friction, rotor inertia, spring) and validate them."""
@@ -96,6 +109,8 @@ def command(
         "min_speed_rad_s": min_speed,
         "max_cond": max_cond,
         "max_gap_s": max_gap,
+        "torque_lag_s": torque_lag,
+        "stick_guard_s": stick_guard,
     }
     run(robot_dir, log, output, validate=validate, settings=values, plot=plot)
 
@@ -123,6 +138,14 @@ def run(
         raise InputError(err["msg"], field=".".join(str(p) for p in err["loc"]) or None) from e
     joint_log = load_joint_log(log, robot)
     val_log = None if validate is None else load_joint_log(validate, robot)
+    for lg in (joint_log, val_log):
+        if lg is not None and lg.cycles_per_sample > 1:
+            console.err.print(
+                f"[yellow]warning:[/] {lg.source} was recorded with --interpolation-ratio "
+                f"{lg.cycles_per_sample}: each torque sample is one drive cycle of {lg.cycles_per_sample}, "
+                "at one phase of the setpoint interpolation, which biases the inertias; record "
+                "identification runs with --interpolation-ratio 1"
+            )
     with console.err.status("identify: estimating"):
         result = identify(robot, joint_log, opts, validation_log=val_log)
     est = result.estimate

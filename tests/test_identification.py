@@ -16,7 +16,7 @@ from rxcomm.schemas.truth import CellTruth
 from typer.testing import CliRunner
 
 import rxcomm
-from rxcomm.base_parameters import base_parameters, load_dynamics, parameter_scale
+from rxcomm.base_parameters import base_parameters, load_dynamics
 from rxcomm.cli import app
 from rxcomm.dynamics import RobotDynamics, prior_parameters, truth_parameters
 from rxcomm.errors import InputError
@@ -66,8 +66,12 @@ def measured(robot, params, t, q, qd, qdd, noise_nm=None, encoder_lsb=None, seed
 
 
 def write_run_log(path: Path, t, q_actual, tau_actual, q_demand=None, tau_ff=None) -> Path:
-    """A run log in `run`'s format: kind rxcomm/RunLog, topic /run/joints."""
+    """A run log in `run`'s format: kind rxcomm/RunLog, topic /run/joints. `tau_actual[i]` is the
+    torque at t[i]; like the gateway's trace, record i carries it with the position one drive cycle
+    later (the position at the end of the cycle the torque acted in)."""
     n = q_actual.shape[1]
+    dt = float(np.median(np.diff(t)))
+    tau_actual = np.vstack([tau_actual[:1], tau_actual[:-1]])
     q_demand = q_actual if q_demand is None else q_demand
     tau_ff = np.zeros_like(tau_actual) if tau_ff is None else tau_ff
     env = {
@@ -83,6 +87,8 @@ def write_run_log(path: Path, t, q_actual, tau_actual, q_demand=None, tau_ff=Non
             "rms_lag_rad": [0.0] * n,
             "max_tcp_error_m": 0.0,
             "duration_s": float(t[-1] - t[0]),
+            "sample_s": dt,
+            "interpolation_ratio": 1,
         },
     }
     with McapWriter(path, env) as w:
@@ -157,7 +163,9 @@ def test_run_log_round_trip(tmp_path, rx130l, random_traj):
     tau = RobotDynamics(rx130l, prior_parameters(rx130l)).inverse_dynamics(q, qd, qdd)
     path = write_run_log(tmp_path / "log.mcap", t[:2000], q[:2000], tau[:2000])
     log = load_joint_log(path)
-    assert np.allclose(log.t, t[:2000]) and np.allclose(log.q, q[:2000]) and np.allclose(log.tau, tau[:2000])
+    assert np.allclose(log.t, t[:2000]) and np.allclose(log.q, q[:2000])
+    assert log.torque_lag_s == pytest.approx(rx130l.drives.cycle_s)  # the trace's torque is a cycle late
+    assert np.allclose(log.tau[1:], tau[:1999])
 
 
 def test_run_log_of_another_kind_is_refused(tmp_path):
@@ -278,12 +286,34 @@ def test_poor_excitation_names_what_is_not_identifiable(rx130l, bset_rx):
     assert "spring.kL0" in e.value.reason and "joint_1.fc" not in e.value.reason
 
 
+def test_trace_torque_is_realigned_and_stick_phases_guarded():
+    """A run log's torque is a drive cycle late (gateway trace); rows within 1/cutoff of a joint's
+    slow samples are marked."""
+    h = 0.0004
+    t = np.arange(0, 6, h)
+    q = np.column_stack([np.sin(t), 0.3 * t])  # joint 1 reverses at π/2, 3π/2; joint 2 never slows
+    tau = np.column_stack([np.cos(3 * t), np.sin(2 * t)])
+    late = np.vstack([tau[:1], tau[:-1]])
+    s = IdentifySettings()
+    aligned = preprocess(JointLog(t, q, late, torque_lag_s=h), s)
+    reference = preprocess(JointLog(t, q, tau), s)
+    np.testing.assert_allclose(aligned.tau, reference.tau, atol=1e-6)  # vs a 1e-3 skew error
+    assert not np.allclose(preprocess(JointLog(t, q, late), s).tau, reference.tau, atol=1e-4)
+    slow = np.abs(np.cos(aligned.t)) < s.min_speed_rad_s
+    reversal = np.pi / 2 + np.pi * np.round((aligned.t - np.pi / 2) / np.pi)
+    np.testing.assert_array_equal(
+        aligned.near_stick[:, 0],
+        slow | (np.abs(aligned.t - reversal) <= np.arcsin(s.min_speed_rad_s) + 1 / s.cutoff_hz),
+    )
+    assert not aligned.near_stick[:, 1].any()
+
+
 def test_preprocess_differentiates_accurately():
     t = np.arange(0, 20, 0.0004)
     w = 2.0
     q = np.column_stack([np.sin(w * t), 0.5 * np.cos(3 * w * t)])
     data = preprocess(JointLog(t, q, q.copy()), IdentifySettings())
-    assert data.sample_hz == pytest.approx(25.0)
+    assert data.sample_hz == pytest.approx(20.0)
     # not at rest at the ends (a worst case): ≤ 0.5 % of the amplitude there, 1e-5 inside
     qd_true, qdd_true = w * np.cos(w * data.t), -0.5 * 9 * w**2 * np.cos(3 * w * data.t)
     assert np.abs(data.qd[:, 0] - qd_true).max() < 5e-3 * w
@@ -491,20 +521,20 @@ def test_end_to_end_on_the_simulated_cell(tmp_path, rx130l, truth_rx, bset_rx):
     )
     for name in ("exc", "val"):
         plan = str(tmp_path / f"{name}-trajectory.mcap")
-        ok("run", plan, "--robot", rx, "-o", str(tmp_path / f"{name}-log.mcap"), "--approach")
+        log = str(tmp_path / f"{name}-log.mcap")
+        ok("run", plan, "--robot", rx, "-o", log, "--approach", "--interpolation-ratio", "1")
     out = tmp_path / "dynamics.yaml"
     logs = ["--log", str(tmp_path / "exc-log.mcap"), "--validate", str(tmp_path / "val-log.mcap")]
     ok("identify", "--robot", rx, *logs, "-o", str(out))
     art = read_yaml_artefact(out, Dynamics)
     nrmse = np.array(art.summary["validation_nrmse"])
     assert np.all(nrmse[:3] <= 0.05) and np.all(nrmse[3:] <= 0.10), nrmse
-    # Base parameters: within 3σ, up to a systematic 2 % of each parameter's typical magnitude (the cell's
-    # plant and traces differ from truth.yaml's rigid-body model by that much: see the report of issue 5).
+    # Base parameters: every one within 3σ of the truth's, and the σ honest (z scores of unit rms; σ
+    # that ignored the torque/position skew of the trace or the stick phases gave 5σ on J2 friction).
     truth_b = bset_rx.project(truth_parameters(rx130l, truth_rx))
     est = np.array([b.value for b in art.base_parameters])
     std = np.array([b.relative_std for b in art.base_parameters]) * np.abs(est)
-    scale = np.abs(bset_rx.K) @ parameter_scale(
-        bset_rx.full_names, prior_parameters(rx130l).vector(), rx130l.n
-    )
-    assert np.all(np.abs(est - truth_b) <= 3.0 * std + 0.02 * scale)
-    assert np.mean(np.abs(est - truth_b) <= 3.0 * std) >= 0.9
+    z = (est - truth_b) / std
+    worst = int(np.argmax(np.abs(z)))
+    assert np.abs(z[worst]) <= 3.0, (art.base_parameters[worst].name, z[worst])
+    assert 0.5 <= np.sqrt(np.mean(z**2)) <= 1.5, np.sqrt(np.mean(z**2))
