@@ -32,8 +32,8 @@
    calibration, σ_p²·trace(Θ_c Λ⁻¹ Θ_cᵀ) at a pose c. With 6-D measurements and 32 poses for 30
    parameters every diverse set is within ~10 % of the best possible (I-optimal) set; maximising
    λ_min alone pushes the one weakest combination (J5 offset vs J6 misalignment) at the expense of
-   the others and predicted worse than evenly spaced candidates in our scaling, det-root predicts
-   best (see `expected_errors`, reported for the chosen and the naive set).
+   the others (in a plain metre scaling its sets predicted worse than evenly spaced candidates);
+   det-root predicts best (see `expected_errors`, reported for the chosen and the naive set).
 
 3. **Exchange algorithm** (paper steps 1–4). Random nonsingular start of `n_start` poses; remove-and-
    replace while it improves; add the best pose until `n`; final remove-and-replace; `restarts`
