@@ -16,10 +16,9 @@ from rxcomm.calibration import MeasurementSet, calibrate
 from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.geometric_errors import placement_to_se3, predict_poses, random_poses
 from rxcomm.optim.pose_selection import (
-    information_blocks,
-    normalise_to_candidates,
     select_measurement_poses,
     select_poses,
+    selection_blocks,
     stream_candidates,
 )
 from rxcomm.robot import load_robot
@@ -48,14 +47,9 @@ def rows(quick: bool) -> list[Row]:
     # (Jacobians of the candidates + selection); streaming the 13⁶ grid is the row below.
     cand_q = sel.candidates.q
     ident = sel.identifiable
-    position_only = sel.measurement == "position"
-
-    weight = cell.tracker.position_sigma_m / cell.tracker.orientation_sigma_rad
 
     def select_only():
-        blocks = normalise_to_candidates(
-            information_blocks(robot, cand_q, ident, position_only, None, weight)
-        )
+        blocks, _ = selection_blocks(robot, cell, cand_q, ident)
         select_poses(blocks, 32, restarts=5, seed=0)
 
     t_select = median_seconds(select_only, repeats)

@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -165,9 +165,7 @@ class JointLog:
     def window(self, t0: float, t1: float) -> JointLog:
         """Samples with t0 ≤ t < t1."""
         k = (self.t >= t0) & (self.t < t1)
-        return JointLog(
-            self.t[k], self.q[k], self.tau[k], self.source, self.torque_lag_s, self.cycles_per_sample
-        )
+        return replace(self, t=self.t[k], q=self.q[k], tau=self.tau[k])
 
 
 def load_joint_log(path: str | Path, robot: Robot | None = None) -> JointLog:
@@ -278,7 +276,7 @@ def check_log(log: JointLog, robot: Robot, settings: IdentifySettings) -> JointL
     tu = tf[0] + np.arange(n_steps + 1) * step
     q = np.column_stack([np.interp(tu, tf, c) for c in log.q[finite].T])
     tau = np.column_stack([np.interp(tu, tf, c) for c in log.tau[finite].T])
-    return JointLog(tu, q, tau, log.source, log.torque_lag_s, log.cycles_per_sample)
+    return replace(log, t=tu, q=q, tau=tau)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -19,6 +19,7 @@ of the edge) about P1. `iso9283_cube` finds the cube, `iso9283_paths` writes the
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -125,7 +126,7 @@ class ChainCurve:
         return out
 
 
-class _ArcLengthCurve:
+class _ArcLengthCurve(ABC):
     """A parametric curve P(u) re-parametrised by arc length: u(σ) is tabulated by Gauss–Legendre
     quadrature on a fine sub-grid of `breaks` and refined by Newton steps, so |p'(σ)| = 1 to ~1e-9.
     Subclasses give `_p(u, order)` and the parameter breaks."""
@@ -144,8 +145,9 @@ class _ArcLengthCurve:
         object.__setattr__(self, "_s_tab", np.concatenate([[0.0], np.cumsum(seg)]))
         object.__setattr__(self, "_u_tab", uu)
 
+    @abstractmethod
     def _p(self, u: np.ndarray, order: int) -> np.ndarray:
-        raise NotImplementedError
+        """The `order`-th derivative of P at parameters `u`, [len(u), 3]."""
 
     @property
     def length_m(self) -> float:

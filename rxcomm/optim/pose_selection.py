@@ -373,6 +373,17 @@ def expected_errors(
     return pos, position_sigma_m * rms(blocks[:, 3:]) / orientation_weight_m
 
 
+def selection_blocks(
+    robot: Robot, cell: Cell, qs: np.ndarray, ident: IdentifiableSet, point: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
+    """(blocks, orientation row weight): the Fisher-weighted, candidate-whitened Θ̃ that selection
+    and `expected_errors` use (module docstring, 2.)."""
+    tracker = cell.tracker
+    weight = tracker.position_sigma_m / tracker.orientation_sigma_rad
+    position_only = tracker.measures == "position"
+    return normalise_to_candidates(information_blocks(robot, qs, ident, position_only, point, weight)), weight
+
+
 def _score(lam: np.ndarray, criterion: Criterion) -> np.ndarray:
     """Criterion value to MAXIMISE for [..., p, p] information matrices."""
     if criterion is Criterion.DET_ROOT:
@@ -636,9 +647,8 @@ def select_measurement_poses(
     position_only = cell.tracker.measures == "position"
     rng = np.random.default_rng(seed)
     ident = identifiable_parameters(robot, random_poses(robot, 60, rng), position_only, point)
-    tracker = cell.tracker
-    weight = tracker.position_sigma_m / tracker.orientation_sigma_rad
-    blocks = normalise_to_candidates(information_blocks(robot, cand.q, ident, position_only, point, weight))
+    blocks, weight = selection_blocks(robot, cell, cand.q, ident, point)
+    sigma_p = cell.tracker.position_sigma_m
     sel = select_poses(blocks, n, criterion, restarts, seed)
     base_idx = evenly_spaced(cand.q.shape[0], n)
     base_index = observation_index(blocks[base_idx], criterion)
@@ -660,6 +670,6 @@ def select_measurement_poses(
         q_baseline=cand.q[base_idx],
         baseline_index=base_index,
         improvement_ratio=ratio,
-        expected_error=expected_errors(blocks, sel.indices, tracker.position_sigma_m, weight),
-        baseline_expected_error=expected_errors(blocks, base_idx, tracker.position_sigma_m, weight),
+        expected_error=expected_errors(blocks, sel.indices, sigma_p, weight),
+        baseline_expected_error=expected_errors(blocks, base_idx, sigma_p, weight),
     )
