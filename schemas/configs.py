@@ -2,8 +2,12 @@
 
 `poses` is the list `run` drives to, in order, reading the tracker at each: the `fit` poses chosen by
 the exchange algorithm, then `validation` poses (random feasible candidates not selected) that
-`calibrate` holds out. `baseline_poses_rad` is the naive set (evenly spaced candidates in grid order,
-the paper's "linear scan") of the same size, kept for comparison; `run` does not drive to it.
+`calibrate` holds out, then — with `select-configs --measure-baseline` — the naive set as `baseline`
+poses, which `calibrate` fits on its own to report the held-out error it would have left.
+`baseline_poses_rad` is that naive set, always written: the paper's "linear scan" of the joint grid
+(from `baseline_centre_rad`, one joint swept at a time; `rxcomm.optim.pose_selection.linear_scan`).
+`evenly_spaced_poses_rad` is a second reference of the same size, evenly spaced candidates in grid
+order (as diverse as a random draw of the candidates).
 
 The observation index is computed on Θ̃ = W·Θ·S·T over the identifiable parameters (rows: position
 m, orientation rad × σ_p/σ_o; columns: translations m, rotations rad × L, L =
@@ -11,7 +15,8 @@ m, orientation rad × σ_p/σ_o; columns: translations m, rotations rad × L, L 
 candidate poses" and does not depend on the tracker frame or on units; see
 `rxcomm.optim.pose_selection`. The summary's `expected_position_error_m` (and the baseline's) is the
 rms position error over the candidates that calibrating from the set should leave, at the tracker
-noise of `cell.yaml` (orientation likewise, rad).
+noise of `cell.yaml` (orientation likewise, rad). Version 2: the baseline became the linear scan
+(version 1's `baseline_poses_rad` were evenly spaced candidates).
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ class ConfigPose(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     q_rad: list[float] = Field(description="joint angles, rad, chain order")
-    role: Literal["fit", "validation"] = "fit"
+    role: Literal["fit", "validation", "baseline"] = "fit"
     tcp_position_m: tuple[float, float, float] | None = Field(
         None, description="nominal TCP position in the base frame (for people and plots)"
     )
@@ -34,7 +39,7 @@ class ConfigPose(BaseModel):
 
 class Configs(Artefact):
     KIND: ClassVar[str] = "rxcomm/Configs"
-    SCHEMA_VERSION: ClassVar[int] = 1
+    SCHEMA_VERSION: ClassVar[int] = 2
     REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
         "n_candidates",
         "n_selected",
@@ -51,4 +56,8 @@ class Configs(Artefact):
     characteristic_length_m: float
     identifiable: list[str] = Field(description="the parameters the index is computed over")
     poses: list[ConfigPose]
-    baseline_poses_rad: list[list[float]]
+    baseline_poses_rad: list[list[float]] = Field(description="the naive set: a linear scan of the grid")
+    baseline_centre_rad: list[float] = Field(description="the configuration the linear scan sweeps from")
+    evenly_spaced_poses_rad: list[list[float]] = Field(
+        description="as many evenly spaced candidates in grid order (a second reference)"
+    )

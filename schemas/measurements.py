@@ -4,7 +4,9 @@ Written by `run` when it executes a pose list (`configs.yaml`) on a cell; read b
 Per pose: the joint angles from the encoders after settling (rad), the TCP position (m) and, with a
 6D probe, its orientation as a unit quaternion **w, x, y, z** — both in the **tracker frame** — and
 whether the tracker saw the probe (`valid`). `role` is copied from the pose list: `fit` poses are
-used to estimate the parameters, `validation` poses only to check the result (held out).
+used to estimate the parameters, `validation` poses only to check the result (held out), `baseline`
+poses (a naive set measured for comparison) are fitted on their own so `calibrate` can show what
+they would have left on the same held-out poses.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ class MeasuredPose(BaseModel):
         description="TCP orientation in the tracker frame (unit quaternion w, x, y, z); None: position only",
     )
     valid: bool = Field(True, description="the tracker saw the probe")
-    role: Literal["fit", "validation"] = "fit"
+    role: Literal["fit", "validation", "baseline"] = "fit"
 
     @model_validator(mode="after")
     def _unit_quaternion(self) -> MeasuredPose:

@@ -2,9 +2,11 @@
 
 Reads the robot and the cell, streams the joint grid through the cell checks, runs the exchange
 algorithm of `rxcomm.optim.pose_selection` and writes `configs.yaml` (kind `rxcomm/Configs`): the
-selected `fit` poses, then `validation` poses for calibrate to hold out, the index, the naive
-baseline's index and their ratio, and the rms prediction error each set should leave after
-calibration at the tracker noise of `cell.yaml`. `--plot` writes NAME.png with the poses.
+selected `fit` poses, then `validation` poses for calibrate to hold out (and, with
+`--measure-baseline`, the naive set's poses to measure as well), the index, the naive baseline's
+index (the paper's linear scan) and their ratio, the same for evenly spaced candidates, and the rms
+prediction error each set should leave after calibration at the tracker noise of `cell.yaml`.
+`--plot` writes NAME.png with the poses.
 """
 
 from __future__ import annotations
@@ -38,11 +40,19 @@ def read_cell(path: Path) -> Cell:
 
 
 def configs_artefact(
-    robot: Robot, sel: PoseSelection, inputs: dict[str, Path], settings: dict, seconds: float
+    robot: Robot,
+    sel: PoseSelection,
+    inputs: dict[str, Path],
+    settings: dict,
+    seconds: float,
+    measure_baseline: bool = False,
 ) -> Configs:
-    q_all = np.vstack([sel.q_selected, sel.q_validation])
+    parts = [("fit", sel.q_selected), ("validation", sel.q_validation)]
+    if measure_baseline:
+        parts.append(("baseline", sel.baseline.q))
+    q_all = np.vstack([q for _, q in parts])
     tcp, _ = predict_poses(robot, q_all)
-    roles = ["fit"] * len(sel.q_selected) + ["validation"] * len(sel.q_validation)
+    roles = [role for role, q in parts for _ in range(len(q))]
     poses = [
         ConfigPose(q_rad=q.tolist(), role=r, tcp_position_m=tuple(p))
         for q, r, p in zip(q_all, roles, tcp, strict=True)
@@ -52,13 +62,20 @@ def configs_artefact(
         "n_candidates": int(cand.q.shape[0]),
         "n_selected": int(len(sel.q_selected)),
         "observation_index": sel.selection.observation_index,
-        "baseline_observation_index": sel.baseline_index,
-        "improvement_ratio": sel.improvement_ratio,
+        "baseline_observation_index": sel.baseline.observation_index,
+        "improvement_ratio": sel.baseline.improvement_ratio,
+        "min_eig_improvement_ratio": sel.min_eig_improvement_ratio,
         "expected_position_error_m": sel.expected_error[0],
-        "baseline_expected_position_error_m": sel.baseline_expected_error[0],
+        "baseline_expected_position_error_m": sel.baseline.expected_error[0],
+        "evenly_spaced_expected_position_error_m": sel.evenly_spaced.expected_error[0],
         "expected_orientation_error_rad": sel.expected_error[1],
-        "baseline_expected_orientation_error_rad": sel.baseline_expected_error[1],
+        "baseline_expected_orientation_error_rad": sel.baseline.expected_error[1],
+        "evenly_spaced_expected_orientation_error_rad": sel.evenly_spaced.expected_error[1],
+        "evenly_spaced_observation_index": sel.evenly_spaced.observation_index,
+        "evenly_spaced_improvement_ratio": sel.evenly_spaced.improvement_ratio,
         "seconds": seconds,
+        "n_baseline": int(len(sel.baseline.q)),
+        "baseline_measured": measure_baseline,
         "n_validation": int(len(sel.q_validation)),
         "n_grid": cand.n_grid,
         "n_feasible": cand.n_feasible,
@@ -77,12 +94,15 @@ def configs_artefact(
         characteristic_length_m=sel.characteristic_length_m,
         identifiable=list(sel.identifiable.names),
         poses=poses,
-        baseline_poses_rad=sel.q_baseline.tolist(),
+        baseline_poses_rad=sel.baseline.q.tolist(),
+        baseline_centre_rad=sel.scan.centre.tolist(),
+        evenly_spaced_poses_rad=sel.evenly_spaced.q.tolist(),
     )
 
 
 def plot_configs(robot: Robot, sel: PoseSelection, path: Path, title: str) -> Path:
-    """PNG: the selected poses as stick figures (base frame) over the candidates' TCP cloud."""
+    """PNG: the selected poses as stick figures (base frame) over the candidates' TCP cloud, the
+    linear scan's TCPs beside them, and each joint's coverage by both sets."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -99,6 +119,8 @@ def plot_configs(robot: Robot, sel: PoseSelection, path: Path, title: str) -> Pa
         pts = np.vstack([[0, 0, 0], ch.joint_frames[k, :, :3, 3], ch.tcp[k, :3, 3]])
         ax.plot(*pts.T, lw=1.0, color=plt.cm.viridis(k / max(len(sel.q_selected) - 1, 1)))
     ax.scatter(*ch.tcp[:, :3, 3].T, s=12, c="C3", label="selected (TCP)")
+    scan_tcp, _ = predict_poses(robot, sel.baseline.q)
+    ax.scatter(*scan_tcp.T, s=12, c="C0", marker="x", label="naive: linear scan (TCP)")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_zlabel("z [m]")
@@ -106,16 +128,22 @@ def plot_configs(robot: Robot, sel: PoseSelection, path: Path, title: str) -> Pa
     ax.set_title("selected poses")
     ax2 = fig.add_subplot(1, 2, 2)
     for j in range(robot.n):
-        ax2.scatter(
-            np.full(len(sel.q_selected), j + 1) + np.linspace(-0.2, 0.2, len(sel.q_selected)),
-            np.degrees(sel.q_selected[:, j]),
-            s=10,
-            c="C3",
-        )
+        for q, dx, style in (
+            (sel.q_selected, -0.12, {"c": "C3"}),
+            (sel.baseline.q, 0.12, {"c": "C0", "marker": "x"}),
+        ):
+            ax2.scatter(
+                np.full(len(q), j + 1 + dx) + np.linspace(-0.08, 0.08, len(q)),
+                np.degrees(q[:, j]),
+                s=10,
+                label=None if j else ("selected" if dx < 0 else "linear scan"),
+                **style,
+            )
         ax2.plot([j + 1, j + 1], np.degrees([robot.q_min[j], robot.q_max[j]]), c="0.6", lw=6, alpha=0.4)
     ax2.set_xticks(range(1, robot.n + 1), robot.joint_names, fontsize=8)
     ax2.set_ylabel("joint angle [deg] (grey: range)")
-    ax2.set_title("joint coverage of the selected poses")
+    ax2.set_title("joint coverage")
+    ax2.legend(loc="upper right", fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -142,9 +170,20 @@ def command(
     ] = CriterionOption.det_root,
     restarts: Annotated[int, typer.Option(help="Restarts of the exchange algorithm (best kept).")] = 5,
     n_validation: Annotated[
-        int, typer.Option(help="Extra random feasible poses to measure for validation (held out).")
-    ] = 16,
+        int,
+        typer.Option(
+            help="Extra random feasible poses to measure for validation (held out); as many as fit "
+            "poses let one campaign tell two pose sets apart."
+        ),
+    ] = 32,
     seed: Annotated[int, typer.Option(help="Seed of the sub-sampling, starts and validation poses.")] = 0,
+    measure_baseline: Annotated[
+        bool,
+        typer.Option(
+            help="Also list the naive set (the linear scan) for run to measure, so calibrate reports "
+            "the held-out error it would have left beside the selected set's (n more poses to measure)."
+        ),
+    ] = False,
     plot: Annotated[bool, typer.Option(help="Write NAME.png with the selected poses.")] = False,
 ) -> None:
     """Select measurement poses that make the geometric error parameters well identifiable."""
@@ -159,6 +198,7 @@ def command(
         restarts=restarts,
         n_validation=n_validation,
         seed=seed,
+        measure_baseline=measure_baseline,
         plot=plot,
     )
 
@@ -174,8 +214,9 @@ def run(
     max_candidates: int = 4000,
     criterion: str = "det-root",
     restarts: int = 5,
-    n_validation: int = 16,
+    n_validation: int = 32,
     seed: int = 0,
+    measure_baseline: bool = False,
     plot: bool = False,
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written to `output`."""
@@ -196,6 +237,7 @@ def run(
         "restarts": restarts,
         "n_validation": n_validation,
         "seed": seed,
+        "measure_baseline": measure_baseline,
     }
     total = intervals**robot.n
     with console.progress() as bar:
@@ -214,15 +256,16 @@ def run(
         )
     seconds = time.perf_counter() - t0
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "cell": Path(cell)}
-    art = configs_artefact(robot, sel, inputs, settings, seconds)
+    art = configs_artefact(robot, sel, inputs, settings, seconds, measure_baseline)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_yaml_artefact(output, art)
     if plot:
-        ratio = sel.improvement_ratio
+        ratio = sel.baseline.improvement_ratio
         title = (
             f"{robot.name}: {n} of {sel.candidates.q.shape[0]} candidates, {criterion} "
-            f"{sel.selection.observation_index:.4g} (naive {sel.baseline_index:.4g}"
-            + (f", ×{ratio:.2f})" if ratio is not None else ")")
+            f"{sel.selection.observation_index:.4g} (linear scan {sel.baseline.observation_index:.4g}"
+            + (f", ×{ratio:.2f}" if ratio is not None else "")
+            + f"; evenly spaced candidates {sel.evenly_spaced.observation_index:.4g})"
         )
         png = plot_configs(robot, sel, output.with_suffix(".png"), title)
         console.out.print(f"plot: {png}")

@@ -384,6 +384,8 @@ def write_configs(path: Path, robot, poses: list[np.ndarray], roles: list[str]) 
         identifiable=[],
         poses=[ConfigPose(q_rad=p.tolist(), role=r) for p, r in zip(poses, roles, strict=True)],
         baseline_poses_rad=[],
+        baseline_centre_rad=[],
+        evenly_spaced_poses_rad=[],
     )
     write_yaml_artefact(path, cfg)
     return path
@@ -392,13 +394,13 @@ def write_configs(path: Path, robot, poses: list[np.ndarray], roles: list[str]) 
 @pytest.mark.slow
 def test_pose_campaign_writes_measurements(tmp_path, cell, rx130l):
     poses = [Q0 + 0.3 * DQ, Q0 - 0.2 * DQ, Q0 + np.array([0.2, 0, 0, 0, 0, 0.5])]
-    cfg = write_configs(tmp_path / "configs.yaml", rx130l, poses, ["fit", "fit", "validation"])
+    cfg = write_configs(tmp_path / "configs.yaml", rx130l, poses, ["fit", "validation", "baseline"])
     out = tmp_path / "calib-meas.yaml"
     summary = run_stage.execute(cfg, ROBOT_DIR, out, gateway=gw(cell), speed=0.5, show_progress=False)
     assert summary["n_poses"] == 3 and summary["n_valid"] == 3 and summary["underruns"] == 0
     meas = yaml.safe_load(out.read_text())
     assert meas["kind"] == "rxcomm/Measurements"
-    for p, want, role in zip(meas["poses"], poses, ["fit", "fit", "validation"], strict=True):
+    for p, want, role in zip(meas["poses"], poses, ["fit", "validation", "baseline"], strict=True):
         assert p["valid"] and p["role"] == role
         np.testing.assert_allclose(p["q_rad"], want, atol=2e-6)  # encoders at the pose
         # IdealBackend's pseudo tracker: a fixed function of the joint angles
