@@ -18,7 +18,9 @@ a rigid registration of the nominal TCP positions onto the measured ones, Kabsch
 component beyond `outlier_sigma` robust σ after a first fit are flagged (and dropped, by default,
 before the final fit); held-out poses (`validation` role, or a seeded `holdout_fraction`) are never
 fitted; the paper's Table 2 (`error_table`) before/after on fitted and held-out poses; the honest
-baseline "base + tool frames only" fitted the same way.
+baseline "base + tool frames only" fitted the same way; and, when the file has `baseline` poses (a
+naive pose set measured for comparison), the full calibration fitted to those instead and judged on
+the same held-out poses (`BaselineComparison`).
 
 Input checks raise `InputError` (exit 2) with file and field: NaN rows, too few poses (says how
 many are needed), a pose set that cannot identify some parameters (names them), positions that look
@@ -44,6 +46,7 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg
 import scipy.optimize
+import scipy.stats
 from pydantic import BaseModel, ConfigDict, Field
 
 from rxcomm.errors import InfeasibleError, InputError
@@ -74,7 +77,8 @@ from rxcomm.schemas.measurements import Measurements
 
 @dataclass(frozen=True)
 class MeasurementSet:
-    """Measurements as arrays. `rotation` None: position only. `role[i]` is 'fit' or 'validation'."""
+    """Measurements as arrays. `rotation` None: position only. `role[i]` is 'fit', 'validation' or
+    'baseline' (a reference pose set, fitted on its own for comparison: `calibrate`)."""
 
     q: np.ndarray  # [N, n] rad
     position_m: np.ndarray  # [N, 3] tracker frame
@@ -155,11 +159,13 @@ def measurements_from_artefact(art: Measurements, file: str | None = None) -> Me
     )
 
 
+ROLES = ("fit", "validation", "baseline")
+
 CSV_HELP = (
     "tracker CSV: a header row, then one row per pose. Columns: q1_rad … q6_rad (or q1_deg …), "
     "x_m, y_m, z_m (or x_mm, y_mm, z_mm): TCP position in the tracker frame; optional alpha_rad, "
     "beta_rad, gamma_rad (or _deg): TCP orientation as Cardan angles x-y-z (R = Rx·Ry·Rz) in the "
-    "tracker frame; optional valid (1/0) and role (fit/validation)."
+    "tracker frame; optional valid (1/0) and role (fit/validation/baseline)."
 )
 
 
@@ -209,8 +215,10 @@ def read_tracker_csv(path: str | Path, n_joints: int) -> MeasurementSet:
             o.append([num(row, c, k, header[c[0]]) for c in o_cols])
         valid.append(row[col["valid"]].strip() not in ("0", "false", "False") if "valid" in col else True)
         r = row[col["role"]].strip() if "role" in col else "fit"
-        if r not in ("fit", "validation"):
-            raise InputError(f"line {k}: role must be fit or validation, got {r!r}", file=path, field="role")
+        if r not in ROLES:
+            raise InputError(
+                f"line {k}: role must be one of {', '.join(ROLES)}, got {r!r}", file=path, field="role"
+            )
         role.append(r)
     o_arr = np.array(o, dtype=float) if has_rot else None
     if o_arr is not None and np.nanmax(np.abs(o_arr)) > math.pi + 1e-6:
@@ -415,6 +423,7 @@ class ErrorStats:
     rms: np.ndarray
     max_position_error_m: float
     max_orientation_error_rad: float | None
+    rms_position_error_m: float  # sqrt(mean over poses of |e_xyz|²)
 
 
 def error_table(
@@ -433,6 +442,7 @@ def error_table(
         rms=np.sqrt(np.mean(e**2, axis=0)),
         max_position_error_m=float(np.max(np.linalg.norm(e_pos, axis=1))),
         max_orientation_error_rad=max_ori,
+        rms_position_error_m=float(np.sqrt(np.mean(np.sum(e_pos**2, axis=1)))),
     )
 
 
@@ -493,6 +503,7 @@ class CalibrationResult:
     heldout_idx: np.ndarray
     outlier_idx: np.ndarray
     tables: dict[tuple[str, str], ErrorStats]  # (pose set, model) → stats
+    baseline: BaselineComparison | None  # the same calibration from the 'baseline' poses, if measured
     measurement: str
     settings: CalibrateSettings
     seconds: float
@@ -584,6 +595,114 @@ def _frames_only_indices(robot: Robot, ms: MeasurementSet, point: np.ndarray | N
     return np.sort(keep)
 
 
+@dataclass(frozen=True)
+class BaselineComparison:
+    """The full calibration fitted to the `baseline` poses instead (a reference set such as
+    select-configs' linear scan), judged on the same held-out measurements as the main fit.
+
+    `worse_p_value`: one-sided Wilcoxon signed-rank test that the baseline fit misses the held-out
+    poses by more than the main fit, pose by pose, in the fit's own metric (the weighted residual:
+    position /σ_p, orientation /σ_o); small means measurably worse. `fit` is None when the baseline
+    poses cannot identify the parameters; `note` then says why."""
+
+    n_poses: int
+    fit: FitResult | None
+    fit_idx: np.ndarray
+    outlier_idx: np.ndarray
+    worse_p_value: float | None
+    note: str | None = None
+
+
+@dataclass(frozen=True)
+class _Fitter:
+    """One weighted fit setting (model, base, noise, identifiable set) applied to pose subsets."""
+
+    robot: Robot
+    ms: MeasurementSet
+    t2b: pin.SE3
+    ident: IdentifiableSet
+    sigma_p: float
+    sigma_o: float
+    point: np.ndarray | None
+    settings: CalibrateSettings
+    need: int  # the fewest poses the identifiable set needs
+
+    @property
+    def idx(self) -> np.ndarray:
+        return np.array(self.ident.indices)
+
+    def fit(self, poses: np.ndarray) -> FitResult:
+        s = self
+        return _fit(s.robot, s.ms.subset(poses), s.t2b, s.idx, s.sigma_p, s.sigma_o, s.point, s.settings)
+
+    def fit_dropping_outliers(self, poses: np.ndarray) -> tuple[FitResult, np.ndarray, np.ndarray]:
+        """(fit, the poses it used, the flagged poses). A pose with a component beyond outlier_sigma
+        robust σ (MAD of all weighted residual components) is flagged. One blunder smears into its
+        neighbours' residuals through the fit, so when dropping, the worst pose only is removed and
+        the rest refitted, until none is beyond (at most a quarter of the poses)."""
+        s = self
+        rows = 3 if s.ms.position_only else 6
+        result = self.fit(poses)
+        flagged: list[int] = []
+        while True:
+            sub = s.ms.subset(poses)
+            prob = _Problem(
+                s.robot, sub.q, sub.position_m, sub.rotation, s.t2b, s.sigma_p, s.sigma_o, s.idx, s.point
+            )
+            res = prob.residual(result.errors.values[s.idx]).reshape(poses.size, rows)
+            scale = max(1.4826 * float(np.median(np.abs(res))), 1e-12)
+            worst = np.max(np.abs(res), axis=1)
+            beyond = worst > s.settings.outlier_sigma * scale
+            if not np.any(beyond):
+                break
+            if not s.settings.drop_outliers:
+                flagged += poses[beyond].tolist()
+                break
+            k = int(np.argmax(worst))
+            flagged.append(int(poses[k]))
+            poses = np.delete(poses, k)
+            if poses.size < s.need or len(flagged) > max(1, poses.size // 4):
+                raise InputError(
+                    f"{len(flagged)} outlier poses ({flagged[:10]}) leave {poses.size} fit poses: the "
+                    f"measurements do not fit the model (need {s.need} good poses)",
+                    file=s.ms.source,
+                    field="poses",
+                )
+            result = self.fit(poses)
+        return result, poses, np.array(sorted(flagged), dtype=int)
+
+    def compare_baseline(self, poses: np.ndarray, heldout: np.ndarray, main: FitResult) -> BaselineComparison:
+        """The same calibration from the baseline poses; a set that cannot identify the parameters
+        is reported, not raised (it is a reference, not the user's calibration)."""
+        none = np.array([], dtype=int)
+        try:
+            if poses.size < self.need:
+                raise InputError(f"{poses.size} valid poses, the parameters need at least {self.need}")
+            _rank_check(self.robot, self.ms.subset(poses), self.ident, self.point)
+            fit, used, flagged = self.fit_dropping_outliers(poses)
+        except InputError as e:
+            return BaselineComparison(int(poses.size), None, none, none, None, note=e.reason)
+        except InfeasibleError as e:
+            return BaselineComparison(int(poses.size), None, none, none, None, note=str(e))
+        p_value = None
+        if heldout.size:
+            diff = self.weighted_misfit(heldout, fit) - self.weighted_misfit(heldout, main)
+            if np.any(diff != 0):
+                p_value = float(scipy.stats.wilcoxon(diff, alternative="greater").pvalue)
+        return BaselineComparison(int(poses.size), fit, used, flagged, p_value)
+
+    def weighted_misfit(self, poses: np.ndarray, fit: FitResult) -> np.ndarray:
+        """Per pose, ‖r‖² of the weighted residual (position /σ_p, orientation /σ_o) as the fit
+        weighs it, of `fit`'s parameters."""
+        s = self
+        sub = s.ms.subset(poses)
+        prob = _Problem(
+            s.robot, sub.q, sub.position_m, sub.rotation, s.t2b, s.sigma_p, s.sigma_o, s.idx, s.point
+        )
+        res = prob.residual(fit.errors.values[s.idx]).reshape(poses.size, -1)
+        return np.sum(res**2, axis=1)
+
+
 def calibrate(
     robot: Robot,
     ms: MeasurementSet,
@@ -642,38 +761,9 @@ def calibrate(
             file=ms.source,
             field="position_m",
         )
-    idx = np.array(ident.indices)
-    result = _fit(robot, ms_fit, t2b, idx, sigma_p, sigma_o, point, settings)
-    # Outliers: a pose with a component beyond outlier_sigma robust σ (MAD of all weighted residual
-    # components). One blunder smears into its neighbours' residuals through the fit, so when dropping,
-    # remove the worst pose only and refit, until none is beyond (at most a quarter of the poses).
-    flagged_list: list[int] = []
-    while True:
-        prob = _Problem(
-            robot, ms_fit.q, ms_fit.position_m, ms_fit.rotation, t2b, sigma_p, sigma_o, idx, point
-        )
-        res = prob.residual(result.errors.values[idx]).reshape(fit.size, rows)
-        scale = max(1.4826 * float(np.median(np.abs(res))), 1e-12)
-        worst = np.max(np.abs(res), axis=1)
-        beyond = worst > settings.outlier_sigma * scale
-        if not np.any(beyond):
-            break
-        if not settings.drop_outliers:
-            flagged_list += fit[beyond].tolist()
-            break
-        k = int(np.argmax(worst))
-        flagged_list.append(int(fit[k]))
-        fit = np.delete(fit, k)
-        if fit.size < need or len(flagged_list) > max(1, fit.size // 4):
-            raise InputError(
-                f"{len(flagged_list)} outlier poses ({flagged_list[:10]}) leave {fit.size} fit poses: the "
-                f"measurements do not fit the model (need {need} good poses)",
-                file=ms.source,
-                field="poses",
-            )
-        ms_fit = ms.subset(fit)
-        result = _fit(robot, ms_fit, t2b, idx, sigma_p, sigma_o, point, settings)
-    flagged = np.array(sorted(flagged_list), dtype=int)
+    fitter = _Fitter(robot, ms, t2b, ident, sigma_p, sigma_o, point, settings, need)
+    result, fit, flagged = fitter.fit_dropping_outliers(fit)
+    ms_fit = ms.subset(fit)
     frames_idx = _frames_only_indices(robot, ms_fit, point)
     frames = _fit(robot, ms_fit, t2b, frames_idx, sigma_p, sigma_o, point, settings)
     tables: dict[tuple[str, str], ErrorStats] = {}
@@ -687,6 +777,14 @@ def calibrate(
             ("frames_only", frames.errors),
         ):
             tables[(set_name, model_name)] = error_table(robot, sub, errs, t2b, point)
+    baseline_poses = valid[roles[valid] == "baseline"]
+    comparison = None
+    if baseline_poses.size:
+        comparison = fitter.compare_baseline(baseline_poses, heldout, result)
+        if comparison.fit is not None and heldout.size:
+            tables[("heldout", "baseline_poses")] = error_table(
+                robot, ms.subset(heldout), comparison.fit.errors, t2b, point
+            )
     return CalibrationResult(
         fit=result,
         frames_only=frames,
@@ -697,6 +795,7 @@ def calibrate(
         heldout_idx=heldout,
         outlier_idx=flagged,
         tables=tables,
+        baseline=comparison,
         measurement="position" if po else "pose",
         settings=settings,
         seconds=time.perf_counter() - t0,

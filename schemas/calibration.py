@@ -9,6 +9,10 @@ relative to `tracker_to_base`, the nominal pose of the robot base in the tracker
 `error_tables` is the paper's Table 2: per pose set (fit, held out) and model (nominal, calibrated,
 base + tool frames only) the max |e| and peak-to-peak of e for x, y, z (m: measured − predicted TCP
 position in the tracker frame) and α, β, γ (rad: Cardan x-y-z angles of R_meas·R_predᵀ).
+
+When the measurements hold `baseline` poses (a naive set, `select-configs --measure-baseline`),
+`baseline_fit` is the same calibration fitted to those instead, and the held-out table of model
+`baseline_poses` shows what it would have left on the same held-out poses.
 """
 
 from __future__ import annotations
@@ -46,11 +50,25 @@ class ErrorRow(_Strict):
 
 class ErrorTable(_Strict):
     pose_set: Literal["fit", "heldout"]
-    model: Literal["nominal", "calibrated", "frames_only"]
+    model: Literal["nominal", "calibrated", "frames_only", "baseline_poses"]
     n_poses: int
     max_position_error_m: float = Field(description="max over poses of |e_xyz|")
+    rms_position_error_m: float | None = Field(None, description="rms over poses of |e_xyz|")
     max_orientation_error_rad: float | None = Field(description="max over poses of the rotation angle")
     rows: list[ErrorRow]
+
+
+class BaselineFit(_Strict):
+    n_poses: int = Field(description="valid baseline poses measured")
+    parameters: list[ParameterEstimate] = Field(description="empty when the poses cannot identify them")
+    fit_poses: list[int] = Field(description="indices into the measurement file's poses")
+    outlier_poses: list[int]
+    worse_p_value: float | None = Field(
+        description="one-sided Wilcoxon signed-rank test that this fit misses the held-out poses by "
+        "more than the main fit, pose by pose, in the fit's weighted residual (position/σ_p, "
+        "orientation/σ_o); small: measurably worse"
+    )
+    note: str | None = Field(None, description="why there is no fit")
 
 
 class Calibration(Artefact):
@@ -80,4 +98,5 @@ class Calibration(Artefact):
     fit_poses: list[int] = Field(description="indices into the measurement file's poses")
     heldout_poses: list[int]
     outlier_poses: list[int] = Field(description="flagged poses (excluded from the final fit unless kept)")
+    baseline_fit: BaselineFit | None = Field(None, description="the calibration from the baseline poses")
     calibrated_urdf: str | None = None

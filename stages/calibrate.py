@@ -3,8 +3,9 @@
 Reads the robot and a measurements file (a `rxcomm/Measurements` artefact written by `run`, or a
 tracker CSV — see `rxcomm.calibration.CSV_HELP`), fits the identifiable geometric error parameters
 and writes `calibration.yaml` (kind `rxcomm/Calibration`: parameters ± σ, what was dropped and why,
-the paper's Table 2 before/after on fitted and held-out poses, the base + tool baseline) and, with
-`--urdf-out`, a calibrated URDF (load it with `load_robot(ROBOT_DIR, urdf=...)`).
+the paper's Table 2 before/after on fitted and held-out poses, the base + tool baseline, and — when
+the file has `baseline` poses — the same calibration from those, judged on the same held-out poses)
+and, with `--urdf-out`, a calibrated URDF (load it with `load_robot(ROBOT_DIR, urdf=...)`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 import typer
 from pydantic import ValidationError
 from rxcomm.schemas.calibration import (
+    BaselineFit,
     Calibration,
     DroppedParameter,
     ErrorRow,
@@ -90,6 +92,7 @@ def calibration_artefact(
                 model=model,
                 n_poses=st.n_poses,
                 max_position_error_m=st.max_position_error_m,
+                rms_position_error_m=st.rms_position_error_m,
                 max_orientation_error_rad=st.max_orientation_error_rad,
                 rows=rows,
             )
@@ -112,6 +115,7 @@ def calibration_artefact(
             "heldout", "frames_only", "max_orientation_error_rad"
         ),
         "nominal_fit_max_position_error_m": stat("fit", "nominal", "max_position_error_m"),
+        "heldout_rms_position_error_m": stat("heldout", "calibrated", "rms_position_error_m"),
         "n_fit": int(res.fit_idx.size),
         "n_heldout": int(res.heldout_idx.size),
         "n_outliers": int(res.outlier_idx.size),
@@ -120,6 +124,35 @@ def calibration_artefact(
         "function_evaluations": res.fit.iterations,
         "seconds": res.seconds,
     }
+    base = res.baseline
+    baseline_fit = None
+    ids = list(res.identifiable.indices)
+    if base is not None:
+        summary |= {
+            "n_baseline_poses": base.n_poses,
+            "baseline_poses_heldout_max_position_error_m": stat(
+                "heldout", "baseline_poses", "max_position_error_m"
+            ),
+            "baseline_poses_heldout_max_orientation_error_rad": stat(
+                "heldout", "baseline_poses", "max_orientation_error_rad"
+            ),
+            "baseline_poses_heldout_rms_position_error_m": stat(
+                "heldout", "baseline_poses", "rms_position_error_m"
+            ),
+            "baseline_poses_worse_p_value": base.worse_p_value,
+            # How much less certain each identifiable parameter is from the baseline poses.
+            "baseline_poses_median_std_ratio": None
+            if base.fit is None
+            else float(np.median(base.fit.std[ids] / res.fit.std[ids])),
+        }
+        baseline_fit = BaselineFit(
+            n_poses=base.n_poses,
+            parameters=[] if base.fit is None else _estimates(robot, base.fit),
+            fit_poses=base.fit_idx.tolist(),
+            outlier_poses=base.outlier_idx.tolist(),
+            worse_p_value=base.worse_p_value,
+            note=base.note,
+        )
     xyz, rpy = se3_to_xyz_rpy(res.tracker_to_base)
     frames = {n for n in parameter_names(robot) if n.startswith(("base.", "tool."))}
     return Calibration(
@@ -136,6 +169,7 @@ def calibration_artefact(
         fit_poses=res.fit_idx.tolist(),
         heldout_poses=res.heldout_idx.tolist(),
         outlier_poses=res.outlier_idx.tolist(),
+        baseline_fit=baseline_fit,
         calibrated_urdf=None if urdf_out is None else str(urdf_out),
     )
 
@@ -145,7 +179,7 @@ def print_table(res: CalibrationResult) -> None:
     out = console.out
     out.print("  Table 2 (max |e| / peak-to-peak; x y z in mm, α β γ in deg)")
     for pose_set in ("fit", "heldout"):
-        for model in ("nominal", "frames_only", "calibrated"):
+        for model in ("nominal", "frames_only", "baseline_poses", "calibrated"):
             st = res.tables.get((pose_set, model))
             if st is None:
                 continue
@@ -154,7 +188,7 @@ def print_table(res: CalibrationResult) -> None:
                 f"{m:7.3f}/{p:7.3f}" if np.isfinite(m) else "      –      "
                 for m, p in zip(st.max_abs * scale, st.peak_to_peak * scale, strict=True)
             ]
-            out.print(f"  {pose_set:<8}{model:<12}({st.n_poses:3d}) " + " ".join(cells))
+            out.print(f"  {pose_set:<8}{model:<15}({st.n_poses:3d}) " + " ".join(cells))
 
 
 def command(
@@ -257,4 +291,6 @@ def run(
     print_table(res)
     if res.outlier_idx.size:
         console.out.print(f"  outlier poses: {res.outlier_idx.tolist()}")
+    if res.baseline is not None and res.baseline.fit is None:
+        console.out.print(f"  baseline poses: no fit ({res.baseline.note})")
     return art.summary
