@@ -23,6 +23,11 @@ def test_calibration_table_has_papers_numbers_and_ours_in_mm_and_degrees():
     text = rep.calibration_table(tables)
     assert "| y | 2.000 mm | 2.000 mm | ±2.000 mm | 2.000 mm | 19.026 → 0.31 mm |" in text
     assert "| alpha | 0.057 °" in text  # 1 mrad
+    assert "naive" not in text
+    naive = {**tables[1], "model": "baseline_poses"}
+    text = rep.calibration_table([*tables, naive])
+    assert "naive-poses max |" in text
+    assert "| y | 2.000 mm | 2.000 mm | ±2.000 mm | 2.000 mm | 2.000 mm | 19.026 → 0.31 mm |" in text
 
 
 def test_render_puts_paper_beside_ours():
@@ -31,3 +36,26 @@ def test_render_puts_paper_beside_ours():
     text = rep.render("t", "p", [rep.execution_section(ff, noff, "run-ff.png")])
     assert "| lag reduction by feed-forward (worst joint) | ×10.0 | Fig. 2" in text
     assert "![" in text and "run-ff.png" in text
+
+
+def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_measured():
+    s = {
+        "n_identifiable": 30,
+        "nominal_heldout_max_position_error_m": 1e-2,
+        "heldout_max_position_error_m": 1.5e-4,
+        "heldout_max_orientation_error_rad": 3e-4,
+        "frames_only_heldout_max_position_error_m": 5e-3,
+        "seconds": 0.1,
+    }
+    assert "naive" not in rep.render("t", "p", [rep.calibration_section(s, [])])
+    s |= {
+        "n_baseline_poses": 32,
+        "heldout_rms_position_error_m": 9e-5,
+        "baseline_poses_heldout_max_position_error_m": 3.2e-4,
+        "baseline_poses_heldout_max_orientation_error_rad": 6e-4,
+        "baseline_poses_heldout_rms_position_error_m": 1.6e-4,
+        "baseline_poses_worse_p_value": 2.5e-7,
+        "baseline_poses_median_std_ratio": 4.1,
+    }
+    text = rep.render("t", "p", [rep.calibration_section(s, [])])
+    assert "| 0.15 / 0.32 mm, 0.0172 / 0.0344 ° |" in text and "0.09 / 0.16 mm; p = 2.5e-07" in text and "×4.1" in text
