@@ -187,7 +187,7 @@ def test_default_selection_predicts_better_than_both_baselines(name):
 def test_linear_scan_sweeps_one_joint_at_a_time_from_the_widest_centre(rx130l):
     cell = _cell("rx130l")
     cand = stream_candidates(rx130l, cell, intervals=7, max_candidates=300, seed=1)
-    scan = linear_scan(rx130l, cell, cand.q, 16, intervals=7)
+    scan = linear_scan(cand, 16)
     axes = grid_axes(rx130l, 7)
     assert len(scan.q) == 1 + sum(scan.per_joint) == 16
     np.testing.assert_array_equal(scan.q[0], scan.centre)
@@ -221,13 +221,13 @@ def test_linear_scan_sweeps_one_joint_at_a_time_from_the_widest_centre(rx130l):
             ok = ok[np.abs(ok - scan.centre[j]) > 1e-12]
             got = scan.q[1:][moved[:, j], j]
             assert got.min() == pytest.approx(ok.min()) and got.max() == pytest.approx(ok.max())
-    few = linear_scan(rx130l, cell, cand.q[:1], 3, intervals=7)
+    few = linear_scan(cand, 3, centres=[0])
     assert len(few.q) == 3 and sum(few.per_joint) == 2
     # More poses than the six sweeps hold: all of them, no repeats.
-    every = linear_scan(rx130l, cell, cand.q, 40, intervals=7)
+    every = linear_scan(cand, 40)
     assert len(every.q) == 1 + best[1] < 40 and len(np.unique(every.q, axis=0)) == len(every.q)
     with pytest.raises(InputError):
-        linear_scan(rx130l, cell, cand.q[:0], 10, intervals=7)
+        linear_scan(cand, 10, centres=[])
 
 
 def test_too_few_or_singular_candidates(rx_blocks):

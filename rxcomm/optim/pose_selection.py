@@ -219,7 +219,9 @@ def grid_axes(robot: Robot, intervals: int | tuple[int, ...]) -> list[np.ndarray
 @dataclass(frozen=True)
 class CandidateSet:
     q: np.ndarray  # [N, 6], grid order
-    grid_index: np.ndarray  # [N] flat index into the grid
+    grid_index: np.ndarray  # [N] flat index into the grid (C order over `axes`)
+    axes: tuple[np.ndarray, ...]  # the grid values of each joint
+    feasible: np.ndarray  # [n_grid] bool: the configuration passed the cell checks
     n_grid: int
     n_feasible: int
     rejected: dict[str, int]
@@ -248,8 +250,9 @@ def stream_candidates(
 ) -> CandidateSet:
     """Stream the joint grid through the cell checks; keep a seeded uniform subset of the feasible.
 
-    Memory is O(block · |wrist grid| + max_candidates). `max_candidates=None` keeps every feasible
-    configuration (memory then grows with their number).
+    Memory is O(block · |wrist grid| + max_candidates) plus one byte per grid configuration (the
+    feasibility mask `linear_scan` reads: 4.8 MB at 13⁶). `max_candidates=None` keeps every
+    feasible configuration (memory then grows with their number).
     """
     t0 = time.perf_counter()
     if robot.n != 6:
@@ -283,6 +286,7 @@ def stream_candidates(
     keep_key = np.empty(0)
     keep_idx = np.empty(0, dtype=np.int64)
     counts = np.zeros(len(REASONS), dtype=np.int64)
+    feasible = np.zeros(n_arm * n_wrist, dtype=bool)
     elbow_ok = geo.inside(elbow)
     for start in range(0, n_arm, block):
         sl = slice(start, min(start + block, n_arm))
@@ -293,6 +297,7 @@ def stream_candidates(
         code = geo.check(tcp, probe, wrist, elbow[sl, None], shoulder[sl, None])
         code[~elbow_ok[sl]] = 1
         counts += np.bincount(code.ravel(), minlength=len(REASONS))
+        feasible[sl.start * n_wrist : sl.stop * n_wrist] = code.ravel() == 0
         ok = np.flatnonzero(code.ravel() == 0)
         if ok.size:
             flat = np.int64(start) * n_wrist + ok
@@ -310,6 +315,8 @@ def stream_candidates(
     return CandidateSet(
         q=q,
         grid_index=keep_idx,
+        axes=tuple(axes_q),
+        feasible=feasible,
         n_grid=n_arm * n_wrist,
         n_feasible=int(counts[0]),
         rejected={REASONS[i]: int(counts[i]) for i in range(1, len(REASONS))},
@@ -629,35 +636,33 @@ class LinearScan:
     per_joint: tuple[int, ...]  # poses of each joint's sweep besides the centre
 
 
-def linear_scan(
-    robot: Robot, cell: Cell, centres: np.ndarray, n: int, intervals: int | tuple[int, ...] = 13
-) -> LinearScan:
+def linear_scan(candidates: CandidateSet, n: int, centres: np.ndarray | None = None) -> LinearScan:
     """A linear scan of the joint grid (the paper's baseline for its ×18.5): from one centre
-    configuration each joint is swept alone over the grid values that pass the cell checks, and n
-    poses (the centre once) are spread evenly along the six sweeps.
+    configuration each joint is swept alone over the grid values that passed the cell checks, and
+    n poses (the centre once) are spread evenly along the six sweeps.
 
-    The centre is the configuration among `centres` (grid points, e.g. the candidates) whose six
+    The centre is the candidate (of `centres`, indices into the candidates; default all) whose six
     grid lines keep the most poses feasible: the widest sweeps the cell allows (most of the
     shortest sweep, then most in all), so the baseline is the best linear scan there is, not a
-    strawman. Shares are equal per joint, capped by a sweep's feasible count; fewer than n poses
-    only when all six sweeps together have fewer.
+    strawman. Feasibility is read from the streamed grid's mask, not checked again. Shares are
+    equal per joint, capped by a sweep's feasible count; fewer than n poses only when all six
+    sweeps together have fewer.
     """
-    centres = np.atleast_2d(np.asarray(centres, dtype=float))
-    if centres.shape[0] == 0 or n < 1:
+    cand = candidates
+    pool = cand.grid_index if centres is None else cand.grid_index[np.asarray(centres, dtype=int)]
+    if pool.size == 0 or n < 1:
         raise InputError("a linear scan needs at least one centre and one pose", field="n")
-    axes = grid_axes(robot, intervals)
-    dof = robot.n
-    # lines[c, j, k]: centre c with joint j at its k-th grid value (joints padded to the longest axis).
-    width = max(a.size for a in axes)
-    lines = np.repeat(centres[:, None, None, :], dof, axis=1).repeat(width, axis=2)
-    valid = np.zeros((dof, width), dtype=bool)
-    for j, a in enumerate(axes):
-        lines[:, j, : a.size, j] = a
-        valid[j, : a.size] = True
-    ok = (feasibility(robot, cell, lines.reshape(-1, dof)) == 0).reshape(len(centres), dof, width) & valid
-    # The centre's own value on each line (a grid point's coordinate equals one grid value).
-    own = np.stack([np.abs(lines[:, j, :, j] - centres[:, j : j + 1]) < 1e-12 for j in range(dof)], axis=1)
-    sweep = ok & ~own
+    shape = tuple(a.size for a in cand.axes)
+    dof, width = len(shape), max(shape)
+    sub = np.array(np.unravel_index(pool, shape))  # [dof, C]: each centre's grid indices
+    # sweep[c, j, k]: centre c with joint j at its k-th grid value is feasible and not the centre.
+    sweep = np.zeros((pool.size, dof, width), dtype=bool)
+    for j, size in enumerate(shape):
+        line = np.repeat(sub[:, :, None], size, axis=2)
+        line[j] = np.arange(size)
+        ok = cand.feasible[np.ravel_multi_index(tuple(line), shape)]
+        ok[np.arange(pool.size), sub[j]] = False
+        sweep[:, j, :size] = ok
     count = sweep.sum(axis=2)
     c = int(np.argmax(count.min(axis=1) * (dof * width + 1) + count.sum(axis=1)))
     share = np.zeros(dof, dtype=int)
@@ -666,16 +671,15 @@ def linear_scan(
         if room.size == 0:
             break
         share[room[np.argmin(share[room])]] += 1
-    qs = [centres[c]]
+    centre = np.array([cand.axes[j][sub[j, c]] for j in range(dof)])
+    qs = [centre]
     for j in range(dof):
         along = np.flatnonzero(sweep[c, j])
         for k in along[evenly_spaced(along.size, share[j])] if share[j] else []:
-            qs.append(lines[c, j, k])
-    return LinearScan(q=np.array(qs), centre=centres[c].copy(), per_joint=tuple(int(s) for s in share))
-
-
-# ---------------------------------------------------------------------------------------------------
-# The whole select-configs computation
+            q = centre.copy()
+            q[j] = cand.axes[j][k]
+            qs.append(q)
+    return LinearScan(q=np.array(qs), centre=centre, per_joint=tuple(int(v) for v in share))
 
 
 @dataclass(frozen=True)
@@ -743,7 +747,7 @@ def select_measurement_poses(
     position_only = cell.tracker.measures == "position"
     rng = np.random.default_rng(seed)
     ident = identifiable_parameters(robot, random_poses(robot, 60, rng), position_only, point)
-    scan = linear_scan(robot, cell, cand.q, n, intervals)
+    scan = linear_scan(cand, n)
     stacked, weight = selection_blocks(robot, cell, np.vstack([cand.q, scan.q]), ident, point, n_cand)
     blocks, scan_blocks = stacked[:n_cand], stacked[n_cand:]
     sigma_p = cell.tracker.position_sigma_m
