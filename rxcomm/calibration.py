@@ -632,40 +632,58 @@ class _Fitter:
         return np.array(self.ident.indices)
 
     def fit(self, poses: np.ndarray) -> FitResult:
-        s = self
-        return _fit(s.robot, s.ms.subset(poses), s.t2b, s.idx, s.sigma_p, s.sigma_o, s.point, s.settings)
+        return _fit(
+            self.robot,
+            self.ms.subset(poses),
+            self.t2b,
+            self.idx,
+            self.sigma_p,
+            self.sigma_o,
+            self.point,
+            self.settings,
+        )
+
+    def residuals(self, poses: np.ndarray, fit: FitResult) -> np.ndarray:
+        """[n, rows]: the weighted residuals (position /σ_p, orientation /σ_o) of `fit` at `poses`."""
+        sub = self.ms.subset(poses)
+        prob = _Problem(
+            self.robot,
+            sub.q,
+            sub.position_m,
+            sub.rotation,
+            self.t2b,
+            self.sigma_p,
+            self.sigma_o,
+            self.idx,
+            self.point,
+        )
+        return prob.residual(fit.errors.values[self.idx]).reshape(poses.size, -1)
 
     def fit_dropping_outliers(self, poses: np.ndarray) -> tuple[FitResult, np.ndarray, np.ndarray]:
         """(fit, the poses it used, the flagged poses). A pose with a component beyond outlier_sigma
         robust σ (MAD of all weighted residual components) is flagged. One blunder smears into its
         neighbours' residuals through the fit, so when dropping, the worst pose only is removed and
         the rest refitted, until none is beyond (at most a quarter of the poses)."""
-        s = self
-        rows = 3 if s.ms.position_only else 6
         result = self.fit(poses)
         flagged: list[int] = []
         while True:
-            sub = s.ms.subset(poses)
-            prob = _Problem(
-                s.robot, sub.q, sub.position_m, sub.rotation, s.t2b, s.sigma_p, s.sigma_o, s.idx, s.point
-            )
-            res = prob.residual(result.errors.values[s.idx]).reshape(poses.size, rows)
+            res = self.residuals(poses, result)
             scale = max(1.4826 * float(np.median(np.abs(res))), 1e-12)
             worst = np.max(np.abs(res), axis=1)
-            beyond = worst > s.settings.outlier_sigma * scale
+            beyond = worst > self.settings.outlier_sigma * scale
             if not np.any(beyond):
                 break
-            if not s.settings.drop_outliers:
+            if not self.settings.drop_outliers:
                 flagged += poses[beyond].tolist()
                 break
             k = int(np.argmax(worst))
             flagged.append(int(poses[k]))
             poses = np.delete(poses, k)
-            if poses.size < s.need or len(flagged) > max(1, poses.size // 4):
+            if poses.size < self.need or len(flagged) > max(1, poses.size // 4):
                 raise InputError(
                     f"{len(flagged)} outlier poses ({flagged[:10]}) leave {poses.size} fit poses: the "
-                    f"measurements do not fit the model (need {s.need} good poses)",
-                    file=s.ms.source,
+                    f"measurements do not fit the model (need {self.need} good poses)",
+                    file=self.ms.source,
                     field="poses",
                 )
             result = self.fit(poses)
@@ -692,15 +710,8 @@ class _Fitter:
         return BaselineComparison(int(poses.size), fit, used, flagged, p_value)
 
     def weighted_misfit(self, poses: np.ndarray, fit: FitResult) -> np.ndarray:
-        """Per pose, ‖r‖² of the weighted residual (position /σ_p, orientation /σ_o) as the fit
-        weighs it, of `fit`'s parameters."""
-        s = self
-        sub = s.ms.subset(poses)
-        prob = _Problem(
-            s.robot, sub.q, sub.position_m, sub.rotation, s.t2b, s.sigma_p, s.sigma_o, s.idx, s.point
-        )
-        res = prob.residual(fit.errors.values[s.idx]).reshape(poses.size, -1)
-        return np.sum(res**2, axis=1)
+        """Per pose, ‖r‖² of the weighted residual as the fit weighs it, of `fit`'s parameters."""
+        return np.sum(self.residuals(poses, fit) ** 2, axis=1)
 
 
 def calibrate(

@@ -75,7 +75,6 @@ def configs_artefact(
         "evenly_spaced_improvement_ratio": sel.evenly_spaced.improvement_ratio,
         "seconds": seconds,
         "n_baseline": int(len(sel.baseline.q)),
-        "baseline_measured": measure_baseline,
         "n_validation": int(len(sel.q_validation)),
         "n_grid": cand.n_grid,
         "n_feasible": cand.n_feasible,
