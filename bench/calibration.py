@@ -8,20 +8,20 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from rxcomm.schemas.cell import Cell
-from rxcomm.schemas.truth import CellTruth
 
 from bench.table import Row, median_seconds
-from rxcomm.calibration import MeasurementSet, calibrate
-from rxcomm.cell.tracker import SimulatedTracker
-from rxcomm.geometric_errors import placement_to_se3, predict_poses, random_poses
-from rxcomm.optim.pose_selection import (
+from rxcomm.calibration.fit import MeasurementSet, calibrate
+from rxcomm.calibration.pose_selection import (
     select_measurement_poses,
     select_poses,
     selection_blocks,
     stream_candidates,
 )
-from rxcomm.robot import load_robot
+from rxcomm.cell.tracker import SimulatedTracker
+from rxcomm.model.geometric_errors import placement_to_se3, predict_poses, random_poses
+from rxcomm.model.robot import load_robot
+from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.truth import CellTruth
 
 
 def _measure(tracker, qs, roles) -> MeasurementSet:

@@ -6,11 +6,11 @@ import numpy as np
 import pinocchio as pin
 
 from bench.table import Row, median_seconds
-from rxcomm.dynamics import RobotDynamics, joint_torque_regressor, prior_parameters, random_states
-from rxcomm.geometric_errors import identification_jacobians
-from rxcomm.kinematics import inverse_kinematics, tcp_placement
-from rxcomm.robot import load_robot
-from rxcomm.symbolic import inverse_dynamics_function
+from rxcomm.model.dynamics import RobotDynamics, joint_torque_regressor, prior_parameters, random_states
+from rxcomm.model.geometric_errors import identification_jacobians
+from rxcomm.model.kinematics import inverse_kinematics, tcp_placement
+from rxcomm.model.robot import load_robot
+from rxcomm.model.symbolic import inverse_dynamics_function
 
 
 def rows(quick: bool) -> list[Row]:

@@ -13,18 +13,18 @@ from pathlib import Path
 from tempfile import TemporaryDirectory
 
 import numpy as np
-from rxcomm.schemas.cell import Cell
-from rxcomm.schemas.excitation import ExcitationSettings
 
 import rxcomm
 from bench.table import Row
-from rxcomm.base_parameters import base_parameters
-from rxcomm.dynamics import RobotDynamics, prior_parameters
-from rxcomm.identification import IdentifySettings, JointLog, identify, load_joint_log
+from rxcomm.identification.excitation import design_excitation
+from rxcomm.identification.fit import IdentifySettings, JointLog, identify, load_joint_log
 from rxcomm.io.mcap_io import McapWriter
 from rxcomm.io.yaml_io import read_yaml_model
-from rxcomm.optim.excitation import design_excitation
-from rxcomm.robot import load_robot
+from rxcomm.model.base_parameters import base_parameters
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters
+from rxcomm.model.robot import load_robot
+from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.excitation import ExcitationSettings
 
 ROBOT = Path("samples/rx130l")
 

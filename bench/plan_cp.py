@@ -12,18 +12,18 @@ import pinocchio as pin
 import toppra
 import toppra.algorithm
 import toppra.constraint as tc
-from rxcomm.schemas.path import PathSpec
 
 from bench.table import Row, median_seconds
-from rxcomm.dynamics import RobotDynamics, prior_parameters
 from rxcomm.io.yaml_io import load_yaml
-from rxcomm.optim import cp
-from rxcomm.optim.path_nlp import _solver, optimise_path
-from rxcomm.optim.topp import PlanLimits, ToppraPath, time_optimal
-from rxcomm.path_ik import solve_path_ik
-from rxcomm.paths import build_path
-from rxcomm.robot import Robot, load_robot
-from rxcomm.spring import spring_regressor
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters
+from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.spring import spring_regressor
+from rxcomm.planning import cp
+from rxcomm.planning.path_ik import solve_path_ik
+from rxcomm.planning.path_nlp import _solver, optimise_path
+from rxcomm.planning.paths import build_path
+from rxcomm.planning.topp import PlanLimits, ToppraPath, time_optimal
+from rxcomm.schemas.path import PathSpec
 
 ROOT = Path(__file__).resolve().parent.parent
 LINE = ROOT / "samples/rx130l/paths/line-near-singularity.yaml"

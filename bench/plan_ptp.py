@@ -7,13 +7,12 @@ import shutil
 import statistics
 import time
 
-from rxcomm.stages.plan_cp import plan_dynamics, read_path
-
 from bench.table import Row
-from rxcomm.optim.cp import CpSettings, plan_cp
-from rxcomm.optim.ptp import PtpDynamics, PtpLimits, PtpOcp, PtpOptions, plan_ptp
-from rxcomm.optim.ptp_shooting import ShootingOcp
-from rxcomm.robot import load_robot
+from rxcomm.model.robot import load_robot
+from rxcomm.planning.cp import CpSettings, plan_cp
+from rxcomm.planning.ptp import PtpDynamics, PtpLimits, PtpOcp, PtpOptions, plan_ptp
+from rxcomm.planning.ptp_shooting import ShootingOcp
+from rxcomm.stages.plan_cp import plan_dynamics, read_path
 
 LINE = "samples/rx130l/paths/line-near-singularity.yaml"
 

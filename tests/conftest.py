@@ -2,7 +2,7 @@ from pathlib import Path
 
 import pytest
 
-from rxcomm.robot import load_robot
+from rxcomm.model.robot import load_robot
 
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = ROOT / "samples"

@@ -7,13 +7,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
-from rxcomm.schemas.calibration import Calibration
-from rxcomm.schemas.cell import Cell
-from rxcomm.schemas.measurements import MeasuredPose, Measurements
-from rxcomm.schemas.truth import CellTruth
 from typer.testing import CliRunner
 
-from rxcomm.calibration import (
+from rxcomm.calibration.fit import (
     CalibrateSettings,
     MeasurementSet,
     _fit,
@@ -23,14 +19,18 @@ from rxcomm.calibration import (
     load_calibration,
     read_measurements,
 )
+from rxcomm.calibration.pose_selection import select_measurement_poses
 from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.cli import app
 from rxcomm.errors import InputError
-from rxcomm.geometric_errors import ErrorModel, placement_to_se3, predict_poses, random_poses
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
-from rxcomm.kinematics import cardan_xyz, inverse_kinematics, tcp_placement
-from rxcomm.optim.pose_selection import select_measurement_poses
-from rxcomm.robot import load_robot
+from rxcomm.model.geometric_errors import ErrorModel, placement_to_se3, predict_poses, random_poses
+from rxcomm.model.kinematics import cardan_xyz, inverse_kinematics, tcp_placement
+from rxcomm.model.robot import load_robot
+from rxcomm.schemas.calibration import Calibration
+from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.measurements import MeasuredPose, Measurements
+from rxcomm.schemas.truth import CellTruth
 
 from .conftest import SAMPLES
 
@@ -198,7 +198,7 @@ def _artefact(robot, ms, t2b=None, sigma=True):
                 role=ms.role[i],
             )
         )
-    from rxcomm.geometric_errors import se3_to_xyz_rpy
+    from rxcomm.model.geometric_errors import se3_to_xyz_rpy
 
     placement = None
     if t2b is not None:

@@ -17,12 +17,12 @@ from rxcomm.cell.gateway_core import GatewayCore, Phase
 from rxcomm.cell.plant import Plant, _pgs, friction_step
 from rxcomm.cell.sim import SimSettings, SimulatedCell, simulated_cell
 from rxcomm.cell.truth import load_truth
-from rxcomm.dynamics import RobotDynamics
 from rxcomm.errors import InputError
 from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.registers import Control, DriveState, ErrorCode
-from rxcomm.optim.warm_start import ruckig_profile
+from rxcomm.model.dynamics import RobotDynamics
+from rxcomm.planning.warm_start import ruckig_profile
 
 from .conftest import SAMPLES
 

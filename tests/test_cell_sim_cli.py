@@ -11,14 +11,14 @@ import threading
 
 import numpy as np
 import pytest
-from rxcomm.stages import cell_sim
 from typer.testing import CliRunner
 
 from rxcomm.cell.sim import start_embedded_cell
 from rxcomm.cli import app
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import GatewayClient
-from rxcomm.robot import load_robot
+from rxcomm.model.robot import load_robot
+from rxcomm.stages import cell_sim
 
 from .conftest import SAMPLES
 

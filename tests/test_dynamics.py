@@ -3,17 +3,17 @@
 import numpy as np
 import pinocchio as pin
 import pytest
-from rxcomm.schemas.dynamics import Dynamics
-from rxcomm.schemas.truth import CellTruth
 
-from rxcomm.base_parameters import (
+from rxcomm.errors import InputError
+from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
+from rxcomm.model.base_parameters import (
     BaseParameterSet,
     base_parameters,
     dynamics_artefact_fields,
     load_dynamics,
     parameters_from_base,
 )
-from rxcomm.dynamics import (
+from rxcomm.model.dynamics import (
     COULOMB_EPS_NLP_RAD_S,
     DynamicParameters,
     RobotDynamics,
@@ -28,9 +28,9 @@ from rxcomm.dynamics import (
     random_states,
     truth_parameters,
 )
-from rxcomm.errors import InputError
-from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.spring import spring_length, spring_torque
+from rxcomm.model.spring import spring_length, spring_torque
+from rxcomm.schemas.dynamics import Dynamics
+from rxcomm.schemas.truth import CellTruth
 
 from .conftest import SAMPLES
 

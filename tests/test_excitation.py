@@ -6,18 +6,12 @@ import math
 
 import numpy as np
 import pytest
-from rxcomm.schemas.cell import AllowedRegion, Box, Cell
-from rxcomm.schemas.excitation import Excitation, ExcitationSettings
 from typer.testing import CliRunner
 
-from rxcomm.base_parameters import base_parameters
 from rxcomm.cli import app
-from rxcomm.dynamics import COULOMB_EPS_NLP_RAD_S, RobotDynamics, prior_parameters
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.execution.plan import prepare_plan
-from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
-from rxcomm.limits import check_limits
-from rxcomm.optim.excitation import (
+from rxcomm.identification.excitation import (
     ExcitationProblem,
     FourierTrajectory,
     condition_numbers,
@@ -27,7 +21,13 @@ from rxcomm.optim.excitation import (
     sample_trajectory,
     snapped_omega,
 )
-from rxcomm.trajectory import load_trajectory_mcap
+from rxcomm.io.trajectory import load_trajectory_mcap
+from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
+from rxcomm.model.base_parameters import base_parameters
+from rxcomm.model.dynamics import COULOMB_EPS_NLP_RAD_S, RobotDynamics, prior_parameters
+from rxcomm.model.limits import check_limits
+from rxcomm.schemas.cell import AllowedRegion, Box, Cell
+from rxcomm.schemas.excitation import Excitation, ExcitationSettings
 
 from .conftest import SAMPLES
 

@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from rxcomm.errors import InputError
-from rxcomm.geometric_errors import (
+from rxcomm.model.geometric_errors import (
     ErrorModel,
     identifiable_parameters,
     identification_jacobian,
@@ -17,7 +17,7 @@ from rxcomm.geometric_errors import (
     predict_poses,
     random_poses,
 )
-from rxcomm.kinematics import tcp_placement
+from rxcomm.model.kinematics import tcp_placement
 
 from .conftest import SAMPLES
 

@@ -9,18 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rxcomm.schemas.cell import Cell
-from rxcomm.schemas.dynamics import Dynamics
-from rxcomm.schemas.excitation import ExcitationSettings
-from rxcomm.schemas.truth import CellTruth
 from typer.testing import CliRunner
 
 import rxcomm
-from rxcomm.base_parameters import base_parameters, load_dynamics
 from rxcomm.cli import app
-from rxcomm.dynamics import RobotDynamics, prior_parameters, truth_parameters
 from rxcomm.errors import InputError
-from rxcomm.identification import (
+from rxcomm.identification.excitation import ExcitationProblem, FourierTrajectory, design_excitation
+from rxcomm.identification.fit import (
     IdentifySettings,
     JointLog,
     _link_from_theta,
@@ -36,9 +31,14 @@ from rxcomm.identification import (
     validate,
 )
 from rxcomm.io.mcap_io import McapWriter
-from rxcomm.io.robot_csv import read_robot_csv, write_robot_csv
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
-from rxcomm.optim.excitation import ExcitationProblem, FourierTrajectory, design_excitation
+from rxcomm.model.base_parameters import base_parameters, load_dynamics
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters, truth_parameters
+from rxcomm.model.robot_csv import read_robot_csv, write_robot_csv
+from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.dynamics import Dynamics
+from rxcomm.schemas.excitation import ExcitationSettings
+from rxcomm.schemas.truth import CellTruth
 
 from .conftest import SAMPLES
 

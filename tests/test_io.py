@@ -18,11 +18,9 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 from pydantic import BaseModel, ConfigDict, ValidationError
-from rxcomm.schemas.envelope import Artefact
-from rxcomm.schemas.trajectory import TrajectorySummary
 
 from rxcomm.errors import InputError
-from rxcomm.io.files import atomic_write_bytes, atomic_write_text, sha256_file
+from rxcomm.io.files import atomic_write_bytes, atomic_write_text
 from rxcomm.io.mcap_io import (
     ENVELOPE_RECORD,
     RECOVERED_RECORD,
@@ -32,8 +30,11 @@ from rxcomm.io.mcap_io import (
     recover_mcap,
     vector_field,
 )
+from rxcomm.io.trajectory import InvalidTrajectory, Trajectory, load_trajectory_mcap, save_trajectory_mcap
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_summary_yaml, write_yaml_artefact
-from rxcomm.trajectory import InvalidTrajectory, Trajectory, load_trajectory_mcap, save_trajectory_mcap
+from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.plain import sha256_file
+from rxcomm.schemas.trajectory import TrajectorySummary
 
 
 class Joint(BaseModel):

@@ -7,8 +7,8 @@ import pytest
 import yaml
 
 from rxcomm.errors import InfeasibleError
-from rxcomm.geometric_errors import ErrorModel, random_poses
-from rxcomm.kinematics import (
+from rxcomm.model.geometric_errors import ErrorModel, random_poses
+from rxcomm.model.kinematics import (
     IkStatus,
     cardan_xyz,
     cardan_xyz_matrix,

@@ -1,6 +1,6 @@
 import numpy as np
 
-from rxcomm.limits import check_limits
+from rxcomm.model.limits import check_limits
 
 
 def test_limit_ratios_find_the_worst_sample(rx130l):

@@ -9,12 +9,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from pydantic import ValidationError
-from rxcomm.schemas.path import PathSpec
 
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.yaml_io import load_yaml
-from rxcomm.path_ik import solve_path_ik
-from rxcomm.paths import BlendCurve, Iso9283Cube, _cube_geometry, build_path, iso9283_paths
+from rxcomm.planning.path_ik import solve_path_ik
+from rxcomm.planning.paths import BlendCurve, Iso9283Cube, _cube_geometry, build_path, iso9283_paths
+from rxcomm.schemas.path import PathSpec
 
 SAMPLES = Path(__file__).resolve().parent.parent / "samples"
 
@@ -228,7 +228,7 @@ def test_ik_along_the_line_near_the_wrist_singularity(rx130l, singular_line):
 
 
 def test_ik_honours_a_calibrated_model(rx130l, singular_line):
-    from rxcomm.geometric_errors import ErrorModel
+    from rxcomm.model.geometric_errors import ErrorModel
 
     errors = ErrorModel.from_mapping(rx130l, {"joint_2.tx": 0.002, "joint_3.ry": 0.003, "tool.tz": -0.001})
     calibrated = errors.apply(rx130l)

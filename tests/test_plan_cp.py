@@ -13,23 +13,23 @@ import toppra
 import toppra.algorithm
 import toppra.constraint as tc
 import yaml
-from rxcomm.schemas.path import PathSpec
-from rxcomm.stages import plan_cp as stage
 from typer.testing import CliRunner
 
 from rxcomm.cli import app
-from rxcomm.dynamics import RobotDynamics, prior_parameters
 from rxcomm.errors import InfeasibleError
+from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.yaml_io import load_yaml
-from rxcomm.limits import check_limits, robot_limits
-from rxcomm.optim.cp import PlanDynamics, check_statics, plan_cp, toppra_grid
-from rxcomm.optim.path_dynamics import path_dynamics
-from rxcomm.optim.path_profile import PathProfile
-from rxcomm.optim.topp import PlanLimits, ToppraPath, time_optimal
-from rxcomm.path_ik import solve_path_ik
-from rxcomm.paths import build_path
-from rxcomm.robot import load_robot
-from rxcomm.trajectory import load_trajectory_mcap
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters
+from rxcomm.model.limits import check_limits, robot_limits
+from rxcomm.model.robot import load_robot
+from rxcomm.planning.cp import PlanDynamics, check_statics, plan_cp, toppra_grid
+from rxcomm.planning.path_dynamics import path_dynamics
+from rxcomm.planning.path_ik import solve_path_ik
+from rxcomm.planning.path_profile import PathProfile
+from rxcomm.planning.paths import build_path
+from rxcomm.planning.topp import PlanLimits, ToppraPath, time_optimal
+from rxcomm.schemas.path import PathSpec
+from rxcomm.stages import plan_cp as stage
 
 SAMPLES = Path(__file__).resolve().parent.parent / "samples"
 SINGULAR = SAMPLES / "rx130l/paths/line-near-singularity.yaml"
@@ -343,11 +343,10 @@ def test_statics_violation_exits_3(tmp_path, weak_robot_dir):
 def test_identified_dynamics_drive_the_torque_limits(tmp_path, rx130l):
     """A heavier arm (inertials × 1.6, as from identification) through --dynamics: the torques of the
     plan follow the identified model, still within the limits."""
-    from rxcomm.schemas.dynamics import Dynamics
-
-    from rxcomm.base_parameters import base_parameters, dynamics_artefact_fields
-    from rxcomm.dynamics import DynamicParameters
     from rxcomm.io.yaml_io import write_yaml_artefact
+    from rxcomm.model.base_parameters import base_parameters, dynamics_artefact_fields
+    from rxcomm.model.dynamics import DynamicParameters
+    from rxcomm.schemas.dynamics import Dynamics
 
     prior = prior_parameters(rx130l)
     heavy = DynamicParameters.from_vector(
@@ -379,11 +378,11 @@ def test_calibration_moves_the_joint_path_to_the_calibrated_model(tmp_path, rx13
     """--calibration: IK along the path on the calibrated robot, so its TCP (not the nominal one)
     follows the path."""
     import pinocchio as pin
+
+    from rxcomm.io.yaml_io import write_yaml_artefact
+    from rxcomm.model.geometric_errors import ErrorModel
     from rxcomm.schemas.calibration import Calibration, ParameterEstimate
     from rxcomm.schemas.cell import Placement
-
-    from rxcomm.geometric_errors import ErrorModel
-    from rxcomm.io.yaml_io import write_yaml_artefact
 
     errors = {"joint_2.tx": 0.003, "joint_3.ry": 0.004, "tool.tz": -0.002}
     summary = dict.fromkeys(Calibration.REQUIRED_SUMMARY_KEYS, 0.0)

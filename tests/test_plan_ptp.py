@@ -10,26 +10,21 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
-from rxcomm.schemas.calibration import Calibration, ParameterEstimate
-from rxcomm.schemas.cell import Placement
-from rxcomm.schemas.dynamics import Dynamics
-from rxcomm.schemas.path import Branch
-from rxcomm.schemas.truth import CellTruth
-from rxcomm.stages.plan_cp import plan_dynamics, read_path
-from rxcomm.stages.plan_ptp import solve_pose_ik
 from typer.testing import CliRunner
 
-from rxcomm.base_parameters import base_parameters, dynamics_artefact_fields
-from rxcomm.calibration import load_calibrated_robot
+from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.cli import app
-from rxcomm.dynamics import RobotDynamics, prior_parameters, truth_parameters
 from rxcomm.errors import InputError
-from rxcomm.geometric_errors import ErrorModel
-from rxcomm.geometric_errors import parameter_names as geometric_parameter_names
+from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.kinematics import cardan_xyz, tcp_pose
-from rxcomm.optim.cp import CpSettings, plan_cp
-from rxcomm.optim.ptp import (
+from rxcomm.model.base_parameters import base_parameters, dynamics_artefact_fields
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters, truth_parameters
+from rxcomm.model.geometric_errors import ErrorModel
+from rxcomm.model.geometric_errors import parameter_names as geometric_parameter_names
+from rxcomm.model.kinematics import cardan_xyz, tcp_pose
+from rxcomm.model.symbolic import inverse_dynamics_function
+from rxcomm.planning.cp import CpSettings, plan_cp
+from rxcomm.planning.ptp import (
     PTP_COULOMB_EPS_RAD_S,
     NodeGuess,
     PtpDynamics,
@@ -46,10 +41,15 @@ from rxcomm.optim.ptp import (
     sample_solution,
     tcp_box_ratio,
 )
-from rxcomm.optim.ptp_shooting import ShootingOcp, forward_dynamics_function
-from rxcomm.optim.warm_start import feasible_profile, ruckig_profile, scaled_profile
-from rxcomm.symbolic import inverse_dynamics_function
-from rxcomm.trajectory import load_trajectory_mcap
+from rxcomm.planning.ptp_shooting import ShootingOcp, forward_dynamics_function
+from rxcomm.planning.warm_start import feasible_profile, ruckig_profile, scaled_profile
+from rxcomm.schemas.calibration import Calibration, ParameterEstimate
+from rxcomm.schemas.cell import Placement
+from rxcomm.schemas.dynamics import Dynamics
+from rxcomm.schemas.path import Branch
+from rxcomm.schemas.truth import CellTruth
+from rxcomm.stages.plan_cp import plan_dynamics, read_path
+from rxcomm.stages.plan_ptp import solve_pose_ik
 
 from .conftest import SAMPLES
 

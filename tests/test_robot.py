@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 
 from rxcomm.cli import app
 from rxcomm.errors import InputError
-from rxcomm.robot import load_robot
+from rxcomm.model.robot import load_robot
 
 from .conftest import SAMPLES
 

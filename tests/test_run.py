@@ -14,15 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from rxcomm.schemas.configs import ConfigPose, Configs
-from rxcomm.schemas.trajectory import TrajectorySummary
-from rxcomm.stages import run as run_stage
 from typer.testing import CliRunner
 
 from rxcomm.cell.backend import AxisFeedback, IdealBackend
 from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
 from rxcomm.cli import app
-from rxcomm.dynamics import RobotDynamics, prior_parameters
 from rxcomm.errors import GatewayError, InputError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.log import read_run_log
@@ -31,8 +27,12 @@ from rxcomm.execution.session import choose_ratio
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.registers import DriveState
 from rxcomm.io.mcap_io import read_mcap
+from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
 from rxcomm.io.yaml_io import write_yaml_artefact
-from rxcomm.trajectory import Trajectory, save_trajectory_mcap
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters
+from rxcomm.schemas.configs import ConfigPose, Configs
+from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages import run as run_stage
 
 from .conftest import SAMPLES
 
@@ -407,7 +407,7 @@ def test_pose_campaign_writes_measurements(tmp_path, cell, rx130l):
         expect = [1.0 + 0.1 * np.sin(want[0]), 0.1 * np.sin(want[1]), 0.5 + 0.1 * np.sin(want[2])]
         np.testing.assert_allclose(p["position_m"], expect, atol=2e-6)
     # calibrate reads it
-    from rxcomm.calibration import read_measurements
+    from rxcomm.calibration.fit import read_measurements
 
     ms = read_measurements(out, rx130l)
     assert ms.n == 3 and ms.valid.all()

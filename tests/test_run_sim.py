@@ -13,19 +13,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from typer.testing import CliRunner
+
+from rxcomm.calibration.pose_selection import feasibility
+from rxcomm.cli import app
+from rxcomm.execution.log import read_run_log
+from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
+from rxcomm.model.base_parameters import base_parameters, dynamics_artefact_fields
+from rxcomm.model.dynamics import truth_parameters
+from rxcomm.model.kinematics import tcp_placement
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.truth import CellTruth
 from rxcomm.stages import run as run_stage
-from typer.testing import CliRunner
-
-from rxcomm.base_parameters import base_parameters, dynamics_artefact_fields
-from rxcomm.cli import app
-from rxcomm.dynamics import truth_parameters
-from rxcomm.execution.log import read_run_log
-from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.kinematics import tcp_placement
-from rxcomm.optim.pose_selection import feasibility
 
 from .conftest import SAMPLES
 from .test_run import cosine_plan, save_plan, write_configs

@@ -6,6 +6,7 @@ import json
 
 import pytest
 from pydantic import BaseModel
+
 from rxcomm.schemas import ARTEFACT_MODELS
 from rxcomm.schemas.envelope import ENVELOPE_FIELDS, Artefact
 from rxcomm.schemas.generate import SCHEMA_DIR, drift, file_name, load_model, main, render

@@ -6,15 +6,9 @@ import time
 import numpy as np
 import pytest
 import yaml
-from rxcomm.schemas.cell import Cell
-from rxcomm.schemas.configs import Configs
 from typer.testing import CliRunner
 
-from rxcomm.cli import app
-from rxcomm.errors import InfeasibleError, InputError
-from rxcomm.geometric_errors import identifiable_parameters, random_poses
-from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.optim.pose_selection import (
+from rxcomm.calibration.pose_selection import (
     Criterion,
     _score,
     _Search,
@@ -30,6 +24,12 @@ from rxcomm.optim.pose_selection import (
     select_poses,
     stream_candidates,
 )
+from rxcomm.cli import app
+from rxcomm.errors import InfeasibleError, InputError
+from rxcomm.io.yaml_io import read_yaml_artefact
+from rxcomm.model.geometric_errors import identifiable_parameters, random_poses
+from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.configs import Configs
 
 from .conftest import SAMPLES
 
@@ -169,7 +169,7 @@ def test_default_selection_predicts_better_than_both_baselines(name):
     several times smaller rms prediction error than the paper's linear scan of the same size, and a
     smaller one than evenly spaced candidates (by little: both are diverse sets); the calibration
     tests and the bench measure it through noisy calibrations."""
-    from rxcomm.robot import load_robot
+    from rxcomm.model.robot import load_robot
 
     robot = load_robot(SAMPLES / name)
     sel = select_measurement_poses(robot, _cell(name), 32)

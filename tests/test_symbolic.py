@@ -1,11 +1,11 @@
-"""CasADi inverse dynamics and forward kinematics agree with Pinocchio and `rxcomm.dynamics`."""
+"""CasADi inverse dynamics and forward kinematics agree with Pinocchio and `rxcomm.model.dynamics`."""
 
 import casadi as ca
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from rxcomm.dynamics import (
+from rxcomm.model.dynamics import (
     COULOMB_EPS_NLP_RAD_S,
     DynamicParameters,
     inverse_dynamics,
@@ -13,7 +13,7 @@ from rxcomm.dynamics import (
     prior_parameters,
     random_states,
 )
-from rxcomm.symbolic import (
+from rxcomm.model.symbolic import (
     forward_kinematics_function,
     inverse_dynamics_function,
     parametric_inverse_dynamics_function,

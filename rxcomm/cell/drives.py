@@ -48,8 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from rxcomm.dynamics import RobotDynamics, prior_parameters
-from rxcomm.robot import Robot
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters
+from rxcomm.model.robot import Robot
 
 
 class DriveTuning(BaseModel):

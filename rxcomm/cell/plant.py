@@ -3,7 +3,7 @@
     (M(q) + Rᵀ·J_m·R)·q̈ + h(q, q̇) + τ_0 + τ_s(q) + F_v·q̇ + f = τ,     |f_i| ≤ F_c,i
 
 M, h from Pinocchio with the truth's link inertials, Rᵀ·J_m·R the reflected (coupled) rotor inertias,
-τ_0 the torque offsets, τ_s the balancer spring (`rxcomm.spring`), F_v viscous and f the Coulomb
+τ_0 the torque offsets, τ_s the balancer spring (`rxcomm.model.spring`), F_v viscous and f the Coulomb
 friction, which is set-valued at rest (stiction).
 
 Integration (per sub-step h, torque held constant over the cycle): semi-implicit (symplectic) Euler
@@ -33,9 +33,9 @@ import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
-from rxcomm.dynamics import DynamicParameters, model_with_inertials
 from rxcomm.errors import InputError
-from rxcomm.robot import Robot
+from rxcomm.model.dynamics import DynamicParameters, model_with_inertials
+from rxcomm.model.robot import Robot
 
 PGS_MAX_SWEEPS = 60
 PGS_TOL_RAD_S = 1e-12

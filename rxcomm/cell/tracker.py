@@ -6,7 +6,7 @@ the nominal one with `truth.geometry.error_parameters` (an `ErrorModel`) mounted
 the TCP frame, for position-only probes) with Gaussian noise: position N(0, σ_p²) per axis, and
 orientation R_meas = exp([n]×)·R_true with n ~ N(0, σ_o²) per axis (tracker frame), σ from
 `truth.noise`. With a `visibility` spec (the cell's `TrackerSpec`), poses the tracker cannot see give
-`valid=False` readings — the checks of `rxcomm.optim.pose_selection` on the true robot.
+`valid=False` readings — the checks of `rxcomm.calibration.pose_selection` on the true robot.
 
 The readings are duck-compatible with `rxcomm.cell.backend.TrackerReading` (`position_m`,
 `quaternion_wxyz`).
@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from rxcomm.geometric_errors import ErrorModel, measured_pose, placement_to_se3
-from rxcomm.robot import Robot
+from rxcomm.model.geometric_errors import ErrorModel, measured_pose, placement_to_se3
+from rxcomm.model.robot import Robot
 from rxcomm.schemas.cell import TrackerSpec
 from rxcomm.schemas.truth import CellTruth
 

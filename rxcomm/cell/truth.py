@@ -11,10 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from rxcomm.dynamics import DynamicParameters, truth_parameters
 from rxcomm.errors import InputError
 from rxcomm.io.yaml_io import read_yaml_model
-from rxcomm.robot import Robot, load_robot
+from rxcomm.model.dynamics import DynamicParameters, truth_parameters
+from rxcomm.model.robot import Robot, load_robot
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.truth import CellTruth
 

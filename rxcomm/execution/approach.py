@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from rxcomm.errors import InputError
-from rxcomm.optim.warm_start import ruckig_profile
-from rxcomm.robot import Robot
-from rxcomm.trajectory import Trajectory
+from rxcomm.io.trajectory import Trajectory
+from rxcomm.model.robot import Robot
+from rxcomm.planning.warm_start import ruckig_profile
 
 JERK_RAMP_S = 0.1  # acceleration builds up over this long: j_max = a_max / JERK_RAMP_S
 

@@ -17,13 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from rxcomm.dynamics import prior_parameters
 from rxcomm.errors import GatewayError
 from rxcomm.execution.plan import prepare_plan
 from rxcomm.execution.session import RunSettings, run_trajectory
 from rxcomm.gateway.client import GatewayClient
-from rxcomm.robot import Robot, load_robot
-from rxcomm.trajectory import Trajectory
+from rxcomm.io.trajectory import Trajectory
+from rxcomm.model.dynamics import prior_parameters
+from rxcomm.model.robot import Robot, load_robot
 
 SAMPLE_ROBOT = Path(__file__).resolve().parents[2] / "samples" / "rx130l"
 

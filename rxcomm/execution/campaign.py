@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from rxcomm.dynamics import DynamicParameters
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.plan import StreamPlan, prepare_plan
 from rxcomm.execution.session import RunResult, Session, StreamSettings, StreamStopped
 from rxcomm.gateway.client import GatewayClient, TrackerSample
-from rxcomm.robot import Robot
+from rxcomm.model.dynamics import DynamicParameters
+from rxcomm.model.robot import Robot
 from rxcomm.schemas.measurements import MeasuredPose
 
 

@@ -17,13 +17,13 @@ import numpy as np
 
 from rxcomm.errors import InputError
 from rxcomm.execution.session import RunResult, StreamLog
-from rxcomm.io.files import sha256_file
 from rxcomm.io.mcap_io import McapWriter, TopicData, number_field, read_mcap, vector_field
 from rxcomm.io.validate import check_kind, validate_model
 from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
-from rxcomm.kinematics import frame_placement
-from rxcomm.robot import Robot
+from rxcomm.model.kinematics import frame_placement
+from rxcomm.model.robot import Robot
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.run_log import RunLog, RunLogTopic
 
 JOINTS_TOPIC = "/run/joints"

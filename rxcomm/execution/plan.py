@@ -13,11 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
-from rxcomm.dynamics import COULOMB_EPS_NLP_RAD_S, DynamicParameters, RobotDynamics
 from rxcomm.errors import InputError, SafetyStop
-from rxcomm.limits import LimitReport, check_limits
-from rxcomm.robot import Robot
-from rxcomm.trajectory import Trajectory
+from rxcomm.io.trajectory import Trajectory
+from rxcomm.model.dynamics import COULOMB_EPS_NLP_RAD_S, DynamicParameters, RobotDynamics
+from rxcomm.model.limits import LimitReport, check_limits
+from rxcomm.model.robot import Robot
 
 REST_VELOCITY_RAD_S = 1e-3  # a plan must start and end at rest (|q̇| below this per joint)
 

@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from rxcomm.dynamics import DynamicParameters
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.plan import StreamPlan, distance_to_start, prepare_plan
@@ -36,7 +35,8 @@ from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import BlockReply, GatewayClient, RoundTripStats
 from rxcomm.gateway.registers import DriveState, ErrorCode, Status
 from rxcomm.gateway.stream import STOP_BITS, stream
-from rxcomm.robot import Robot
+from rxcomm.model.dynamics import DynamicParameters
+from rxcomm.model.robot import Robot
 
 ROUND_TRIP_MARGIN = 3.0  # a block must last this many mean empty-block round trips: a full block's
 # encode/decode and the recording ride on it (measured: ≈ 1.5–2 × an empty poll on a loaded 2-core VM)

@@ -1,4 +1,4 @@
-"""File primitives: content hashes and atomic (write-then-rename) writes.
+"""File primitives: atomic (write-then-rename) writes.
 
 A stage never leaves a half-written output (DESIGN §3): everything is written to ``NAME.part`` in the
 same directory (so the rename stays on one file system) and renamed over ``NAME`` only when complete.
@@ -6,7 +6,6 @@ same directory (so the rename stays on one file system) and renamed over ``NAME`
 
 from __future__ import annotations
 
-import hashlib
 import os
 from pathlib import Path
 
@@ -17,15 +16,6 @@ def part_path(path: str | Path, suffix: str = PART_SUFFIX) -> Path:
     """The temporary sibling ``NAME.part`` an output is written to before the rename."""
     path = Path(path)
     return path.with_name(path.name + suffix)
-
-
-def sha256_file(path: str | Path, chunk_bytes: int = 1 << 20) -> str:
-    """Hex sha256 of a file's bytes (the envelope's record of an input)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk_bytes):
-            h.update(block)
-    return h.hexdigest()
 
 
 def atomic_write_bytes(path: str | Path, data: bytes, *, part_suffix: str = PART_SUFFIX) -> Path:

@@ -42,8 +42,8 @@ from mcap.writer import CompressionType, Writer
 
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_bytes, part_path
-from rxcomm.io.plain import to_plain
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.plain import to_plain
 
 ENVELOPE_RECORD = "rxcomm/envelope"
 RECOVERED_RECORD = "rxcomm/recovered"

@@ -15,9 +15,9 @@ from pydantic import BaseModel
 
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text
-from rxcomm.io.plain import to_plain
 from rxcomm.io.validate import check_kind, validate_model
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.plain import to_plain
 
 A = TypeVar("A", bound=Artefact)
 M = TypeVar("M", bound=BaseModel)

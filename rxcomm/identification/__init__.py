@@ -1,0 +1,9 @@
+"""Dynamic identification: how to excite the robot and what its joint logs say (paper §4).
+
+- ``excitation``: the Fourier-series exciting trajectory, optimised for the regressor's condition (§4.2);
+- ``fit``: joint logs → filtered, decimated regressor rows → base parameters by weighted least
+  squares, with validation and physical consistency (§4.1, §4.3).
+
+May import: `rxcomm.model`, `rxcomm.io`, `rxcomm.schemas`, `rxcomm.errors`. Independent of
+calibration and planning (see docs/architecture.md).
+"""

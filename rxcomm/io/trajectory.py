@@ -1,0 +1,159 @@
+"""Sampled joint trajectory (t, q, q̇, q̈, τ_ff) and its MCAP file form.
+
+Units: s, rad, rad/s, rad/s², N·m. The file is ``NAME.mcap`` (topic ``/trajectory``, one message per
+sample, vectors as arrays so Foxglove plots ``/trajectory.q[0]``) with ``NAME.yaml`` beside it
+(:class:`rxcomm.schemas.trajectory.TrajectorySummary`: the envelope, the summary and the MCAP's hash).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from rxcomm.errors import InputError
+from rxcomm.io.mcap_io import McapWriter, read_mcap
+from rxcomm.io.validate import check_kind, validate_model
+from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
+from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.plain import sha256_file
+from rxcomm.schemas.trajectory import TrajectorySummary
+
+TOPIC = "/trajectory"
+SCHEMA_TITLE = "rxcomm.Trajectory"
+CORE_FIELDS = ("q", "qd", "qdd", "tau_ff")
+
+
+class InvalidTrajectory(ValueError):
+    """A trajectory array with the wrong shape or values; ``field`` names it."""
+
+    def __init__(self, field: str, reason: str) -> None:
+        self.field = field
+        self.reason = reason
+        super().__init__(f"{field}: {reason}")
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=float)  # own copy, so freezing it cannot affect the caller's array
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)  # arrays: no meaningful == or hash
+class Trajectory:
+    """Immutable sampled trajectory: ``t`` [n] strictly increasing; ``q``, ``qd``, ``qdd``, ``tau_ff``
+    [n, dof]; ``extra`` named [n] or [n, k] arrays (e.g. path parameter ``sigma``, ``sigma_dot``).
+
+    ``tau_ff=None`` means zeros. Arrays are copied to read-only float64. Raises InvalidTrajectory.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau_ff: np.ndarray | None = None
+    extra: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        t = _frozen(self.t)
+        if t.ndim != 1 or t.shape[0] < 1:
+            raise InvalidTrajectory("t", f"expected shape [n >= 1], got {t.shape}")
+        n = t.shape[0]
+        q = _frozen(self.q)
+        if q.ndim != 2 or q.shape[0] != n or q.shape[1] < 1:
+            raise InvalidTrajectory("q", f"expected shape [{n}, dof], got {q.shape}")
+        shape = q.shape
+        tau = np.zeros(shape) if self.tau_ff is None else self.tau_ff
+        arrays = {"t": t, "q": q, "qd": _frozen(self.qd), "qdd": _frozen(self.qdd), "tau_ff": _frozen(tau)}
+        for name in CORE_FIELDS[1:]:
+            if arrays[name].shape != shape:
+                raise InvalidTrajectory(name, f"expected shape {list(shape)}, got {arrays[name].shape}")
+        extra = {}
+        for name, a in self.extra.items():
+            if name in (*arrays, "timestamp"):
+                raise InvalidTrajectory(name, "extra name collides with a core field")
+            a = _frozen(a)
+            if a.ndim not in (1, 2) or a.shape[0] != n:
+                raise InvalidTrajectory(name, f"expected shape [{n}] or [{n}, k], got {a.shape}")
+            extra[name] = a
+        for name, a in (*arrays.items(), *extra.items()):
+            finite = np.isfinite(a).reshape(n, -1).all(axis=1)
+            if not finite.all():
+                raise InvalidTrajectory(name, f"non-finite value at sample {int(np.argmin(finite))}")
+        if n > 1 and not np.all(np.diff(t) > 0):
+            raise InvalidTrajectory(
+                "t", f"not strictly increasing at sample {int(np.argmin(np.diff(t) > 0)) + 1}"
+            )
+        for name, a in arrays.items():
+            object.__setattr__(self, name, a)
+        object.__setattr__(self, "extra", MappingProxyType(extra))
+
+    @property
+    def n(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def dof(self) -> int:
+        return int(self.q.shape[1])
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+
+def save_trajectory_mcap(
+    path: str | Path, traj: Trajectory, envelope: Mapping[str, Any] | Artefact
+) -> TrajectorySummary:
+    """Write ``traj`` to ``NAME.mcap`` and its summary to ``NAME.yaml``; return the summary.
+
+    ``envelope`` comes from ``TrajectorySummary.envelope(inputs, settings, summary)`` and must carry
+    the summary keys DESIGN §9 requires. Order: finished ``NAME.mcap.part`` -> hash -> ``NAME.yaml``
+    -> rename, so a visible ``NAME.mcap`` always has its YAML beside it.
+    """
+    path = Path(path)
+    summary_yaml_path(path)  # refuses a name not ending in .mcap before anything is written
+    env = envelope.envelope_dict() if isinstance(envelope, Artefact) else dict(envelope)
+    check_kind(env, TrajectorySummary, file=path, prefix="envelope")
+    fields = [*CORE_FIELDS, *traj.extra]
+    columns = {"q": traj.q, "qd": traj.qd, "qdd": traj.qdd, "tau_ff": traj.tau_ff, **traj.extra}
+    data = {**env, "mcap_file": path.name, "mcap_sha256": "0" * 64}
+    data |= {"topic": TOPIC, "n_samples": traj.n, "fields": fields}
+    TrajectorySummary.model_validate(data)  # fail on a bad envelope/summary before writing anything
+    summary: list[TrajectorySummary] = []
+
+    def write_yaml(part: Path) -> None:
+        summary.append(TrajectorySummary.model_validate({**data, "mcap_sha256": sha256_file(part)}))
+        write_summary_yaml(path, summary[0])
+
+    with McapWriter(path, env) as w:
+        w.write_arrays(TOPIC, traj.t, columns, schema_title=SCHEMA_TITLE)
+        w.finish(before_rename=write_yaml)
+    return summary[0]
+
+
+def load_trajectory_mcap(path: str | Path) -> tuple[Trajectory, dict[str, Any]]:
+    """Read a trajectory MCAP; returns the trajectory and its envelope (dict, JSON values).
+
+    Raises InputError naming the file and field if it is not an rxcomm trajectory.
+    """
+    path = Path(path)
+    contents = read_mcap(path)
+    env = contents.envelope
+    check_kind(env, TrajectorySummary, file=path, prefix="envelope")
+    validate_model(Artefact, env, file=path, prefix="envelope")
+    if TOPIC not in contents.topics:
+        raise InputError(f"no {TOPIC} topic (has {sorted(contents.topics)})", file=path, field=TOPIC)
+    td = contents.topics[TOPIC]
+    for name in CORE_FIELDS:
+        if name not in td.fields:
+            raise InputError("field missing", file=path, field=f"{TOPIC}.{name}")
+    extra = {k: v for k, v in td.fields.items() if k not in CORE_FIELDS}
+    try:
+        traj = Trajectory(td.t, td["q"], td["qd"], td["qdd"], td["tau_ff"], extra)
+    except InvalidTrajectory as e:
+        raise InputError(e.reason, file=path, field=f"{TOPIC}.{e.field}") from e
+    return traj, env

@@ -1,0 +1,330 @@
+"""TCP kinematics: forward kinematics, Cardan angles, inverse kinematics, singularity measures.
+
+Frames. Every pose here is in the robot's **base frame** (the URDF root, `universe` in Pinocchio)
+unless a name says otherwise. With an error model (`rxcomm.model.geometric_errors.ErrorModel`) the base
+frame stays the *nominal* one given by the cell layout; the model's `base.*` error moves the robot in
+it (see `geometric_errors`). The tracker frame appears only in `geometric_errors.measured_pose`.
+
+Orientation. Internally rotation matrices; for reports the paper's Cardan angles x-y-z (Bryant angles,
+intrinsic): R = Rx(α)·Ry(β)·Rz(γ), β ∈ [−π/2, π/2] (`cardan_xyz`, `cardan_xyz_matrix`). Not to be
+confused with URDF rpy, which is R = Rz(y)·Ry(p)·Rx(r).
+
+Inverse kinematics. `inverse_kinematics` is a projected Levenberg–Marquardt on the pose error
+(position in m, orientation as log3 in rad scaled by `orientation_length_m`): each step is bounded
+(`max_step_rad`), so the iterate moves continuously from the seed and stays on the seed's branch
+(elbow up/down, wrist flip, shoulder left/right); joint limits are enforced by clipping every step.
+Expected failure is a *returned status* (toppra style), not an exception: an unreachable target gives
+`IkResult(converged=False, status=IkStatus.STALLED, ...)` with the remaining error; callers that must
+stop call `result.raise_if_failed()` (→ `InfeasibleError`, exit 3).
+
+For many IK calls on a calibrated robot, apply the error model once (`errors.apply(robot)`) and pass
+the calibrated `Robot` with `errors=None`: `errors=` here rebuilds the perturbed model on every call.
+`ik_along` solves a sequence of poses (a sampled path) seeding each with the previous solution and
+reports branch jumps; `tcp_sigma_min` and `wrist_singularity` measure the distance to singularities.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pinocchio as pin
+
+from rxcomm.errors import InfeasibleError
+from rxcomm.model.robot import Robot
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from rxcomm.model.geometric_errors import ErrorModel
+
+
+def _robot_with(robot: Robot, errors: ErrorModel | None) -> Robot:
+    return robot if errors is None else errors.apply(robot)
+
+
+def frame_placement(robot: Robot, data: pin.Data, q: np.ndarray, frame_id: int) -> pin.SE3:
+    """Placement of frame `frame_id` in the base frame at joint angles `q` (a copy; `data` is scratch)."""
+    pin.forwardKinematics(robot.model, data, np.asarray(q, dtype=float))
+    return pin.updateFramePlacement(robot.model, data, frame_id).copy()
+
+
+def tcp_placement(robot: Robot, q: np.ndarray, errors: ErrorModel | None = None) -> pin.SE3:
+    """TCP placement in the base frame (with `errors`: the perturbed robot's TCP, base error included)."""
+    r = _robot_with(robot, errors)
+    return frame_placement(r, r.create_data(), q, r.tcp_frame_id)
+
+
+def tcp_pose(robot: Robot, q: np.ndarray, errors: ErrorModel | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(position [3] in m, rotation [3, 3]) of the TCP in the base frame."""
+    m = tcp_placement(robot, q, errors)
+    return m.translation.copy(), m.rotation.copy()
+
+
+# ---------------------------------------------------------------------------------------------------
+# Cardan angles x-y-z (paper §3.4, Table 2): R = Rx(α) Ry(β) Rz(γ).
+
+
+def cardan_xyz(rotation: np.ndarray) -> np.ndarray:
+    """Cardan angles (α, β, γ) in rad of R = Rx(α)·Ry(β)·Rz(γ); works on [..., 3, 3] stacks.
+
+    At β = ±π/2 (gimbal lock) α + γ (or α − γ) is determined only; γ is then returned as 0.
+    """
+    r = np.asarray(rotation, dtype=float)
+    beta = np.arcsin(np.clip(r[..., 0, 2], -1.0, 1.0))
+    locked = np.abs(r[..., 0, 2]) > 1.0 - 1e-12
+    alpha = np.where(locked, np.arctan2(r[..., 2, 1], r[..., 1, 1]), np.arctan2(-r[..., 1, 2], r[..., 2, 2]))
+    gamma = np.where(locked, 0.0, np.arctan2(-r[..., 0, 1], r[..., 0, 0]))
+    return np.stack([alpha, beta, gamma], axis=-1)
+
+
+def cardan_xyz_matrix(angles: np.ndarray) -> np.ndarray:
+    """Inverse of `cardan_xyz`: R = Rx(α)·Ry(β)·Rz(γ) from [..., 3] angles in rad."""
+    a = np.asarray(angles, dtype=float)
+    ca, sa = np.cos(a[..., 0]), np.sin(a[..., 0])
+    cb, sb = np.cos(a[..., 1]), np.sin(a[..., 1])
+    cg, sg = np.cos(a[..., 2]), np.sin(a[..., 2])
+    r = np.empty(a.shape[:-1] + (3, 3))
+    r[..., 0, 0] = cb * cg
+    r[..., 0, 1] = -cb * sg
+    r[..., 0, 2] = sb
+    r[..., 1, 0] = ca * sg + sa * sb * cg
+    r[..., 1, 1] = ca * cg - sa * sb * sg
+    r[..., 1, 2] = -sa * cb
+    r[..., 2, 0] = sa * sg - ca * sb * cg
+    r[..., 2, 1] = sa * cg + ca * sb * sg
+    r[..., 2, 2] = ca * cb
+    return r
+
+
+# ---------------------------------------------------------------------------------------------------
+# Inverse kinematics
+
+
+class IkStatus(StrEnum):
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "max_iterations"  # still improving when the budget ran out
+    STALLED = "stalled"  # local minimum with error left: out of reach, blocked by a limit, or wrong branch
+
+
+@dataclass(frozen=True)
+class IkResult:
+    """Outcome of one IK solve. `q` is the best iterate (the solution when `converged`)."""
+
+    q: np.ndarray
+    converged: bool
+    position_error_m: float
+    orientation_error_rad: float
+    iterations: int
+    status: IkStatus
+
+    def raise_if_failed(self, what: str = "target pose") -> IkResult:
+        """Return self when converged, else raise `InfeasibleError` naming the error left."""
+        if not self.converged:
+            raise InfeasibleError(
+                f"inverse kinematics failed for the {what} ({self.status.value}): "
+                f"{self.position_error_m * 1e3:.3f} mm / {np.degrees(self.orientation_error_rad):.3f}° "
+                f"left after {self.iterations} iterations (unreachable, at a joint limit, or on another "
+                "branch than the seed)"
+            )
+        return self
+
+
+def _as_se3(target: pin.SE3 | tuple[np.ndarray, np.ndarray]) -> pin.SE3:
+    if isinstance(target, pin.SE3):
+        return target
+    p, r = target
+    return pin.SE3(np.asarray(r, dtype=float), np.asarray(p, dtype=float))
+
+
+def _pose_error(current: pin.SE3, target: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+    """World-aligned error: position target − current (m), rotation log3(R_t·Rᵀ) (rad)."""
+    ep = target.translation - current.translation
+    eo = pin.log3(target.rotation @ current.rotation.T)
+    return ep, eo
+
+
+def inverse_kinematics(
+    robot: Robot,
+    target_pose: pin.SE3 | tuple[np.ndarray, np.ndarray],
+    q_seed: np.ndarray,
+    errors: ErrorModel | None = None,
+    *,
+    frame_id: int | None = None,
+    position_tol_m: float = 1e-11,
+    orientation_tol_rad: float = 1e-11,
+    max_iterations: int = 200,
+    max_step_rad: float = 0.2,
+    orientation_length_m: float = 1.0,
+    position_only: bool = False,
+) -> IkResult:
+    """Joint angles putting the TCP (or `frame_id`) at `target_pose` (base frame), near `q_seed`.
+
+    `target_pose`: `pin.SE3` or (position [3], rotation [3, 3]). `errors`: honour an error model
+    (calibration). `orientation_length_m` converts rad to m in the least-squares weighting (1 rad of
+    orientation error weighs like 1 m of position error by default). Steps are bounded by
+    `max_step_rad` (∞-norm) so the solution stays on the seed's branch. Joint limits are respected.
+    Returns an `IkResult`; failure is a status, not an exception (see the module docstring).
+    """
+    r = _robot_with(robot, errors)
+    model, data = r.model, r.create_data()
+    fid = r.tcp_frame_id if frame_id is None else frame_id
+    target = _as_se3(target_pose)
+    q = np.clip(np.asarray(q_seed, dtype=float).copy(), r.q_min, r.q_max)
+    w = np.array([1.0, 1.0, 1.0] + [orientation_length_m] * 3)
+    rows = slice(0, 3) if position_only else slice(0, 6)
+
+    def evaluate(qv: np.ndarray) -> tuple[np.ndarray, float, float]:
+        m = frame_placement(r, data, qv, fid)
+        ep, eo = _pose_error(m, target)
+        e = (np.concatenate([ep, eo]) * w)[rows]
+        return e, float(np.linalg.norm(ep)), float(np.linalg.norm(eo))
+
+    e, pe, oe = evaluate(q)
+    lam = 1e-3
+    it = 0
+    status = IkStatus.MAX_ITERATIONS
+    stall = 0
+    for it in range(1, max_iterations + 1):  # noqa: B007 - `it` is reported
+        if pe <= position_tol_m and (position_only or oe <= orientation_tol_rad):
+            status = IkStatus.CONVERGED
+            it -= 1
+            break
+        # Jacobian of [p; θ] (world aligned) at the current q: forwardKinematics was run by evaluate.
+        jac = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL_WORLD_ALIGNED)
+        jac = (jac * w[:, None])[rows]
+        jtj, jte = jac.T @ jac, jac.T @ e
+        cost = float(e @ e)
+        improved = False
+        for _ in range(12):
+            dq = np.linalg.solve(jtj + lam * (np.eye(r.n) + np.diag(np.diag(jtj))), jte)
+            big = np.max(np.abs(dq))
+            if big > max_step_rad:
+                dq *= max_step_rad / big
+            q_new = np.clip(q + dq, r.q_min, r.q_max)
+            e_new, pe_new, oe_new = evaluate(q_new)
+            if float(e_new @ e_new) < cost:
+                q, e, pe, oe = q_new, e_new, pe_new, oe_new
+                lam = max(lam / 5.0, 1e-12)
+                improved = True
+                break
+            lam *= 8.0
+        if not improved:
+            stall += 1
+        else:
+            stall = 0 if float(e @ e) < 0.999 * cost else stall + 1
+        if stall >= 3 or lam > 1e8:
+            status = IkStatus.STALLED
+            break
+    converged = pe <= position_tol_m and (position_only or oe <= orientation_tol_rad)
+    if converged:
+        status = IkStatus.CONVERGED
+    return IkResult(q, converged, pe, oe, it, status)
+
+
+@dataclass(frozen=True)
+class IkPathResult:
+    """IK along a pose sequence. `q[k]` solves pose k; `converged[k]` per pose; `max_jump_rad` the largest
+    joint change between consecutive solutions (a branch flip shows as a jump ≫ the path's step)."""
+
+    q: np.ndarray
+    converged: np.ndarray
+    position_error_m: np.ndarray
+    orientation_error_rad: np.ndarray
+    max_jump_rad: float
+    branch_jumps: tuple[int, ...]
+
+    @property
+    def ok(self) -> bool:
+        return bool(np.all(self.converged)) and not self.branch_jumps
+
+    def raise_if_failed(self, what: str = "path") -> IkPathResult:
+        if not np.all(self.converged):
+            k = int(np.argmin(self.converged))
+            raise InfeasibleError(
+                f"inverse kinematics failed along the {what} at pose {k} of {len(self.q)}: "
+                f"{self.position_error_m[k] * 1e3:.3f} mm left (unreachable or at a joint limit)"
+            )
+        if self.branch_jumps:
+            k = self.branch_jumps[0]
+            raise InfeasibleError(
+                f"the {what} changes IK branch between poses {k - 1} and {k} "
+                f"(joint jump {self.max_jump_rad:.3f} rad): it crosses a singularity or a joint limit"
+            )
+        return self
+
+
+def ik_along(
+    robot: Robot,
+    poses: Sequence[pin.SE3 | tuple[np.ndarray, np.ndarray]],
+    q_seed: np.ndarray,
+    errors: ErrorModel | None = None,
+    *,
+    max_jump_rad: float = 0.25,
+    **ik_options,
+) -> IkPathResult:
+    """Solve IK for each pose in turn, seeding with the previous solution (linearly extrapolated).
+
+    Keeps the seed's branch along the path as long as consecutive poses are close. A change of more
+    than `max_jump_rad` (∞-norm) between consecutive solutions is reported in `branch_jumps` (the
+    path passes a singularity, or a limit forced another branch). Options go to `inverse_kinematics`.
+    """
+    r = _robot_with(robot, errors)
+    n = len(poses)
+    qs = np.zeros((n, r.n))
+    conv = np.zeros(n, dtype=bool)
+    pe = np.zeros(n)
+    oe = np.zeros(n)
+    prev = np.asarray(q_seed, dtype=float)
+    prev2 = None
+    jumps: list[int] = []
+    max_jump = 0.0
+    for k, pose in enumerate(poses):
+        seed = prev if prev2 is None else np.clip(2 * prev - prev2, r.q_min, r.q_max)
+        res = inverse_kinematics(r, pose, seed, **ik_options)
+        if not res.converged and prev2 is not None:
+            res = inverse_kinematics(r, pose, prev, **ik_options)
+        qs[k], conv[k], pe[k], oe[k] = res.q, res.converged, res.position_error_m, res.orientation_error_rad
+        if k > 0:
+            jump = float(np.max(np.abs(res.q - prev)))
+            max_jump = max(max_jump, jump)
+            if jump > max_jump_rad:
+                jumps.append(k)
+        prev2 = prev if k > 0 else None
+        prev = res.q
+    return IkPathResult(qs, conv, pe, oe, max_jump, tuple(jumps))
+
+
+# ---------------------------------------------------------------------------------------------------
+# Singularity measures
+
+
+def tcp_jacobian(robot: Robot, q: np.ndarray, data: pin.Data | None = None) -> np.ndarray:
+    """6×n Jacobian of the TCP (linear m/s then angular rad/s, base-frame aligned, at the TCP point)."""
+    data = robot.create_data() if data is None else data
+    q = np.asarray(q, dtype=float)
+    pin.computeJointJacobians(robot.model, data, q)
+    pin.updateFramePlacements(robot.model, data)
+    return pin.getFrameJacobian(robot.model, data, robot.tcp_frame_id, pin.LOCAL_WORLD_ALIGNED)
+
+
+def tcp_sigma_min(
+    robot: Robot, q: np.ndarray, data: pin.Data | None = None, orientation_length_m: float = 1.0
+) -> float:
+    """Smallest singular value of the TCP Jacobian (angular rows × `orientation_length_m`), m/rad.
+
+    Zero at any singularity (wrist, elbow, shoulder); grows with distance from it.
+    """
+    jac = tcp_jacobian(robot, q, data).copy()
+    jac[3:] *= orientation_length_m
+    return float(np.linalg.svd(jac, compute_uv=False)[-1])
+
+
+def wrist_singularity(q: np.ndarray, wrist_joint: int = 4) -> np.ndarray:
+    """|sin q5| (0 at the wrist singularity of a spherical wrist, where axes 4 and 6 align).
+
+    `wrist_joint` is the 0-based index of the wrist's middle joint (J5). Works on [..., n] arrays.
+    """
+    return np.abs(np.sin(np.asarray(q, dtype=float)[..., wrist_joint]))

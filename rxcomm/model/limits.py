@@ -1,0 +1,128 @@
+"""Dense limit checks on sampled trajectories, shared by every planner and by `run`.
+
+Each limit is a small object with one method, `ratios(t, q, qd, qdd, tau) -> [n, dof]`, giving
+value/limit per sample and joint (≤ 1 means inside). Planners check their outputs on a grid much
+denser than their optimisation grid: between collocation points limits are violated by 1–2 %.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from rxcomm.model.robot import Robot
+
+
+@dataclass(frozen=True)
+class PositionLimit:
+    """|q − centre| / half-range: 1 at either joint limit."""
+
+    q_min: np.ndarray
+    q_max: np.ndarray
+    name: str = "position"
+
+    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
+        centre, half = (self.q_max + self.q_min) / 2, (self.q_max - self.q_min) / 2
+        return np.abs(q - centre) / half
+
+
+@dataclass(frozen=True)
+class VelocityLimit:
+    v_max: np.ndarray
+    name: str = "velocity"
+
+    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
+        return np.abs(qd) / self.v_max
+
+
+@dataclass(frozen=True)
+class AccelerationLimit:
+    a_max: np.ndarray
+    name: str = "acceleration"
+
+    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
+        return np.abs(qdd) / self.a_max
+
+
+@dataclass(frozen=True)
+class TorqueLimit:
+    tau_max: np.ndarray
+    name: str = "torque"
+
+    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
+        return np.abs(tau) / self.tau_max
+
+
+@dataclass(frozen=True)
+class TorqueRateLimit:
+    """Torque rate by finite differences of the sampled torque (one-sided at the ends)."""
+
+    tau_rate_max: np.ndarray
+    name: str = "torque_rate"
+
+    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
+        if len(t) < 2:
+            return np.zeros_like(tau)
+        return np.abs(np.gradient(tau, t, axis=0)) / self.tau_rate_max
+
+
+def robot_limits(robot: Robot, torque_rate: bool = True) -> list:
+    """The joint-space limits of a robot: position, velocity, acceleration, torque (+ torque rate)."""
+    limits = [
+        PositionLimit(robot.q_min, robot.q_max),
+        VelocityLimit(robot.v_max),
+        AccelerationLimit(robot.a_max),
+        TorqueLimit(robot.tau_max),
+    ]
+    if torque_rate:
+        limits.append(TorqueRateLimit(robot.tau_rate_max))
+    return limits
+
+
+@dataclass(frozen=True)
+class LimitReport:
+    """Per limit: [n, dof] ratios; the worst value with where it occurs."""
+
+    t: np.ndarray
+    ratios: dict[str, np.ndarray]
+    joint_names: tuple[str, ...]
+
+    @property
+    def max_ratio(self) -> float:
+        return max(float(r.max()) for r in self.ratios.values())
+
+    def max_by_limit(self) -> dict[str, float]:
+        return {k: float(r.max()) for k, r in self.ratios.items()}
+
+    def worst(self) -> tuple[str, str, float, float]:
+        """(limit, joint, t_s, ratio) of the largest ratio."""
+        name = max(self.ratios, key=lambda k: self.ratios[k].max())
+        i, j = np.unravel_index(np.argmax(self.ratios[name]), self.ratios[name].shape)
+        return name, self.joint_names[j], float(self.t[i]), float(self.ratios[name][i, j])
+
+    def active_fraction(self, threshold: float = 0.98, exclude: Sequence[str] = ("position",)) -> float:
+        """Fraction of samples where at least one limit is at ≥ `threshold` of its bound.
+
+        The paper's optimality check: a time-optimal trajectory has a constraint active everywhere.
+        Position limits are excluded by default: they bound the path, not the timing.
+        """
+        active = np.zeros(len(self.t), dtype=bool)
+        for k, r in self.ratios.items():
+            if k not in exclude:
+                active |= (r >= threshold).any(axis=1)
+        return float(active.mean())
+
+
+def check_limits(
+    robot: Robot, t, q, qd, qdd, tau, limits: Sequence | None = None, joint_names: Sequence[str] | None = None
+) -> LimitReport:
+    """Evaluate every limit on the samples given (sample densely: at least the drive cycle)."""
+    t, q, qd, qdd, tau = (np.asarray(a, dtype=float) for a in (t, q, qd, qdd, tau))
+    limits = robot_limits(robot) if limits is None else limits
+    return LimitReport(
+        t=t,
+        ratios={lim.name: lim.ratios(t, q, qd, qdd, tau) for lim in limits},
+        joint_names=tuple(joint_names or robot.joint_names),
+    )

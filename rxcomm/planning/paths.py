@@ -1,0 +1,616 @@
+"""Cartesian TCP paths parametrised by arc length σ (m), and the ISO 9283 test paths (paper §5.1, §4).
+
+A `CartesianPath` is a curve (position of the TCP in the base frame) and an orientation law, both
+functions of σ ∈ [0, length_m]. Curves are small objects with one method, `eval(s, order)`, giving the
+position (order 0) or its first/second derivative w.r.t. σ; because σ is arc length, |p'(σ)| = 1 and
+the TCP speed is σ̇. `build_path(spec)` turns a `rxcomm.schemas.path.PathSpec` into one, refusing
+zero-length segments, collinear circle points and blends that do not fit with `InputError` naming the
+field.
+
+ISO 9283 (performance criteria and test methods for industrial robots), §6–7 as used by the paper's
+validation trajectory: the test cube is the largest cube with edges parallel to the base axes whose
+points the robot reaches (here: with one tool orientation, on one IK branch, away from singularities,
+inside an optional cell box); the test plane is the inclined plane through two opposite edges
+(bottom edge nearest the robot, top edge farthest); P1 is the cube centre and P2–P5 lie on the plane's
+diagonals at 10 % of the diagonal from its corners. Test paths in that plane: the diagonal line
+P2→P4, the rectangle P2-P3-P4-P5, a large circle (diameter 80 % of the edge) and a small circle (10 %
+of the edge) about P1. `iso9283_cube` finds the cube, `iso9283_paths` writes the path specs.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import pinocchio as pin
+from scipy.interpolate import CubicSpline
+
+from rxcomm.errors import InputError
+from rxcomm.model.robot import Robot
+from rxcomm.schemas.cell import Box
+from rxcomm.schemas.path import (
+    Branch,
+    Circle,
+    Line,
+    Orientation,
+    PathLimits,
+    PathSpec,
+    Polyline,
+    Spline,
+)
+
+MIN_SEGMENT_M = 1e-6  # shorter segments are "zero length": σ by arc length is undefined on them
+
+
+class Curve(Protocol):
+    """A TCP position curve parametrised by arc length: eval(s [N], order 0/1/2) -> [N, 3]."""
+
+    length_m: float
+
+    def eval(self, s: np.ndarray, order: int = 0) -> np.ndarray: ...
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+@dataclass(frozen=True, eq=False)
+class LineCurve:
+    start: np.ndarray
+    end: np.ndarray
+
+    @property
+    def length_m(self) -> float:
+        return float(np.linalg.norm(self.end - self.start))
+
+    def eval(self, s: np.ndarray, order: int = 0) -> np.ndarray:
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        u = (self.end - self.start) / self.length_m
+        if order == 0:
+            return self.start + s[:, None] * u
+        if order == 1:
+            return np.broadcast_to(u, (len(s), 3)).copy()
+        return np.zeros((len(s), 3))
+
+
+@dataclass(frozen=True, eq=False)
+class ArcCurve:
+    """p(φ) = centre + r·(cos φ·e1 + sin φ·e2), φ = σ/r ∈ [0, sweep], sweep > 0."""
+
+    centre: np.ndarray
+    e1: np.ndarray
+    e2: np.ndarray
+    radius: float
+    sweep: float
+
+    @property
+    def length_m(self) -> float:
+        return float(self.radius * self.sweep)
+
+    def eval(self, s: np.ndarray, order: int = 0) -> np.ndarray:
+        phi = np.atleast_1d(np.asarray(s, dtype=float))[:, None] / self.radius
+        c, sn = np.cos(phi), np.sin(phi)
+        if order == 0:
+            return self.centre + self.radius * (c * self.e1 + sn * self.e2)
+        if order == 1:
+            return -sn * self.e1 + c * self.e2
+        return -(c * self.e1 + sn * self.e2) / self.radius
+
+
+@dataclass(frozen=True, eq=False)
+class ChainCurve:
+    """Curves joined end to end (tangent continuity is the builder's business)."""
+
+    parts: tuple
+    breaks: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "breaks", np.concatenate([[0.0], np.cumsum([p.length_m for p in self.parts])])
+        )
+
+    @property
+    def length_m(self) -> float:
+        return float(self.breaks[-1])
+
+    def eval(self, s: np.ndarray, order: int = 0) -> np.ndarray:
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        idx = np.clip(np.searchsorted(self.breaks, s, side="right") - 1, 0, len(self.parts) - 1)
+        out = np.empty((len(s), 3))
+        for i in np.unique(idx):
+            sel = idx == i
+            out[sel] = self.parts[i].eval(s[sel] - self.breaks[i], order)
+        return out
+
+
+class _ArcLengthCurve(ABC):
+    """A parametric curve P(u) re-parametrised by arc length: u(σ) is tabulated by Gauss–Legendre
+    quadrature on a fine sub-grid of `breaks` and refined by Newton steps, so |p'(σ)| = 1 to ~1e-9.
+    Subclasses give `_p(u, order)` and the parameter breaks."""
+
+    def _setup(self, breaks: np.ndarray) -> None:
+        sub = np.linspace(0, 1, 65)
+        uu = np.concatenate(
+            [breaks[i] + (breaks[i + 1] - breaks[i]) * sub[:-1] for i in range(len(breaks) - 1)]
+            + [[breaks[-1]]]
+        )
+        xg, wg = np.polynomial.legendre.leggauss(5)
+        a, b = uu[:-1, None], uu[1:, None]
+        nodes = (a + b) / 2 + (b - a) / 2 * xg
+        speed = np.linalg.norm(self._p(nodes.ravel(), 1), axis=1).reshape(nodes.shape)
+        seg = ((b - a) / 2 * (speed * wg)).sum(axis=1)
+        object.__setattr__(self, "_s_tab", np.concatenate([[0.0], np.cumsum(seg)]))
+        object.__setattr__(self, "_u_tab", uu)
+
+    @abstractmethod
+    def _p(self, u: np.ndarray, order: int) -> np.ndarray:
+        """The `order`-th derivative of P at parameters `u`, [len(u), 3]."""
+
+    @property
+    def length_m(self) -> float:
+        return float(self._s_tab[-1])
+
+    def _u(self, s: np.ndarray) -> np.ndarray:
+        u = np.interp(s, self._s_tab, self._u_tab)
+        i = np.clip(np.searchsorted(self._s_tab, s, side="right") - 1, 0, len(self._s_tab) - 2)
+        # Newton on s(u) = s_tab[i] + ∫_{u_i}^{u} |P'| du (3-point Gauss per step is plenty on the sub-grid).
+        xg, wg = np.polynomial.legendre.leggauss(3)
+        for _ in range(3):
+            a = self._u_tab[i]
+            nodes = (a + u)[:, None] / 2 + ((u - a) / 2)[:, None] * xg
+            sp = np.linalg.norm(self._p(nodes.ravel(), 1), axis=1).reshape(nodes.shape)
+            s_u = self._s_tab[i] + (u - a) / 2 * (sp * wg).sum(axis=1)
+            u = u - (s_u - s) / np.linalg.norm(self._p(u, 1), axis=1)
+        return u
+
+    def eval(self, s: np.ndarray, order: int = 0) -> np.ndarray:
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        u = self._u(s)
+        if order == 0:
+            return self._p(u, 0)
+        d1, d2 = self._p(u, 1), self._p(u, 2)
+        n1 = np.linalg.norm(d1, axis=1)[:, None]
+        if order == 1:
+            return d1 / n1
+        # p'' = P''·u'² + P'·u'', u' = 1/|P'|, u'' = −(P'·P'')/|P'|⁴
+        dot = (d1 * d2).sum(axis=1)[:, None]
+        return d2 / n1**2 - d1 * dot / n1**4
+
+
+@dataclass(frozen=True, eq=False)
+class SplineCurve(_ArcLengthCurve):
+    """C² cubic spline through waypoints (chord-length knots, not-a-knot), by arc length."""
+
+    points: np.ndarray
+    _spline: CubicSpline = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        chord = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+        u = np.concatenate([[0.0], np.cumsum(chord)])
+        bc = "not-a-knot" if len(self.points) > 3 else "natural"
+        object.__setattr__(self, "_spline", CubicSpline(u, self.points, bc_type=bc))
+        self._setup(u)
+
+    def _p(self, u: np.ndarray, order: int) -> np.ndarray:
+        return self._spline(u, order)
+
+
+@dataclass(frozen=True, eq=False)
+class BlendCurve(_ArcLengthCurve):
+    """A corner blend with continuous curvature: the quintic Bézier whose control points lie a third,
+    two thirds and all of `zone` along each segment from the corner. Its first three control points are
+    on the incoming line and its last three on the outgoing one, so tangent and curvature (zero) match
+    the straight segments at both ends: no curvature step, hence no joint-acceleration step, at the
+    junctions (a circular blend has one, which no finite torque rate can follow at speed)."""
+
+    corner: np.ndarray
+    d_in: np.ndarray
+    d_out: np.ndarray
+    zone: float
+    _ctrl: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        f = np.array([1.0, 2 / 3, 1 / 3])
+        ctrl = np.vstack(
+            [
+                self.corner - self.zone * f[:, None] * self.d_in,
+                self.corner + self.zone * f[::-1, None] * self.d_out,
+            ]
+        )
+        object.__setattr__(self, "_ctrl", ctrl)
+        self._setup(np.linspace(0.0, 1.0, 5))
+
+    def _p(self, u: np.ndarray, order: int) -> np.ndarray:
+        u = np.atleast_1d(np.asarray(u, dtype=float))[:, None]
+        c = self._ctrl
+        n = len(c) - 1
+        for _ in range(order):  # derivative control points
+            c = n * np.diff(c, axis=0)
+            n -= 1
+        from math import comb
+
+        basis = np.hstack([comb(n, k) * u**k * (1 - u) ** (n - k) for k in range(n + 1)])
+        return basis @ c
+
+
+@dataclass(frozen=True, eq=False)
+class OrientationLaw:
+    """R(σ) = R0·exp(w·σ/L): held (w = 0) or slerped at a constant rate from R0 to R1 over length L."""
+
+    r0: np.ndarray
+    w: np.ndarray  # body-frame rotation vector over the whole path, rad
+    length_m: float
+
+    @classmethod
+    def slerp(cls, r0: np.ndarray, r1: np.ndarray, length_m: float) -> OrientationLaw:
+        return cls(r0, pin.log3(r0.T @ r1), length_m)
+
+    def rotation(self, s: np.ndarray) -> np.ndarray:
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        return np.array([self.r0 @ pin.exp3(self.w * si / self.length_m) for si in s])
+
+    def angular_rate(self, s: np.ndarray) -> np.ndarray:
+        """dθ/dσ in the base frame, rad/m (constant: exp(w·σ/L) leaves w unchanged)."""
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        return np.broadcast_to(self.r0 @ self.w / self.length_m, (len(s), 3)).copy()
+
+
+@dataclass(frozen=True, eq=False)
+class CartesianPath:
+    """TCP pose along σ ∈ [0, length_m] (base frame). `spec` is what it was built from (or None)."""
+
+    curve: Curve
+    orientation: OrientationLaw
+    name: str = ""
+    spec: PathSpec | None = None
+
+    @property
+    def length_m(self) -> float:
+        return float(self.curve.length_m)
+
+    def position(self, s, order: int = 0) -> np.ndarray:
+        return self.curve.eval(s, order)
+
+    def rotation(self, s) -> np.ndarray:
+        return self.orientation.rotation(s)
+
+    def twist_rate(self, s) -> np.ndarray:
+        """[p'(σ); ω'(σ)]: TCP velocity per unit σ̇ (m/m and rad/m, base frame), shape [N, 6]."""
+        return np.hstack([self.curve.eval(s, 1), self.orientation.angular_rate(s)])
+
+    def poses(self, s) -> list[pin.SE3]:
+        p, r = self.position(s), self.rotation(s)
+        return [pin.SE3(ri, pi) for pi, ri in zip(p, r, strict=True)]
+
+
+# ---------------------------------------------------------------------------------------------------
+# Building paths from specs
+
+
+def _rpy(v) -> np.ndarray:
+    return pin.rpy.rpyToMatrix(np.asarray(v, dtype=float))
+
+
+def _circle_from_points(p1, p2, p3, full: bool, field_name: str) -> ArcCurve:
+    a, b = p2 - p1, p3 - p1
+    n = np.cross(a, b)
+    if min(np.linalg.norm(a), np.linalg.norm(b), np.linalg.norm(p3 - p2)) < MIN_SEGMENT_M:
+        raise InputError("two of the three circle points coincide (zero-length arc)", field=field_name)
+    if np.linalg.norm(n) < 1e-9 * np.linalg.norm(a) * np.linalg.norm(b):
+        raise InputError(
+            "the three circle points are collinear: no circle passes through them", field=field_name
+        )
+    # Circumcentre: p1 + (|a|²·(b×n) + |b|²·(n×a)) / (2|n|²)
+    centre = p1 + (np.dot(a, a) * np.cross(b, n) + np.dot(b, b) * np.cross(n, a)) / (2 * np.dot(n, n))
+    radius = float(np.linalg.norm(p1 - centre))
+    e1 = (p1 - centre) / radius
+    e2 = np.cross(_unit(n), e1)
+    d3 = p3 - centre
+    sweep = 2 * np.pi if full else float(np.mod(np.arctan2(d3 @ e2, d3 @ e1), 2 * np.pi))
+    return ArcCurve(centre, e1, e2, radius, sweep)
+
+
+def _circle_from_centre(c: Circle) -> ArcCurve:
+    n = np.asarray(c.normal, dtype=float)
+    if np.linalg.norm(n) < 1e-12:
+        raise InputError("normal must not be zero", field="geometry.normal")
+    n = _unit(n)
+    d = np.asarray(c.start_direction, dtype=float)
+    d = d - (d @ n) * n
+    if np.linalg.norm(d) < 1e-9:
+        raise InputError("start_direction is parallel to the normal", field="geometry.start_direction")
+    e1 = _unit(d)
+    e2 = np.cross(n, e1)
+    sweep = c.sweep_rad
+    if sweep < 0:
+        e2, sweep = -e2, -sweep
+    return ArcCurve(np.asarray(c.centre_m, dtype=float), e1, e2, float(c.radius_m), float(sweep))
+
+
+def _polyline(points: np.ndarray, zone: float) -> ChainCurve:
+    """Straight segments through `points`; each interior corner rounded by a `BlendCurve` that leaves
+    and joins the segments `zone` metres from the corner (0: sharp corners)."""
+    seg = np.diff(points, axis=0)
+    lengths = np.linalg.norm(seg, axis=1)
+    for i, length in enumerate(lengths):
+        if length < MIN_SEGMENT_M:
+            raise InputError(
+                f"zero-length segment: point {i + 1} equals point {i}", field=f"geometry.points_m[{i + 1}]"
+            )
+    dirs = seg / lengths[:, None]
+    cut = np.zeros(len(points))
+    for i in range(1, len(points) - 1):
+        turn = np.arccos(float(np.clip(dirs[i - 1] @ dirs[i], -1, 1)))
+        if turn > np.pi - 1e-6:
+            raise InputError(
+                f"the path reverses at point {i}: no blend can round it", field=f"geometry.points_m[{i}]"
+            )
+        if zone > 0 and turn > 1e-9:
+            cut[i] = zone
+    for i, length in enumerate(lengths):
+        if cut[i] + cut[i + 1] > length + 1e-12:
+            raise InputError(
+                f"blend_radius_m too large: the blends at points {i} and {i + 1} need "
+                f"{cut[i] + cut[i + 1]:.4g} m of a {length:.4g} m segment",
+                field="geometry.blend_radius_m",
+            )
+    parts: list = []
+    for i in range(len(lengths)):
+        a = points[i] + dirs[i] * cut[i]
+        b = points[i + 1] - dirs[i] * cut[i + 1]
+        if np.linalg.norm(b - a) > MIN_SEGMENT_M:
+            parts.append(LineCurve(a, b))
+        corner = i + 1
+        if corner < len(points) - 1 and cut[corner] > 0:
+            parts.append(BlendCurve(points[corner], dirs[corner - 1], dirs[corner], cut[corner]))
+    return ChainCurve(tuple(parts))
+
+
+def build_curve(geometry) -> Curve:
+    if isinstance(geometry, Line):
+        a, b = np.asarray(geometry.start_m, float), np.asarray(geometry.end_m, float)
+        if np.linalg.norm(b - a) < MIN_SEGMENT_M:
+            raise InputError("zero-length segment: end_m equals start_m", field="geometry.end_m")
+        return LineCurve(a, b)
+    if isinstance(geometry, Circle):
+        if geometry.points_m is not None:
+            p1, p2, p3 = (np.asarray(p, float) for p in geometry.points_m)
+            return _circle_from_points(p1, p2, p3, geometry.full, "geometry.points_m")
+        return _circle_from_centre(geometry)
+    if isinstance(geometry, Polyline):
+        return _polyline(np.asarray(geometry.points_m, float), geometry.blend_radius_m)
+    if isinstance(geometry, Spline):
+        pts = np.asarray(geometry.points_m, float)
+        for i in range(1, len(pts)):
+            if np.linalg.norm(pts[i] - pts[i - 1]) < MIN_SEGMENT_M:
+                raise InputError(
+                    f"zero-length segment: point {i} equals point {i - 1}", field=f"geometry.points_m[{i}]"
+                )
+        return SplineCurve(pts)
+    raise TypeError(f"unknown geometry {type(geometry).__name__}")
+
+
+def build_path(spec: PathSpec) -> CartesianPath:
+    """The `CartesianPath` of a path spec; InputError (field named) on degenerate geometry."""
+    curve = build_curve(spec.geometry)
+    if curve.length_m < MIN_SEGMENT_M:
+        raise InputError("zero-length path", field="geometry")
+    o: Orientation = spec.orientation
+    r0 = _rpy(o.start)
+    law = OrientationLaw.slerp(r0, _rpy(o.end), curve.length_m)
+    return CartesianPath(curve, law, name=spec.name, spec=spec)
+
+
+# ---------------------------------------------------------------------------------------------------
+# ISO 9283 test cube and paths
+
+
+@dataclass(frozen=True)
+class Iso9283Cube:
+    """The test cube (base frame) and the points of its inclined test plane."""
+
+    centre_m: np.ndarray
+    side_m: float
+    rpy_rad: tuple[float, float, float]
+    plane_corners_m: np.ndarray  # [4, 3]: near-bottom left/right, far-top right/left
+    points_m: dict[str, np.ndarray]  # P1..P5
+
+    @property
+    def corners_m(self) -> np.ndarray:
+        h = self.side_m / 2
+        signs = np.array([[sx, sy, sz] for sz in (-1, 1) for sy in (-1, 1) for sx in (-1, 1)])
+        return self.centre_m + h * signs
+
+
+def _cube_geometry(centre: np.ndarray, side: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Inclined plane through the bottom edge nearest the robot (−x) and the top edge farthest (+x).
+
+    The direction "away from the robot" is the cube centre's direction from the J1 axis (x when on it).
+    """
+    h = side / 2
+    radial = np.array([centre[0], centre[1], 0.0])
+    ex = _unit(radial) if np.linalg.norm(radial) > 1e-9 else np.array([1.0, 0, 0])
+    # Cube edges stay parallel to the base axes (ISO); pick the axis closest to the radial direction.
+    ax = int(np.argmax(np.abs(ex[:2])))
+    fwd = np.zeros(3)
+    fwd[ax] = np.sign(ex[ax])
+    side_dir = np.cross([0, 0, 1.0], fwd)
+    up = np.array([0, 0, 1.0])
+    a = centre - h * fwd - h * side_dir - h * up
+    b = centre - h * fwd + h * side_dir - h * up
+    c = centre + h * fwd + h * side_dir + h * up
+    d = centre + h * fwd - h * side_dir + h * up
+    corners = np.array([a, b, c, d])
+    pts = {
+        "P1": centre.copy(),
+        "P2": a + 0.1 * (c - a),
+        "P3": b + 0.1 * (d - b),
+        "P4": c + 0.1 * (a - c),
+        "P5": d + 0.1 * (b - d),
+    }
+    return corners, pts
+
+
+def iso9283_cube(
+    robot: Robot,
+    rpy_rad: Sequence[float] = (np.pi, 0.0, 0.0),
+    branch: Branch | None = None,
+    workspace: Box | None = None,
+    *,
+    sigma_min_margin: float = 0.02,
+    radii_m: Sequence[float] | None = None,
+    heights_m: Sequence[float] | None = None,
+) -> Iso9283Cube:
+    """The largest test cube (edges parallel to the base axes, centred on the base x axis) whose 27
+    lattice points (corners, edge midpoints, face centres, centre) the TCP reaches with orientation
+    `rpy_rad` on the IK `branch`, with the TCP Jacobian's smallest singular value ≥ `sigma_min_margin`
+    and inside `workspace` when given. Grid over centre radius and height, bisection on the side.
+    """
+    from rxcomm.planning.path_ik import BranchSelector, solve_pose
+
+    branch = branch or Branch()
+    rot = _rpy(rpy_rad)
+    selector = BranchSelector(robot, branch)
+    data = robot.create_data()
+    reach = _flange_reach(robot)
+    radii = np.linspace(0.35, 0.75, 7) * reach if radii_m is None else np.asarray(radii_m)
+    shoulder = robot_shoulder_height(robot)
+    heights = shoulder + np.linspace(-0.5, 0.3, 7) * reach if heights_m is None else np.asarray(heights_m)
+    lattice = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], float)
+
+    def reach_point(p: np.ndarray, q_from: np.ndarray, p_from: np.ndarray) -> np.ndarray | None:
+        """IK of p on the branch by continuation from a solved point, in steps of ≤ 5 cm."""
+        n = max(1, int(np.ceil(np.linalg.norm(p - p_from) / 0.05)))
+        q = q_from
+        for k in range(1, n + 1):
+            q = solve_pose(robot, data, pin.SE3(rot, p_from + (p - p_from) * k / n), selector, seed=q)
+            if q is None:
+                return None
+        return q
+
+    def feasible(centre: np.ndarray, side: float, q_centre: np.ndarray) -> bool:
+        pts = centre + side / 2 * lattice
+        if workspace is not None and (
+            np.any(pts < np.asarray(workspace.min_m)) or np.any(pts > np.asarray(workspace.max_m))
+        ):
+            return False
+        for p in pts:
+            q = reach_point(p, q_centre, centre)
+            if q is None or selector.sigma_min(data, q) < sigma_min_margin:
+                return False
+        return True
+
+    best: tuple[float, np.ndarray] | None = None
+    for r in radii:
+        for z in heights:
+            centre = np.array([r, 0.0, z])
+            q_c = solve_pose(robot, data, pin.SE3(rot, centre), selector, n_starts=32)
+            if q_c is None or selector.sigma_min(data, q_c) < sigma_min_margin:
+                continue
+            lo = 0.0 if best is None else best[0]
+            if lo > 0 and not feasible(centre, lo, q_c):
+                continue
+            hi = 2 * reach
+            for _ in range(14):
+                mid = (lo + hi) / 2
+                if feasible(centre, mid, q_c):
+                    lo = mid
+                else:
+                    hi = mid
+                if hi - lo < 5e-3:
+                    break
+            if best is None or lo > best[0]:
+                best = (lo, centre)
+    if best is None or best[0] < 0.05:
+        raise InputError(
+            f"no test cube found with rpy {list(np.round(rpy_rad, 4))} on branch {branch.model_dump()}: "
+            "the TCP cannot reach the search region with this orientation",
+            field="rpy_rad",
+        )
+    side = float(np.floor(best[0] * 100) / 100)  # whole centimetres, a little inside the limit
+    corners, pts = _cube_geometry(best[1], side)
+    return Iso9283Cube(best[1], side, tuple(float(a) for a in rpy_rad), corners, pts)
+
+
+def _flange_reach(robot: Robot) -> float:
+    """Distance shoulder → flange with the arm stretched (sum of link offsets after joint 2)."""
+    m = robot.model
+    reach = sum(np.linalg.norm(m.jointPlacements[j].translation) for j in range(3, m.njoints))
+    return float(reach + np.linalg.norm(m.frames[robot.tcp_frame_id].placement.translation))
+
+
+def robot_shoulder_height(robot: Robot) -> float:
+    data = robot.create_data()
+    pin.forwardKinematics(robot.model, data, np.zeros(robot.n))
+    return float(data.oMi[2].translation[2])
+
+
+def iso9283_paths(
+    cube: Iso9283Cube,
+    branch: Branch | None = None,
+    limits: PathLimits | None = None,
+    large_circle_diameter_ratio: float = 0.8,
+    small_circle_diameter_ratio: float = 0.1,
+    corner_blend_m: float = 0.05,
+) -> dict[str, PathSpec]:
+    """The ISO 9283 test-plane paths of a cube as path specs, by file stem:
+    `iso9283-line` (P2→P4), `iso9283-rectangle` (P2-P3-P4-P5-P2, corners blended), `iso9283-circle-large`
+    and `iso9283-circle-small` (about P1 in the test plane, starting towards P3−P2)."""
+    branch = branch or Branch()
+    limits = limits or PathLimits()
+    p = {k: [round(float(x), 6) for x in v] for k, v in cube.points_m.items()}
+    c = cube.plane_corners_m
+    normal = _unit(np.cross(c[1] - c[0], c[3] - c[0]))
+    along = _unit(c[1] - c[0])
+    orient = Orientation(mode="hold", rpy_rad=tuple(round(a, 12) for a in cube.rpy_rad))
+    where = (
+        f"ISO 9283 test plane of a {cube.side_m:.2f} m cube centred at "
+        f"{[round(float(x), 3) for x in cube.centre_m]} m (base frame)"
+    )
+    common = dict(kind="rxcomm/Path", schema_version=1, orientation=orient, branch=branch, limits=limits)
+
+    def circle(ratio: float) -> dict:
+        return dict(
+            type="circle",
+            centre_m=p["P1"],
+            normal=[round(float(x), 9) for x in normal],
+            radius_m=round(ratio * cube.side_m / 2, 6),
+            start_direction=[round(float(x), 9) for x in along],
+            sweep_rad=2 * np.pi,
+        )
+
+    return {
+        "iso9283-line": PathSpec(
+            name="iso9283-line",
+            description=f"Diagonal line P2→P4 of the {where}.",
+            geometry={"type": "line", "start_m": p["P2"], "end_m": p["P4"]},
+            **common,
+        ),
+        "iso9283-rectangle": PathSpec(
+            name="iso9283-rectangle",
+            description=f"Rectangle P2-P3-P4-P5-P2 of the {where}; corners blended ({corner_blend_m} m).",
+            geometry={
+                "type": "polyline",
+                "points_m": [p["P2"], p["P3"], p["P4"], p["P5"], p["P2"]],
+                "blend_radius_m": corner_blend_m,
+            },
+            **common,
+        ),
+        "iso9283-circle-large": PathSpec(
+            name="iso9283-circle-large",
+            description=f"Large circle (diameter {large_circle_diameter_ratio:.0%} of the edge) about P1, "
+            f"{where}.",
+            geometry=circle(large_circle_diameter_ratio),
+            **common,
+        ),
+        "iso9283-circle-small": PathSpec(
+            name="iso9283-circle-small",
+            description=f"Small circle (diameter {small_circle_diameter_ratio:.0%} of the edge) about P1, "
+            f"{where}.",
+            geometry=circle(small_circle_diameter_ratio),
+            **common,
+        ),
+    }

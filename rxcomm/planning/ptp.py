@@ -1,0 +1,900 @@
+"""Time/energy-optimal point-to-point motion (paper §5.4–5.5) as a scaled free-final-time OCP.
+
+Formulation (DESIGN §7, "Planning facts"): the joints are a triple integrator driven by a jerk that is
+constant on each of N intervals of a normalised time s ∈ [0, 1]; t = T·s with the final time T a
+decision variable. The nodes carry (q, q̇, q̈); the torques come from the inverse dynamics at the nodes
+(no forward dynamics, no numerical integrator: integrating a constant jerk is exact). This is what
+makes it much faster than the paper's forward-dynamics multiple shooting (`ptp_shooting`).
+
+    minimise   ∫₀ᵀ (k1 + k2·τᵀτ) dt          (τᵀτ by the trapezoid rule over the nodes)
+    subject to (q, q̇, q̈)_{k+1} = exact integration of the jerk u_k over h = T/N
+               q(0) = q_start, q(T) = q_goal, q̇ = q̈ = 0 at both ends (rest to rest; q̈ = 0 keeps the
+               torque continuous with the holding torque before and after the motion)
+               q_min ≤ q ≤ q_max, |q̇| ≤ v_max (at the nodes and the interval midpoints: q̇ is
+               quadratic in between), |τ| ≤ τ_max, |τ̇| ≤ τ̇_max, optionally |q̈| ≤ a_max and the
+               TCP inside a box
+
+Torque rate: the torque is differentiated exactly along the motion (forward-mode AD, CasADi
+`jtimes`): τ̇ = ∂τ/∂q·q̇ + ∂τ/∂q̇·q̈ + ∂τ/∂q̈·u. The jerk jumps at the nodes, so τ̇ does too; it is
+constrained on both sides of every node (with u_{k−1} and with u_k). Finite differences
+(τ_{k+1} − τ_k)/h were measured to under-check by 15 % (N = 50) and 6 % (N = 100) between nodes, the
+derivative by < 0.1 %. The rate limit applies to the torque *without Coulomb friction*: a smooth sign
+tanh(q̇/ε) steps by 2·Fc within 2ε/|q̈| at every velocity reversal, a rate set by ε, not by the
+drive (with the identification's ε = 0.02 rad/s ≈ 4·10⁴ N·m/s on J2 against 1.2·10⁴); limiting it
+would make every reversal crawl. The Coulomb step is what a drive's friction compensation delivers.
+
+Friction smoothing: the PtP model uses ε = 0.1 rad/s (`PTP_COULOMB_EPS_RAD_S`; ≈ 6 °/s, 2–3 % of the
+joints' top speeds), not the identification's 0.02. With 0.02 the friction step of a reversing joint
+fits between two nodes, and the optimum hides it there: the torque checked only at the nodes was
+1.036–1.049 × its limit between them (N = 50–100). With 0.1 the step spans about an interval and the
+node constraints see it. Bounding each node's torque with its neighbours' friction instead also
+works, but multiplied IPOPT's linear-algebra time by ~6.
+
+Dense check with a margin: between nodes nothing is enforced, so the NLP uses every limit tightened to
+(1 − margin) (default 1 %); the optimum is then sampled at the drive cycle by exact integration of the
+piecewise-constant jerk, torques from the same inverse dynamics, and every limit is checked on those
+samples (`rxcomm.model.limits`): the max ratio is the summary's `max_limit_ratio`. If a limit is still
+exceeded by more than `DENSE_TOLERANCE`, its margin grows by the excess and the NLP is solved again
+from that solution (bounds only; coarse grids need it, N ≥ 50 rarely does).
+
+Scaling: q in rad, q̇/v_max, q̈/a_ref, u/j_ref, T/T_ref with a_ref = τ_max/M_jj and j_ref = τ̇_max/M_jj
+(M_jj the joint-space inertia diagonal at a reference posture), torque and rate rows divided by their
+limits. Derivatives are assembled from per-node windows (`PtpOcp`), and IPOPT uses the exact Hessian
+by default: measured on the RX130L line (N = 100) it converges in 25–35 iterations against 60–110 with
+L-BFGS, whose low-rank updates also cost extra back-solves every iteration.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Literal
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from rxcomm.errors import InfeasibleError, InputError
+from rxcomm.io.trajectory import Trajectory
+from rxcomm.model.dynamics import DynamicParameters, prior_parameters
+from rxcomm.model.limits import (
+    AccelerationLimit,
+    LimitReport,
+    PositionLimit,
+    TorqueLimit,
+    TorqueRateLimit,
+    VelocityLimit,
+)
+from rxcomm.model.robot import Robot
+from rxcomm.model.symbolic import forward_kinematics_function, inverse_dynamics_function
+from rxcomm.planning.warm_start import KinematicProfile, feasible_profile, ruckig_profile
+
+Vec3 = tuple[float, float, float]
+LIMIT_NAMES = ("position", "velocity", "acceleration", "torque", "torque_rate", "tcp_box")
+DENSE_TOLERANCE = 0.01  # re-solve with a wider margin when the dense check exceeds a limit by more
+PTP_COULOMB_EPS_RAD_S = 0.1  # friction smoothing of the PtP model (module doc)
+
+
+class PtpOptions(BaseModel):
+    """Settings of the PtP OCP (units in the names)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    n_intervals: int = Field(50, ge=4, le=2000, description="N, jerk intervals of the normalised time")
+    k1: float = Field(1.0, ge=0, description="weight of time in ∫(k1 + k2·τᵀτ)dt (dimensionless)")
+    k2_per_nm2: float = Field(0.0, ge=0, description="weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)²")
+    margin: float = Field(
+        0.01,
+        ge=0,
+        lt=0.5,
+        description="the NLP uses (1 − margin)·limit so the dense check passes between nodes",
+    )
+    acceleration_limits: bool = Field(
+        False, description="also limit |q̈| ≤ a_max (the paper's PtP limits torque, not acceleration)"
+    )
+    tcp_box_m: tuple[Vec3, Vec3] | None = Field(
+        None, description="(min, max) corners of a box in the base frame the TCP must stay in, m"
+    )
+    max_iter: int = Field(3000, ge=1, description="IPOPT iteration cap")
+    max_wall_s: float | None = Field(None, gt=0, description="IPOPT wall-time cap, s")
+    tol: float = Field(1e-6, gt=0, description="IPOPT relative tolerance")
+    compile: bool = Field(
+        False,
+        description="compile the node functions to C (needs a C compiler; cached per content in "
+        "$RXCOMM_CACHE_DIR or ~/.cache/rxcomm): ~8× faster derivatives after a one-off ~1 min compile",
+    )
+    hessian: Literal["exact", "limited-memory"] = Field(
+        "exact", description="IPOPT's Hessian: exact (assembled from the nodes) or its L-BFGS approximation"
+    )
+
+    @model_validator(mode="after")
+    def _objective(self) -> PtpOptions:
+        if self.k1 == 0 and self.k2_per_nm2 == 0:
+            raise ValueError("k1 and k2_per_nm2 are both 0: nothing to minimise")
+        if self.tcp_box_m is not None and not all(a < b for a, b in zip(*self.tcp_box_m, strict=True)):
+            raise ValueError("tcp_box_m: every min must be below its max")
+        return self
+
+
+@dataclass(frozen=True, eq=False)
+class PtpLimits:
+    """The joint-space limits a PtP motion obeys (joint side, SI units)."""
+
+    q_min: np.ndarray
+    q_max: np.ndarray
+    v_max: np.ndarray
+    tau_max: np.ndarray
+    tau_rate_max: np.ndarray
+    a_max: np.ndarray | None = None
+
+    @classmethod
+    def from_robot(cls, robot: Robot, acceleration: bool = False) -> PtpLimits:
+        return cls(
+            robot.q_min, robot.q_max, robot.v_max, robot.tau_max, robot.tau_rate_max,
+            robot.a_max if acceleration else None,
+        )  # fmt: skip
+
+    def dense_checks(self) -> list:
+        """The limit objects of `rxcomm.model.limits` for the dense check (the same set the NLP obeys)."""
+        lims = [PositionLimit(self.q_min, self.q_max), VelocityLimit(self.v_max)]
+        if self.a_max is not None:
+            lims.append(AccelerationLimit(self.a_max))
+        return [*lims, TorqueLimit(self.tau_max), TorqueRateLimit(self.tau_rate_max)]
+
+    def key(self) -> str:
+        h = hashlib.sha256()
+        for a in (self.q_min, self.q_max, self.v_max, self.tau_max, self.tau_rate_max, self.a_max):
+            h.update(b"-" if a is None else np.ascontiguousarray(a, dtype=float).tobytes())
+        return h.hexdigest()
+
+
+@dataclass(frozen=True, eq=False)
+class PtpDynamics:
+    """What the OCP needs of the robot's dynamics, as CasADi Functions with named inputs.
+
+    `inv_dyn` (q, qd, qdd) → tau: the joint torque the drives deliver (torque limit, objective, τ_ff).
+    `coulomb` (qd) → tau: its Coulomb-friction part, left out of the torque-rate limit (module doc).
+    `tcp_fk` (q) → (p, R): the TCP placement, needed only for a TCP box.
+    """
+
+    inv_dyn: ca.Function
+    coulomb: ca.Function | None = None
+    tcp_fk: ca.Function | None = None
+
+    @classmethod
+    def from_parameters(
+        cls,
+        robot: Robot,
+        params: DynamicParameters | None = None,
+        coulomb_eps_rad_s: float = PTP_COULOMB_EPS_RAD_S,
+    ) -> PtpDynamics:
+        """From `rxcomm.model.symbolic` with `params` (default: the robot's priors), Coulomb friction smoothed
+        as tanh(q̇/ε) with ε = `coulomb_eps_rad_s` (module doc: why wider than the identification's)."""
+        params = prior_parameters(robot) if params is None else params
+        inv_dyn = inverse_dynamics_function(robot, params, coulomb_eps_rad_s)
+        qd = ca.SX.sym("qd", robot.n)
+        coulomb = ca.Function(
+            "coulomb", [qd], [ca.DM(params.coulomb_nm) * ca.tanh(qd / coulomb_eps_rad_s)], ["qd"], ["tau"]
+        )
+        return cls(inv_dyn, coulomb, forward_kinematics_function(robot))
+
+    @property
+    def dof(self) -> int:
+        return int(self.inv_dyn.size1_in(0))
+
+    def key(self) -> str:
+        h = hashlib.sha256()
+        for f in (self.inv_dyn, self.coulomb, self.tcp_fk):
+            h.update(b"-" if f is None else f.serialize().encode())
+        return h.hexdigest()
+
+    def torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """τ [n, dof] at many samples (one mapped call)."""
+        return np.asarray(self.inv_dyn.map(q.shape[0])(q.T, qd.T, qdd.T)).T.reshape(q.shape)
+
+    def rate_torque(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The torque whose rate is limited: τ minus its Coulomb part."""
+        if self.coulomb is None:
+            return tau
+        return tau - np.asarray(self.coulomb.map(q.shape[0])(qd.T)).T.reshape(q.shape)
+
+
+@dataclass(frozen=True, eq=False)
+class NodeGuess:
+    """Values on the OCP grid: T, q/q̇/q̈ at the N + 1 nodes [N+1, dof], jerk on the N intervals [N, dof]."""
+
+    duration_s: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    jerk: np.ndarray
+
+    @classmethod
+    def from_profile(cls, profile: KinematicProfile, n_intervals: int) -> NodeGuess:
+        """Sample a kinematic profile at the nodes; the jerk makes q̈ match at every node."""
+        T = max(profile.duration_s, 1e-3)
+        t = np.linspace(0.0, T, n_intervals + 1)
+        q, qd, qdd = profile.at(t)
+        return cls(T, q, qd, qdd, np.diff(qdd, axis=0) / (T / n_intervals))
+
+
+@dataclass(frozen=True, eq=False)
+class PtpSolution:
+    """The OCP's answer on its grid, and how IPOPT got there."""
+
+    duration_s: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    jerk: np.ndarray
+    tau: np.ndarray
+    objective: float
+    status: str
+    success: bool
+    iterations: int
+    solve_seconds: float
+
+    @property
+    def n_intervals(self) -> int:
+        return self.jerk.shape[0]
+
+    @property
+    def tau_squared_integral(self) -> float:
+        """∫τᵀτ dt by the trapezoid rule over the nodes, (N·m)²·s."""
+        s = np.sum(self.tau**2, axis=1)
+        return float(self.duration_s / self.n_intervals * (s.sum() - 0.5 * (s[0] + s[-1])))
+
+
+def _sx_function(f: ca.Function) -> ca.Function:
+    return f.expand() if f.is_a("MXFunction") else f
+
+
+def node_function(dyn: PtpDynamics, tcp: bool = False) -> ca.Function:
+    """(q, q̇, q̈, u_left, u_right) → (τ, τ̇ with u_left, τ̇ with u_right[, p_tcp]), τ̇ exact by AD.
+
+    τ̇ is the rate of τ minus its Coulomb part (module doc).
+    """
+    f = _sx_function(dyn.inv_dyn)
+    n = dyn.dof
+    q, qd, qdd = ca.SX.sym("q", n), ca.SX.sym("qd", n), ca.SX.sym("qdd", n)
+    ul, ur = ca.SX.sym("u_left", n), ca.SX.sym("u_right", n)
+    tau = f(q, qd, qdd)
+    smooth = tau if dyn.coulomb is None else tau - _sx_function(dyn.coulomb)(qd)
+    drift = ca.jtimes(smooth, ca.vertcat(q, qd), ca.vertcat(qd, qdd))
+    outs = [tau, drift + ca.jtimes(smooth, qdd, ul), drift + ca.jtimes(smooth, qdd, ur)]
+    names = ["tau", "tau_rate_left", "tau_rate_right"]
+    if tcp:
+        if dyn.tcp_fk is None:
+            raise ValueError("a TCP box needs PtpDynamics.tcp_fk")
+        outs.append(_sx_function(dyn.tcp_fk)(q)[0])
+        names.append("p_tcp")
+    return ca.Function("ptp_node", [q, qd, qdd, ul, ur], outs, ["q", "qd", "qdd", "u_left", "u_right"], names)
+
+
+def _csc(nrow: int, ncol: int, rows: np.ndarray, cols: np.ndarray) -> tuple[ca.Sparsity, np.ndarray]:
+    """Sparsity of the (unique) entries (rows, cols) and the permutation putting them in CasADi's
+    column-major nonzero order."""
+    perm = np.lexsort((rows, cols))
+    colind = np.searchsorted(cols[perm], np.arange(ncol + 1))
+    return ca.Sparsity(nrow, ncol, colind.tolist(), rows[perm].tolist()), perm
+
+
+def cache_dir() -> Path:
+    """Where compiled node functions are kept: $RXCOMM_CACHE_DIR, else ~/.cache/rxcomm/ptp."""
+    env = os.environ.get("RXCOMM_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "rxcomm" / "ptp"
+
+
+def compiled_function(fn: ca.Function, flags: tuple[str, ...] = ("-O1",)) -> ca.Function:
+    """`fn` generated as C, compiled into a shared library named by the hash of its content and
+    loaded as a CasADi external; an existing library is reused. Raises InputError without a compiler."""
+    key = hashlib.sha256((fn.serialize() + " ".join(flags)).encode()).hexdigest()[:24]
+    folder = cache_dir()
+    lib = folder / f"{fn.name()}_{key}.so"
+    if not lib.exists():
+        cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+        if cc is None:
+            raise InputError("compiling the PtP NLP needs a C compiler (gcc or cc) on PATH", field="compile")
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+            src = Path(tmp) / f"{fn.name()}.c"
+            gen = ca.CodeGenerator(src.name, {"with_header": False})
+            gen.add(fn)
+            gen.generate(tmp + os.sep)
+            part = Path(tmp) / lib.name
+            cmd = [cc, *flags, "-fPIC", "-shared", str(src), "-o", str(part)]
+            done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            if done.returncode != 0:
+                raise InputError(f"the C compiler failed: {done.stderr.strip()[-300:]}", field="compile")
+            os.replace(part, lib)  # atomic: a concurrent run sees the whole library or none
+    return ca.external(fn.name(), str(lib))
+
+
+def _nonzeros(m: ca.SX) -> ca.SX:
+    """The structural nonzeros of `m` as a dense column, in CasADi's column-major order."""
+    return ca.vertcat(*m.nonzeros()) if m.nnz() else ca.SX.zeros(0, 1)
+
+
+def inertia_diagonal(inv_dyn: ca.Function, q) -> np.ndarray:
+    """diag M(q) from the inverse dynamics (τ is affine in q̈: M e_j = ID(q, 0, e_j) − ID(q, 0, 0))."""
+    q = np.asarray(q, float)
+    n = len(q)
+    z = np.zeros(n)
+    base = np.asarray(inv_dyn(q, z, z)).ravel()
+    return np.array([float(np.asarray(inv_dyn(q, z, np.eye(n)[j])).ravel()[j] - base[j]) for j in range(n)])
+
+
+class PtpOcp:
+    """The NLP for one dynamics, limit set, option set and grid; `solve` may be called for many end points.
+
+    Structure: every node k owns a *window* of variables (T, the states of nodes k−1, k, k+1 and the
+    jerks on both sides of k) and the constraint rows that depend only on them (the defects of
+    interval k, τ_k, τ̇ on both sides of k, the friction-flip rows, q̇ at the midpoint of interval k,
+    the TCP box). One SX function of a window gives the rows, its sparse Jacobian and the Hessian of
+    its Lagrangian; they are mapped over the N + 1 windows and scattered into IPOPT's sparse matrices
+    by index (custom `jac_g`, `grad_f`, `hess_lag`). This builds in a fraction of a second, where
+    letting CasADi expand and differentiate the whole NLP took 5–15 s for N = 100. The Jacobian and
+    Hessian maps run on two threads (CasADi's "thread" map, no compiler): they are most of the work.
+    `q_ref` and `t_ref_s` set the variable scaling only (inertia at `q_ref`, default mid-range).
+    """
+
+    def __init__(
+        self,
+        dynamics: PtpDynamics,
+        limits: PtpLimits,
+        options: PtpOptions | None = None,
+        *,
+        q_ref=None,
+        t_ref_s: float = 1.0,
+    ):
+        t_build = time.perf_counter()
+        self.dynamics = dynamics
+        self.limits = limits
+        self.options = options = options or PtpOptions()
+        n = self.dof = len(limits.q_min)
+        N = self.N = options.n_intervals
+        if dynamics.dof != n:
+            raise ValueError(f"dynamics has {dynamics.dof} joints, limits {n}")
+        q_ref = (limits.q_min + limits.q_max) / 2 if q_ref is None else np.asarray(q_ref, float)
+        m_diag = np.maximum(inertia_diagonal(dynamics.inv_dyn, q_ref), 1e-6)
+        self.t_ref = float(t_ref_s)
+        self.v_ref = np.asarray(limits.v_max, float)
+        self.a_ref = np.asarray(limits.tau_max, float) / m_diag
+        self.j_ref = np.asarray(limits.tau_rate_max, float) / m_diag
+        self._sizes = (1, n * (N + 1), n * (N + 1), n * (N + 1), n * N)
+        self.nx = sum(self._sizes)
+
+        window, kinds, valid = self._window_function()
+        var_index = self._window_variables()  # [N+1, m], −1 for padding
+        m = window.size1_in(0)
+        n_rows = len(kinds)
+        # global rows: node-major, the valid rows of each window
+        row_valid = np.array([[valid[i](k) for i in range(n_rows)] for k in range(N + 1)])  # [N+1, rows]
+        row_index = np.full((N + 1, n_rows), -1)
+        row_index[row_valid] = np.arange(int(row_valid.sum()))
+        self.row_kinds = np.array([kinds[i] for k in range(N + 1) for i in range(n_rows) if row_valid[k, i]])
+        ng = len(self.row_kinds)
+
+        x = ca.MX.sym("x", self.nx)
+        p = ca.MX.sym("p", 0)
+        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ng)
+        x_pad = ca.vertcat(x, 0)
+        xi = ca.reshape(x_pad[np.where(var_index >= 0, var_index, self.nx).ravel().tolist()], m, N + 1)
+        wts = np.ones(N + 1)
+        wts[[0, -1]] = 0.5  # trapezoid weights of ∫τᵀτ dt
+        wts = ca.DM(wts).T
+
+        # compiled derivatives when asked; g and f stay SX so CasADi can still differentiate them
+        # (IPOPT's final multiplier computation)
+        fast = self._compiled if options.compile else (lambda f: f)
+        rows, f_win = window.map(N + 1)(xi, wts)
+        g = ca.vec(rows)[np.flatnonzero(row_valid.ravel()).tolist()]
+        f = options.k1 * self.t_ref * x[0] + ca.sum2(f_win)
+
+        # Jacobian: window Jacobians scattered by index (each global row lives in one window)
+        xs, ws = window.sx_in()
+        rows_s, f_s = window(xs, ws)
+        jac_s = ca.jacobian(rows_s, xs)
+        sp_w = jac_s.sparsity()
+        jw = ca.Function("window_jac", [xs, ws], [_nonzeros(jac_s)])
+        r_loc, c_loc = (np.array(a) for a in sp_w.get_triplet())
+        nnz_w = sp_w.nnz()
+        g_rows = row_index[:, r_loc]  # [N+1, nnz_w]
+        g_cols = var_index[:, c_loc]
+        keep = (g_rows >= 0) & (g_cols >= 0)
+        src = (np.arange(N + 1)[:, None] * nnz_w + np.arange(nnz_w)[None, :])[keep]
+        jac_sp, jac_perm = _csc(ng, self.nx, g_rows[keep], g_cols[keep])
+        jac_nz = ca.vec(fast(jw).map(N + 1, "thread", 2)(xi, wts))[src[jac_perm].tolist()]
+        jac_g = ca.Function("jac_g", [x, p], [g, ca.MX(jac_sp, jac_nz)], ["x", "p"], ["g", "jac_g_x"])
+
+        # gradient of f: window gradients summed into the variables they share
+        gw = ca.Function("window_grad", [xs, ws], [ca.densify(ca.gradient(f_s, xs))])
+        cols = var_index.ravel()
+        ok = cols >= 0
+        assemble = ca.DM(
+            ca.Sparsity.triplet(self.nx, cols.size, cols[ok].tolist(), np.flatnonzero(ok).tolist()), 1.0
+        )
+        grad = ca.mtimes(assemble, ca.vec(fast(gw).map(N + 1)(xi, wts)))
+        grad = grad + ca.DM([options.k1 * self.t_ref] + [0.0] * (self.nx - 1))
+        grad_f = ca.Function("grad_f", [x, p], [f, grad], ["x", "p"], ["f", "grad_f_x"])
+
+        nlp_opts: dict = {"print_time": False, "jac_g": jac_g, "grad_f": grad_f}
+        if options.hessian == "exact":
+            nlp_opts["hess_lag"] = self._hessian(
+                window, xi, wts, x, p, lam_f, lam_g, var_index, row_index, fast
+            )
+
+        ipopt = {
+            "max_iter": options.max_iter,
+            "tol": options.tol,
+            # the time converges to ~1e-5 long before IPOPT's default tolerances: stop there
+            "acceptable_tol": 1e-4,
+            "acceptable_iter": 5,
+            "acceptable_obj_change_tol": 1e-6,
+            "print_level": 0,
+            "sb": "yes",
+            "mu_strategy": "adaptive",
+            "hessian_approximation": options.hessian,
+        }
+        if options.max_wall_s is not None:
+            ipopt["max_wall_time"] = float(options.max_wall_s)
+        nlp_opts["ipopt"] = ipopt
+        self.solver = ca.nlpsol("ptp", "ipopt", {"x": x, "f": f, "g": g}, nlp_opts)
+        self._objective = ca.Function("objective", [x], [f])
+        self.build_seconds = time.perf_counter() - t_build
+
+    # --- the window -----------------------------------------------------------------------------------
+    def _window_function(self):
+        """SX function (xi, wt) → (rows, f_k), the row kinds and per-row validity predicates k → bool."""
+        n, N, lim, opt, dyn = self.dof, self.N, self.limits, self.options, self.dynamics
+        m = 1 + 11 * n
+        xi, wt = ca.SX.sym("xi", m), ca.SX.sym("wt")
+        vr, ar, jr = (ca.DM(a) for a in (self.v_ref, self.a_ref, self.j_ref))
+        tmax, rmax = ca.DM(lim.tau_max), ca.DM(lim.tau_rate_max)
+        T = self.t_ref * xi[0]
+        h = T / N
+
+        def state(o):
+            return xi[o : o + n], vr * xi[o + n : o + 2 * n], ar * xi[o + 2 * n : o + 3 * n]
+
+        q, qd, qdd = state(1 + 3 * n)
+        q_p, qd_p, qdd_p = state(1 + 6 * n)
+        u_m, u = jr * xi[1 + 9 * n : 1 + 10 * n], jr * xi[1 + 10 * n :]
+        tau, rate_l, rate_r = node_function(dyn)(q, qd, qdd, u_m, u)[:3]
+        rows, kinds, valid = [], [], []
+
+        def add(expr, kind, ok):
+            rows.append(expr)
+            kinds.extend([kind] * expr.numel())
+            valid.extend([ok] * expr.numel())
+
+        def interval(k):
+            return k < N
+
+        # exact integration of a constant jerk over interval k; defects scaled like the variables
+        add(q_p - (q + h * qd + h**2 / 2 * qdd + h**3 / 6 * u), "defects", interval)
+        add((qd_p - (qd + h * qdd + h**2 / 2 * u)) / vr, "defects", interval)
+        add((qdd_p - (qdd + h * u)) / ar, "defects", interval)
+        add(tau / tmax, "torque", lambda k: 0 < k < N)  # the end torques are the holding torques
+        add(rate_l / rmax, "torque_rate", lambda k: k > 0)
+        add(rate_r / rmax, "torque_rate", interval)
+        # q̇ is quadratic between the nodes: bound it at the interval midpoints too (cheap rows)
+        add((qd + h / 2 * qdd + h**2 / 8 * u) / vr, "velocity", interval)
+        if opt.tcp_box_m is not None:
+            if dyn.tcp_fk is None:
+                raise ValueError("a TCP box needs PtpDynamics.tcp_fk")
+            lo, hi = (np.asarray(c, float) for c in opt.tcp_box_m)
+            p_tcp = _sx_function(dyn.tcp_fk)(q)[0]
+            add((p_tcp - ca.DM((lo + hi) / 2)) / ca.DM((hi - lo) / 2), "tcp_box", lambda k: 0 < k < N)
+        f_k = opt.k2_per_nm2 * h * wt * ca.sumsqr(tau)
+        fn = ca.Function("ptp_window", [xi, wt], [ca.vertcat(*rows), f_k], ["xi", "wt"], ["rows", "f"])
+        return fn, kinds, valid
+
+    def _window_variables(self) -> np.ndarray:
+        """Global index of every window variable, −1 where the window reaches past the ends."""
+        n, N = self.dof, self.N
+        o_q, o_v, o_a, o_u = 1, 1 + n * (N + 1), 1 + 2 * n * (N + 1), 1 + 3 * n * (N + 1)
+        idx = np.full((N + 1, 1 + 11 * n), -1)
+        j = np.arange(n)
+        for k in range(N + 1):
+            idx[k, 0] = 0
+            for s, node in enumerate((k - 1, k, k + 1)):
+                if 0 <= node <= N:
+                    base = 1 + 3 * n * s
+                    idx[k, base : base + n] = o_q + node * n + j
+                    idx[k, base + n : base + 2 * n] = o_v + node * n + j
+                    idx[k, base + 2 * n : base + 3 * n] = o_a + node * n + j
+            for s, iv in enumerate((k - 1, k)):
+                if 0 <= iv < N:
+                    idx[k, 1 + 9 * n + s * n : 1 + 10 * n + s * n] = o_u + iv * n + j
+        return idx
+
+    def _hessian(self, window, xi, wts, x, p, lam_f, lam_g, var_index, row_index, fast) -> ca.Function:
+        """Exact Hessian of the Lagrangian, assembled from window Hessians (upper triangle)."""
+        N = self.N
+        xs, ws = window.sx_in()
+        rows, f_k = window(xs, ws)
+        lf, lr = ca.SX.sym("lam_f"), ca.SX.sym("lam_rows", rows.numel())
+        hess = ca.triu(ca.hessian(lf * f_k + ca.dot(lr, rows), xs)[0])
+        sp_w = hess.sparsity()
+        hw = ca.Function("window_hess", [xs, ws, lf, lr], [_nonzeros(hess)])
+        r_loc, c_loc = (np.array(a) for a in sp_w.get_triplet())
+        nnz_w = sp_w.nnz()
+        a, b = var_index[:, r_loc], var_index[:, c_loc]
+        keep = (a >= 0) & (b >= 0)
+        lo, hi = np.minimum(a, b)[keep], np.maximum(a, b)[keep]
+        src = (np.arange(N + 1)[:, None] * nnz_w + np.arange(nnz_w)[None, :])[keep]
+        # duplicates (variables shared by neighbouring windows) are summed by the assembly matrix
+        key = hi * self.nx + lo
+        uniq, inverse = np.unique(key, return_inverse=True)
+        sp = ca.Sparsity.triplet(self.nx, self.nx, (uniq % self.nx).tolist(), (uniq // self.nx).tolist())
+        # triplet() sorts column-major, as np.unique on hi * nx + lo already is
+        assemble = ca.DM(ca.Sparsity.triplet(len(uniq), (N + 1) * nnz_w, inverse.tolist(), src.tolist()), 1.0)
+        lam_pad = ca.vertcat(lam_g, 0)
+        lam_w = ca.reshape(
+            lam_pad[np.where(row_index >= 0, row_index, lam_g.numel()).ravel().tolist()], -1, N + 1
+        )
+        nz = ca.mtimes(assemble, ca.vec(fast(hw).map(N + 1, "thread", 2)(xi, wts, lam_f, lam_w)))
+        return ca.Function(
+            "hess_lag",
+            [x, p, lam_f, lam_g],
+            [ca.MX(sp, nz)],
+            ["x", "p", "lam_f", "lam_g"],
+            ["triu_hess_gamma_x_x"],
+        )
+
+    @staticmethod
+    def _compiled(fn: ca.Function) -> ca.Function:
+        """`fn` as C compiled once per content (robot, limits, N, options) into the cache directory."""
+        return compiled_function(fn)
+
+    # --- bounds and guesses -------------------------------------------------------------------------
+    def margins(self, **override: float) -> dict[str, float]:
+        """Per-limit margins: the options' margin for every limit, with `override`s."""
+        m = dict.fromkeys(LIMIT_NAMES, self.options.margin)
+        m.update(override)
+        return m
+
+    def _bounds(self, q_start: np.ndarray, q_goal: np.ndarray, margins: dict[str, float]):
+        n, N, lim = self.dof, self.N, self.limits
+        half = (lim.q_max - lim.q_min) / 2
+        mp = margins["position"]
+        lo = np.minimum(lim.q_min + mp * half, np.minimum(q_start, q_goal))
+        hi = np.maximum(lim.q_max - mp * half, np.maximum(q_start, q_goal))
+        q_lb, q_ub = np.tile(lo[:, None], N + 1), np.tile(hi[:, None], N + 1)
+        q_lb[:, 0] = q_ub[:, 0] = q_start
+        q_lb[:, -1] = q_ub[:, -1] = q_goal
+        v_b = np.full((n, N + 1), 1.0 - margins["velocity"])
+        v_b[:, [0, -1]] = 0.0
+        a_lim = (
+            np.full(n, np.inf)
+            if lim.a_max is None
+            else (1.0 - margins["acceleration"]) * lim.a_max / self.a_ref
+        )
+        a_b = np.tile(a_lim[:, None], N + 1)
+        a_b[:, [0, -1]] = 0.0
+        u_b = np.full(n * N, np.inf)
+        lbx = np.concatenate([[1e-3 / self.t_ref], q_lb.ravel("F"), -v_b.ravel("F"), -a_b.ravel("F"), -u_b])
+        ubx = np.concatenate([[100.0 / self.t_ref], q_ub.ravel("F"), v_b.ravel("F"), a_b.ravel("F"), u_b])
+        bound = {k: 1.0 - v for k, v in margins.items()} | {"defects": 0.0}
+        ubg = np.array([bound[k] for k in self.row_kinds])
+        return lbx, ubx, -ubg, ubg
+
+    def _pack(self, guess: NodeGuess) -> np.ndarray:
+        N = self.N
+        if guess.q.shape != (N + 1, self.dof) or guess.jerk.shape != (N, self.dof):
+            raise ValueError(f"guess must be on the {N}-interval grid")
+        return np.concatenate(
+            [
+                [guess.duration_s / self.t_ref],
+                guess.q.ravel(),  # [N+1, n] row-major == [n, N+1] column-major
+                (guess.qd / self.v_ref).ravel(),
+                (guess.qdd / self.a_ref).ravel(),
+                (guess.jerk / self.j_ref).ravel(),
+            ]
+        )
+
+    def _unpack(self, w: np.ndarray) -> NodeGuess:
+        n, N = self.dof, self.N
+        o = np.cumsum((0, *self._sizes))
+        blk = [w[o[i] : o[i + 1]] for i in range(5)]
+        return NodeGuess(
+            duration_s=float(blk[0][0] * self.t_ref),
+            q=blk[1].reshape(N + 1, n),
+            qd=blk[2].reshape(N + 1, n) * self.v_ref,
+            qdd=blk[3].reshape(N + 1, n) * self.a_ref,
+            jerk=blk[4].reshape(N, n) * self.j_ref,
+        )
+
+    def solve(
+        self, q_start, q_goal, guess: NodeGuess, margins: dict[str, float] | None = None
+    ) -> PtpSolution:
+        """Solve from `guess` (on this grid) with limits tightened by `margins` (default: the options').
+
+        Never raises on non-convergence: see `.success`, `.status`.
+        """
+        q_start, q_goal = np.asarray(q_start, float), np.asarray(q_goal, float)
+        lbx, ubx, lbg, ubg = self._bounds(q_start, q_goal, margins or self.margins())
+        x0 = np.clip(self._pack(guess), lbx, ubx)
+        t0 = time.perf_counter()
+        res = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        seconds = time.perf_counter() - t0
+        stats = self.solver.stats()
+        w = np.asarray(res["x"]).ravel()
+        sol = self._unpack(w)
+        return PtpSolution(
+            duration_s=sol.duration_s,
+            q=sol.q,
+            qd=sol.qd,
+            qdd=sol.qdd,
+            jerk=sol.jerk,
+            tau=self.dynamics.torque(sol.q, sol.qd, sol.qdd),
+            objective=float(res["f"]),
+            status=str(stats.get("return_status", "unknown")),
+            success=bool(stats.get("success", False)),
+            iterations=int(stats.get("iter_count", -1)),
+            solve_seconds=seconds,
+        )
+
+
+_OCP_CACHE: OrderedDict[tuple, PtpOcp] = OrderedDict()
+_OCP_CACHE_SIZE = 4
+
+
+def cached_ocp(dynamics: PtpDynamics, limits: PtpLimits, options: PtpOptions) -> PtpOcp:
+    """A built `PtpOcp` for this dynamics, limits and options, reused within the process (LRU of 4)."""
+    key = (dynamics.key(), limits.key(), options.model_dump_json())
+    if key in _OCP_CACHE:
+        _OCP_CACHE.move_to_end(key)
+        return _OCP_CACHE[key]
+    ocp = PtpOcp(dynamics, limits, options)
+    _OCP_CACHE[key] = ocp
+    while len(_OCP_CACHE) > _OCP_CACHE_SIZE:
+        _OCP_CACHE.popitem(last=False)
+    return ocp
+
+
+# --- sampling at the drive cycle and the dense check ------------------------------------------------
+def integrate_jerk(q0, qd0, qdd0, jerk, h: float, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact states at times `t` ∈ [0, N·h] of a triple integrator with jerk constant per interval h."""
+    jerk = np.asarray(jerk, float)
+    N, n = jerk.shape
+    q, qd, qdd = (np.empty((N + 1, n)) for _ in range(3))
+    q[0], qd[0], qdd[0] = q0, qd0, qdd0
+    for k in range(N):  # node states by the same exact formulas the NLP uses
+        u = jerk[k]
+        q[k + 1] = q[k] + h * qd[k] + h**2 / 2 * qdd[k] + h**3 / 6 * u
+        qd[k + 1] = qd[k] + h * qdd[k] + h**2 / 2 * u
+        qdd[k + 1] = qdd[k] + h * u
+    t = np.asarray(t, float)
+    k = np.clip((t // h).astype(int), 0, N - 1)
+    dt = (t - k * h)[:, None]
+    u = jerk[k]
+    return (
+        q[k] + dt * qd[k] + dt**2 / 2 * qdd[k] + dt**3 / 6 * u,
+        qd[k] + dt * qdd[k] + dt**2 / 2 * u,
+        qdd[k] + dt * u,
+    )
+
+
+def sample_solution(sol: PtpSolution, dynamics: PtpDynamics, cycle_s: float, q_goal=None) -> Trajectory:
+    """The optimum at the drive cycle: the jerk profile integrated exactly, torques from the dynamics.
+
+    T is rounded up to a whole number of cycles by a uniform time stretch (q̇ × r, q̈ × r², jerk × r³
+    with r = T/T' ≥ 0.9993 for T ≥ 0.5 s at 400 µs): only slower. The last sample is the goal at rest
+    exactly (`q_goal` removes the NLP's ~1e-9 rad residual).
+    """
+    N, T = sol.n_intervals, sol.duration_s
+    n_cycles = max(int(np.ceil(T / cycle_s - 1e-9)), 1)
+    T2 = n_cycles * cycle_s
+    r = T / T2
+    t = np.arange(n_cycles + 1) * cycle_s
+    q, qd, qdd = integrate_jerk(sol.q[0], sol.qd[0] * r, sol.qdd[0] * r**2, sol.jerk * r**3, T2 / N, t)
+    q[-1] = sol.q[-1] if q_goal is None else q_goal
+    qd[-1] = qdd[-1] = 0.0
+    return Trajectory(t, q, qd, qdd, dynamics.torque(q, qd, qdd))
+
+
+def sample_profile(profile: KinematicProfile, dynamics: PtpDynamics, cycle_s: float) -> Trajectory:
+    """A kinematic profile at the drive cycle with its inverse-dynamics torques."""
+    n_cycles = max(int(np.ceil(profile.duration_s / cycle_s - 1e-9)), 1)
+    t = np.arange(n_cycles + 1) * cycle_s
+    q, qd, qdd = profile.at(t)
+    return Trajectory(t, q, qd, qdd, dynamics.torque(q, qd, qdd))
+
+
+def dense_report(traj: Trajectory, dynamics: PtpDynamics, limits: PtpLimits, joint_names) -> LimitReport:
+    """Every PtP limit on the drive-cycle samples; the torque rate of τ without its Coulomb part."""
+    smooth = dynamics.rate_torque(traj.q, traj.qd, traj.tau_ff)
+    ratios = {}
+    for lim in limits.dense_checks():
+        tau = smooth if isinstance(lim, TorqueRateLimit) else traj.tau_ff
+        ratios[lim.name] = lim.ratios(traj.t, traj.q, traj.qd, traj.qdd, tau)
+    return LimitReport(t=traj.t, ratios=ratios, joint_names=tuple(joint_names))
+
+
+def tcp_box_ratio(robot: Robot, q: np.ndarray, box: tuple[Vec3, Vec3]) -> float:
+    """max over samples and axes of |p − centre| / half-size for the TCP (≤ 1: inside the box)."""
+    lo, hi = (np.asarray(c, float) for c in box)
+    data = robot.create_data()
+    p = np.empty((len(q), 3))
+    for i, qi in enumerate(q):
+        pin.framesForwardKinematics(robot.model, data, qi)
+        p[i] = data.oMf[robot.tcp_frame_id].translation
+    return float(np.max(np.abs(p - (lo + hi) / 2) / ((hi - lo) / 2)))
+
+
+# --- the planner ------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class PtpResult:
+    """A solved PtP: the sampled trajectory, its dense limit report, the OCP solution and warm start."""
+
+    trajectory: Trajectory
+    report: LimitReport
+    solution: PtpSolution
+    warm_start: KinematicProfile
+    build_seconds: float
+    tcp_box_ratio: float | None = None
+    margins: dict | None = None
+    resolves: int = 0
+
+    @property
+    def duration_s(self) -> float:
+        return self.trajectory.duration_s
+
+    @property
+    def max_limit_ratio(self) -> float:
+        r = self.report.max_ratio
+        return r if self.tcp_box_ratio is None else max(r, self.tcp_box_ratio)
+
+    def active_fraction(self) -> float:
+        """Fraction of the samples where some limit (not position) is active: within 1 % of the bound
+        the NLP used (the limit tightened by its margin), the paper's time-optimality check."""
+        used = [v for k, v in (self.margins or {}).items() if k != "position" and k in self.report.ratios]
+        return self.report.active_fraction(threshold=1.0 - max(used, default=0.0) - 0.01)
+
+    @property
+    def tau_squared_integral(self) -> float:
+        """∫τᵀτ dt on the drive-cycle samples (trapezoid), (N·m)²·s."""
+        tr = self.trajectory
+        return float(np.trapezoid(np.sum(tr.tau_ff**2, axis=1), tr.t))
+
+
+class PtpNotConverged(InfeasibleError):
+    """IPOPT stopped without an optimum (exit 3); carries its status and the last iterate."""
+
+    def __init__(self, status: str, solution: PtpSolution):
+        self.status = status
+        self.solution = solution
+        super().__init__(
+            f"plan-ptp: IPOPT did not converge: {status} after {solution.iterations} iterations "
+            f"({solution.solve_seconds:.1f} s)"
+        )
+
+
+def check_boundary_state(dynamics: PtpDynamics, limits: PtpLimits, q, name: str, joint_names) -> np.ndarray:
+    """Refuse an end point outside the position limits or whose holding torque exceeds the peak torque.
+
+    Raises InputError with field `name[joint]` (exit 2).
+    """
+    q = np.asarray(q, float).ravel()
+    n = len(limits.q_min)
+    if q.shape != (n,) or not np.all(np.isfinite(q)):
+        raise InputError(f"expected {n} finite joint angles, got {q.tolist()}", field=name)
+    for j in range(n):
+        if not limits.q_min[j] <= q[j] <= limits.q_max[j]:
+            raise InputError(
+                f"{q[j]:.6g} rad is outside the joint limits [{limits.q_min[j]:.6g}, {limits.q_max[j]:.6g}]",
+                field=f"{name}[{joint_names[j]}]",
+            )
+    g = np.asarray(dynamics.inv_dyn(q, np.zeros(n), np.zeros(n))).ravel()
+    for j in range(n):
+        if abs(g[j]) > limits.tau_max[j]:
+            raise InputError(
+                f"holding torque {g[j]:.1f} N·m exceeds the peak torque {limits.tau_max[j]:.1f} N·m",
+                field=f"{name}[{joint_names[j]}]",
+            )
+    return q
+
+
+def default_kinematic_limits(robot: Robot, speed: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Velocity, acceleration and jerk limits of the ruckig warm start (a time scaling by `speed`).
+
+    The drives' velocity and acceleration limits and a jerk reaching that acceleration in 50 ms:
+    plausible for an arm, a starting point only (the OCP knows the torques).
+    """
+    v, a = np.asarray(robot.v_max, float), np.asarray(robot.a_max, float)
+    return v * speed, a * speed**2, a / 0.05 * speed**3
+
+
+def plan_ptp(
+    robot: Robot,
+    dynamics: PtpDynamics,
+    q_start,
+    q_goal,
+    options: PtpOptions | None = None,
+    *,
+    warm_start: KinematicProfile | None = None,
+    ocp: PtpOcp | None = None,
+    max_resolves: int = 2,
+) -> PtpResult:
+    """Plan the optimal rest-to-rest motion from `q_start` to `q_goal` (rad).
+
+    Raises InputError (exit 2) for end points outside the limits, PtpNotConverged (exit 3) when IPOPT
+    fails. `warm_start` overrides the ruckig profile; `ocp` a built NLP (default: `cached_ocp`).
+    If the dense check finds a limit exceeded by more than `DENSE_TOLERANCE` between the nodes, that
+    limit's margin grows by the excess and the NLP is solved again from the solution (at most
+    `max_resolves` times; coarse grids need it, N ≥ 50 rarely does).
+    """
+    options = options or PtpOptions()
+    limits = PtpLimits.from_robot(robot, acceleration=options.acceleration_limits)
+    q_start = check_boundary_state(dynamics, limits, q_start, "start", robot.joint_names)
+    q_goal = check_boundary_state(dynamics, limits, q_goal, "goal", robot.joint_names)
+    if np.max(np.abs(q_goal - q_start)) < 1e-9:
+        raise InputError("the goal equals the start: nothing to plan", field="goal")
+    if options.tcp_box_m is not None:
+        for name, q in (("start", q_start), ("goal", q_goal)):
+            if tcp_box_ratio(robot, q[None], options.tcp_box_m) > 1.0:
+                raise InputError("the TCP is outside the TCP box", field=name)
+    if warm_start is None:
+        warm_start = ruckig_profile(q_start, q_goal, *default_kinematic_limits(robot))
+    t0 = time.perf_counter()
+    ocp = ocp or cached_ocp(dynamics, limits, options)
+    build = time.perf_counter() - t0
+    margins = ocp.margins()
+    guess = NodeGuess.from_profile(warm_start, ocp.N)
+    seconds, iterations = 0.0, 0
+    for attempt in range(1 + max_resolves):
+        sol = ocp.solve(q_start, q_goal, guess, margins)
+        seconds, iterations = seconds + sol.solve_seconds, iterations + sol.iterations
+        sol = replace(sol, solve_seconds=seconds, iterations=iterations)
+        if not sol.success:
+            raise PtpNotConverged(sol.status, sol)
+        traj = sample_solution(sol, dynamics, robot.drives.cycle_s, q_goal=q_goal)
+        report = dense_report(traj, dynamics, limits, robot.joint_names)
+        ratios = report.max_by_limit()
+        if options.tcp_box_m is not None:
+            ratios["tcp_box"] = tcp_box_ratio(robot, traj.q, options.tcp_box_m)
+        over = {k: r for k, r in ratios.items() if r > 1.0 + DENSE_TOLERANCE}
+        if not over or attempt == max_resolves:
+            break
+        # between the nodes a limit was exceeded: tighten that limit by the excess and solve again
+        # from this solution (only bounds change, the NLP is reused)
+        for k, r in over.items():
+            margins[k] += r - 1.0 + options.margin
+        guess = NodeGuess(sol.duration_s, sol.q, sol.qd, sol.qdd, sol.jerk)
+    return PtpResult(traj, report, sol, warm_start, build, ratios.get("tcp_box"), margins, attempt)
+
+
+def kinematic_fallback(
+    robot: Robot, dynamics: PtpDynamics, q_start, q_goal, options: PtpOptions | None = None
+) -> tuple[Trajectory, LimitReport]:
+    """The fastest time-scaled ruckig profile that passes the dense check of the PtP limits (≤ 1).
+
+    For `--fallback` when the OCP does not converge. Raises InfeasibleError if none does.
+    """
+    options = options or PtpOptions()
+    limits = PtpLimits.from_robot(robot, acceleration=options.acceleration_limits)
+    cycle = robot.drives.cycle_s
+
+    def check(p: KinematicProfile) -> tuple[Trajectory, LimitReport]:
+        tr = sample_profile(p, dynamics, cycle)
+        return tr, dense_report(tr, dynamics, limits, robot.joint_names)
+
+    def ratio(p: KinematicProfile) -> float:
+        tr, rep = check(p)
+        r = rep.max_ratio
+        if options.tcp_box_m is not None:
+            r = max(r, tcp_box_ratio(robot, tr.q[:: max(len(tr.q) // 200, 1)], options.tcp_box_m))
+        return r
+
+    profile, _ = feasible_profile(q_start, q_goal, *default_kinematic_limits(robot), ratio)
+    return check(profile)

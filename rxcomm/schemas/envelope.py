@@ -1,0 +1,131 @@
+"""The artefact envelope every rxcomm artefact carries (DESIGN §3).
+
+Subclasses are the artefacts of the stages. They set ``KIND`` (``"rxcomm/Calibration"``) and
+``SCHEMA_VERSION``, optionally ``REQUIRED_SUMMARY_KEYS``, and add their data fields after the
+envelope fields::
+
+    class Calibration(Artefact):
+        KIND: ClassVar[str] = "rxcomm/Calibration"
+        SCHEMA_VERSION: ClassVar[int] = 1
+        REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ("n_identifiable", "seconds")
+        params_m: list[float]
+
+    cal = Calibration(**Calibration.envelope({"robot": urdf_path}, settings, summary), params_m=[...])
+
+The bare ``Artefact`` (no ``KIND``) validates the envelope fields of any kind; the MCAP reader uses it.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Annotated, Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict, StringConstraints, field_validator, model_validator
+
+import rxcomm
+from rxcomm.schemas.plain import sha256_file, to_plain
+
+Sha256Hex = Annotated[str, StringConstraints(pattern=r"^[0-9a-f]{64}$")]
+SummaryValue = float | int | str | bool | list[float] | list[int] | None
+ENVELOPE_FIELDS = ("kind", "schema_version", "created", "rxcomm_version", "inputs", "settings", "summary")
+
+
+def _schema_extra(schema: dict[str, Any], cls: type) -> None:
+    """Pin ``kind``/``schema_version`` and the required summary keys in the generated JSON Schema."""
+    props = schema.get("properties", {})
+    if kind := getattr(cls, "KIND", None):
+        props["kind"]["const"] = kind
+    if (version := getattr(cls, "SCHEMA_VERSION", None)) is not None:
+        props["schema_version"]["const"] = version
+    if keys := getattr(cls, "REQUIRED_SUMMARY_KEYS", ()):
+        props["summary"]["required"] = list(keys)
+
+
+class Artefact(BaseModel):
+    """Envelope fields shared by every artefact; subclasses add their data after them."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra=_schema_extra)
+
+    KIND: ClassVar[str]
+    SCHEMA_VERSION: ClassVar[int]
+    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ()
+
+    kind: str
+    schema_version: int
+    created: datetime
+    rxcomm_version: str
+    inputs: dict[str, Sha256Hex]
+    settings: dict[str, Any]
+    summary: dict[str, SummaryValue]
+
+    @classmethod
+    def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
+        super().__pydantic_init_subclass__(**kwargs)
+        if not isinstance(getattr(cls, "KIND", None), str) or not isinstance(
+            getattr(cls, "SCHEMA_VERSION", None), int
+        ):
+            raise TypeError(f"{cls.__name__} must set KIND: ClassVar[str] and SCHEMA_VERSION: ClassVar[int]")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _numpy_to_plain(cls, data: Any) -> Any:
+        # Lets stages pass numpy arrays/scalars straight in; the stored model holds plain values.
+        return to_plain(data) if isinstance(data, dict) else data
+
+    @field_validator("kind")
+    @classmethod
+    def _check_kind(cls, v: str) -> str:
+        expected = getattr(cls, "KIND", None)
+        if expected is not None and v != expected:
+            raise ValueError(f"unknown kind {v!r}; expected {expected!r}")
+        return v
+
+    @field_validator("schema_version")
+    @classmethod
+    def _check_version(cls, v: int) -> int:
+        expected = getattr(cls, "SCHEMA_VERSION", None)
+        if expected is not None and v != expected:
+            raise ValueError(f"unsupported schema_version {v}; this rxcomm reads version {expected}")
+        return v
+
+    @field_validator("created")
+    @classmethod
+    def _utc(cls, v: datetime) -> datetime:
+        if v.tzinfo is None:
+            raise ValueError("created must carry a time zone (UTC, e.g. 2025-01-31T12:00:00Z)")
+        return v.astimezone(UTC)
+
+    @field_validator("summary")
+    @classmethod
+    def _required_summary(cls, v: dict[str, SummaryValue]) -> dict[str, SummaryValue]:
+        if missing := [k for k in cls.REQUIRED_SUMMARY_KEYS if k not in v]:
+            raise ValueError(f"summary misses required keys {missing}")
+        return v
+
+    @classmethod
+    def envelope(
+        cls,
+        inputs: dict[str, str | Path],
+        settings: BaseModel | dict[str, Any] | None = None,
+        summary: dict[str, Any] | None = None,
+    ) -> dict[str, Any]:
+        """Envelope fields for a new artefact of this class: hashes ``inputs`` (name -> file path),
+        dumps ``settings`` as JSON-able, stamps ``created`` (UTC, now) and ``rxcomm.__version__``."""
+        if isinstance(settings, BaseModel):
+            settings_d = settings.model_dump(mode="json")
+        else:
+            settings_d = to_plain(dict(settings or {}))
+        return {
+            "kind": cls.KIND,
+            "schema_version": cls.SCHEMA_VERSION,
+            "created": datetime.now(UTC).replace(microsecond=0),
+            "rxcomm_version": rxcomm.__version__,
+            "inputs": {name: sha256_file(p) for name, p in inputs.items()},
+            "settings": settings_d,
+            "summary": to_plain(dict(summary or {})),
+        }
+
+    def envelope_dict(self) -> dict[str, Any]:
+        """The envelope fields of this artefact as JSON-able values (for an MCAP metadata record)."""
+        return self.model_dump(mode="json", include=set(ENVELOPE_FIELDS))

@@ -1,0 +1,62 @@
+"""The summary YAML beside a run log MCAP (``run-log.mcap`` -> ``run-log.yaml``, kind `rxcomm/RunLog`).
+
+`rxcomm run` executes a trajectory on a cell and records, per drive cycle (per setpoint when the
+interpolation ratio R > 1), what was commanded and what the drives reported. The MCAP carries the
+same envelope as its ``rxcomm/envelope`` metadata record. Topics (times in s from the stream start,
+joint side, SI):
+
+- ``/run/joints`` every ``sample_s``: ``q_demand``, ``qd_demand``, ``qdd_demand`` (rad, rad/s, rad/s²,
+  the setpoint reached in that cycle), ``q_actual`` (rad, encoders), ``tau_actual`` (N·m, as the drives
+  report it), ``tau_ff`` (N·m, the feed-forward sent), ``following_error`` (rad, q_demand − q_actual),
+  ``tcp_error_m`` (m, |FK(q_demand) − FK(q_actual)| through the nominal kinematics);
+- ``/run/gateway`` once per exchanged block (≈ every 6·R drive cycles): ``status`` (register 30 bits),
+  ``error``, ``execute_index``, ``write_index``, ``buffer_level`` (setpoints), ``lead_s``,
+  ``round_trip_s``, ``wall_s`` (master clock since the stream start).
+
+A run that ends in a stop keeps its log as ``NAME.mcap.part`` (finished, readable; its envelope
+summary says ``outcome`` and ``stop_reason``) and writes no ``NAME.yaml``.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from rxcomm.schemas.envelope import Artefact, Sha256Hex
+
+
+class RunLogTopic(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    topic: str
+    period_s: float | None = Field(description="message period, s (None: irregular)")
+    n_messages: int = Field(ge=0)
+    fields: dict[str, str] = Field(description="field name -> unit and meaning")
+
+
+class RunLog(Artefact):
+    """Envelope + summary of a run log MCAP, plus how to read it."""
+
+    KIND: ClassVar[str] = "rxcomm/RunLog"
+    SCHEMA_VERSION: ClassVar[int] = 1
+    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+        "underruns",
+        "max_lag_rad",
+        "rms_lag_rad",
+        "max_tcp_error_m",
+        "duration_s",
+    )
+
+    mcap_file: str = Field(description="file name of the MCAP beside this YAML")
+    mcap_sha256: Sha256Hex = Field(description="sha256 of that MCAP, to tie the summary to its samples")
+    joint_names: list[str]
+    cycle_s: float = Field(gt=0, description="drive cycle of the gateway, s")
+    interpolation_ratio: int = Field(ge=1, description="drive cycles per setpoint (R)")
+    sample_s: float = Field(gt=0, description="period of /run/joints = R · cycle_s, s")
+    feedforward: Literal["identified", "prior", "none"] = Field(
+        description="τ_ff source: --dynamics, the robot's prior model, or zeros"
+    )
+    gateway: str = Field(description="HOST:PORT the run streamed to")
+    embedded_cell: bool = Field(description="the gateway was a simulated cell started by `run` itself")
+    topics: list[RunLogTopic]

@@ -1,0 +1,67 @@
+"""`truth.yaml`: the simulated cell's hidden truth (DESIGN §6).
+
+Only `rxcomm.cell` (the simulator) and tests that score recovery read this. Stages never do.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Placement(_Strict):
+    xyz_m: tuple[float, float, float]
+    rpy_rad: tuple[float, float, float]
+
+
+class GeometryTruth(_Strict):
+    """Real kinematics: error parameters of `rxcomm.model.geometric_errors` (name → value, SI), tracker.
+
+    Joint/base/tool errors are small twists applied on the right of the nominal placements:
+    `{joint}.tx|ty|tz` in m, `{joint}.rx|ry|rz` in rad, likewise `base.*` and `tool.*`.
+    `base.*` perturbs the robot base in the tracker frame on top of `tracker_to_base`.
+    """
+
+    tracker_to_base: Placement = Field(description="pose of the robot base in the tracker frame (nominal)")
+    error_parameters: dict[str, float]
+
+
+class LinkInertial(_Strict):
+    """Pinocchio order: m, m·c (3), inertia about the link frame origin Ixx Ixy Iyy Ixz Iyz Izz."""
+
+    link: str = Field(description="the body moved by this joint, named by its joint")
+    mass_kg: float = Field(gt=0)
+    first_moment_kgm: tuple[float, float, float]
+    inertia_origin_kgm2: tuple[float, float, float, float, float, float]
+
+
+class DynamicsTruth(_Strict):
+    links: list[LinkInertial]
+    rotor_inertia_kgm2: list[float] = Field(description="motor side, per axis")
+    coulomb_friction_nm: list[float]
+    viscous_friction_nm_s_per_rad: list[float]
+    torque_offset_nm: list[float] = Field(description="constant torque offset per joint (sensor bias)")
+    spring_stiffness_n_per_m: float | None = None
+    spring_free_length_m: float | None = None
+
+
+class NoiseTruth(_Strict):
+    encoder_lsb_rad: float = Field(gt=0, description="encoder quantisation, joint side, rad")
+    torque_noise_nm: list[float] = Field(description="std of motor torque measurement, joint side, N·m")
+    tracker_position_sigma_m: float = Field(ge=0)
+    tracker_orientation_sigma_rad: float = Field(ge=0)
+
+
+class CellTruth(_Strict):
+    kind: Literal["rxcomm/CellTruth"]
+    schema_version: Literal[1]
+    robot: str = Field(description="robot directory, relative to this file")
+    seed: int
+    geometry: GeometryTruth
+    dynamics: DynamicsTruth
+    noise: NoiseTruth

@@ -1,0 +1,296 @@
+"""`rxcomm calibrate`: geometric calibration from tracker measurements (paper §3.1–3.2, DESIGN §7).
+
+Reads the robot and a measurements file (a `rxcomm/Measurements` artefact written by `run`, or a
+tracker CSV — see `rxcomm.calibration.fit.CSV_HELP`), fits the identifiable geometric error parameters
+and writes `calibration.yaml` (kind `rxcomm/Calibration`: parameters ± σ, what was dropped and why,
+the paper's Table 2 before/after on fitted and held-out poses, the base + tool baseline, and — when
+the file has `baseline` poses — the same calibration from those, judged on the same held-out poses)
+and, with `--urdf-out`, a calibrated URDF (load it with `load_robot(ROBOT_DIR, urdf=...)`).
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from pydantic import ValidationError
+
+from rxcomm import console
+from rxcomm.calibration.fit import (
+    CalibrateSettings,
+    CalibrationResult,
+    FitResult,
+    calibrate,
+    read_measurements,
+    write_calibrated_urdf,
+)
+from rxcomm.errors import InputError
+from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
+from rxcomm.model.geometric_errors import parameter_names, placement_to_se3, se3_to_xyz_rpy
+from rxcomm.model.robot import Robot, load_robot
+from rxcomm.schemas.calibration import (
+    BaselineFit,
+    Calibration,
+    DroppedParameter,
+    ErrorRow,
+    ErrorTable,
+    ParameterEstimate,
+)
+from rxcomm.schemas.cell import Cell, Placement
+
+QUANTITIES = (("x", "m"), ("y", "m"), ("z", "m"), ("alpha", "rad"), ("beta", "rad"), ("gamma", "rad"))
+
+
+class Loss(StrEnum):
+    linear = "linear"
+    soft_l1 = "soft_l1"
+    huber = "huber"
+    cauchy = "cauchy"
+
+
+def _estimates(robot: Robot, fit: FitResult, only: set[str] | None = None) -> list[ParameterEstimate]:
+    out = []
+    for i, name in enumerate(parameter_names(robot)):
+        if only is not None and name not in only:
+            continue
+        est = bool(fit.estimated[i])
+        out.append(
+            ParameterEstimate(
+                name=name,
+                value=float(fit.errors.values[i]),
+                std=float(fit.std[i]) if est else None,
+                estimated=est,
+            )
+        )
+    return out
+
+
+def calibration_artefact(
+    robot: Robot, res: CalibrationResult, inputs: dict[str, Path], urdf_out: Path | None
+) -> Calibration:
+    tables = []
+    for (pose_set, model), st in res.tables.items():
+        rows = []
+        for k, (q, unit) in enumerate(QUANTITIES):
+            if unit == "rad" and st.max_orientation_error_rad is None:
+                continue
+            rows.append(
+                ErrorRow(
+                    quantity=q,
+                    unit=unit,
+                    max_abs=float(st.max_abs[k]),
+                    peak_to_peak=float(st.peak_to_peak[k]),
+                    rms=float(st.rms[k]),
+                )
+            )
+        tables.append(
+            ErrorTable(
+                pose_set=pose_set,
+                model=model,
+                n_poses=st.n_poses,
+                max_position_error_m=st.max_position_error_m,
+                rms_position_error_m=st.rms_position_error_m,
+                max_orientation_error_rad=st.max_orientation_error_rad,
+                rows=rows,
+            )
+        )
+
+    def stat(pose_set: str, model: str, attr: str):
+        st = res.tables.get((pose_set, model))
+        return None if st is None else getattr(st, attr)
+
+    summary = {
+        "n_identifiable": len(res.identifiable),
+        "fit_max_position_error_m": stat("fit", "calibrated", "max_position_error_m"),
+        "fit_max_orientation_error_rad": stat("fit", "calibrated", "max_orientation_error_rad"),
+        "heldout_max_position_error_m": stat("heldout", "calibrated", "max_position_error_m"),
+        "heldout_max_orientation_error_rad": stat("heldout", "calibrated", "max_orientation_error_rad"),
+        "nominal_heldout_max_position_error_m": stat("heldout", "nominal", "max_position_error_m"),
+        "nominal_heldout_max_orientation_error_rad": stat("heldout", "nominal", "max_orientation_error_rad"),
+        "frames_only_heldout_max_position_error_m": stat("heldout", "frames_only", "max_position_error_m"),
+        "frames_only_heldout_max_orientation_error_rad": stat(
+            "heldout", "frames_only", "max_orientation_error_rad"
+        ),
+        "nominal_fit_max_position_error_m": stat("fit", "nominal", "max_position_error_m"),
+        "heldout_rms_position_error_m": stat("heldout", "calibrated", "rms_position_error_m"),
+        "n_fit": int(res.fit_idx.size),
+        "n_heldout": int(res.heldout_idx.size),
+        "n_outliers": int(res.outlier_idx.size),
+        "residual_scale": res.fit.residual_scale,
+        "jacobian_cond": res.fit.cond,
+        "function_evaluations": res.fit.iterations,
+        "seconds": res.seconds,
+    }
+    base = res.baseline
+    baseline_fit = None
+    ids = list(res.identifiable.indices)
+    if base is not None:
+        summary |= {
+            "n_baseline_poses": base.n_poses,
+            "baseline_poses_heldout_max_position_error_m": stat(
+                "heldout", "baseline_poses", "max_position_error_m"
+            ),
+            "baseline_poses_heldout_max_orientation_error_rad": stat(
+                "heldout", "baseline_poses", "max_orientation_error_rad"
+            ),
+            "baseline_poses_heldout_rms_position_error_m": stat(
+                "heldout", "baseline_poses", "rms_position_error_m"
+            ),
+            "baseline_poses_worse_p_value": base.worse_p_value,
+            # How much less certain each identifiable parameter is from the baseline poses.
+            "baseline_poses_median_std_ratio": None
+            if base.fit is None
+            else float(np.median(base.fit.std[ids] / res.fit.std[ids])),
+        }
+        baseline_fit = BaselineFit(
+            n_poses=base.n_poses,
+            parameters=[] if base.fit is None else _estimates(robot, base.fit),
+            fit_poses=base.fit_idx.tolist(),
+            outlier_poses=base.outlier_idx.tolist(),
+            worse_p_value=base.worse_p_value,
+            note=base.note,
+        )
+    xyz, rpy = se3_to_xyz_rpy(res.tracker_to_base)
+    frames = {n for n in parameter_names(robot) if n.startswith(("base.", "tool."))}
+    return Calibration(
+        **Calibration.envelope(inputs, res.settings, summary),
+        robot=robot.name,
+        joint_names=list(robot.joint_names),
+        measurement=res.measurement,
+        tracker_to_base=Placement(xyz_m=tuple(xyz), rpy_rad=tuple(rpy)),
+        tracker_to_base_source=res.tracker_to_base_source,
+        parameters=_estimates(robot, res.fit),
+        dropped=[DroppedParameter(name=n, reason=r) for n, r in res.identifiable.dropped],
+        frames_only_parameters=_estimates(robot, res.frames_only, frames),
+        error_tables=tables,
+        fit_poses=res.fit_idx.tolist(),
+        heldout_poses=res.heldout_idx.tolist(),
+        outlier_poses=res.outlier_idx.tolist(),
+        baseline_fit=baseline_fit,
+        calibrated_urdf=None if urdf_out is None else str(urdf_out),
+    )
+
+
+def print_table(res: CalibrationResult) -> None:
+    """The paper's Table 2 on the console: mm and degrees."""
+    out = console.out
+    out.print("  Table 2 (max |e| / peak-to-peak; x y z in mm, α β γ in deg)")
+    for pose_set in ("fit", "heldout"):
+        for model in ("nominal", "frames_only", "baseline_poses", "calibrated"):
+            st = res.tables.get((pose_set, model))
+            if st is None:
+                continue
+            scale = np.array([1e3] * 3 + [np.degrees(1.0)] * 3)
+            cells = [
+                f"{m:7.3f}/{p:7.3f}" if np.isfinite(m) else "      –      "
+                for m, p in zip(st.max_abs * scale, st.peak_to_peak * scale, strict=True)
+            ]
+            out.print(f"  {pose_set:<8}{model:<15}({st.n_poses:3d}) " + " ".join(cells))
+
+
+def command(
+    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    measurements: Annotated[
+        Path,
+        typer.Option(help="Measurements: a rxcomm/Measurements YAML (from run) or a tracker CSV."),
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output calibration.yaml.")],
+    urdf_out: Annotated[
+        Path | None, typer.Option("--urdf-out", help="Also write the calibrated URDF here.")
+    ] = None,
+    cell: Annotated[
+        Path | None,
+        typer.Option(
+            help="cell.yaml: nominal tracker_to_base and tracker noise (else from the measurements)."
+        ),
+    ] = None,
+    holdout: Annotated[
+        float | None,
+        typer.Option(help="Fraction of fit poses held out (default: 0 with validation poses, else 0.25)."),
+    ] = None,
+    loss: Annotated[Loss, typer.Option(help="Robust loss on the weighted residuals.")] = Loss.linear,
+    outlier_sigma: Annotated[float, typer.Option(help="Flag poses beyond this many robust σ.")] = 5.0,
+    keep_outliers: Annotated[bool, typer.Option(help="Keep flagged poses in the final fit.")] = False,
+    seed: Annotated[int, typer.Option(help="Seed of the held-out split.")] = 0,
+) -> None:
+    """Identify the robot's geometric errors from tracker measurements; write the calibration."""
+    run(
+        robot_dir,
+        measurements,
+        output,
+        urdf_out=urdf_out,
+        cell=cell,
+        holdout=holdout,
+        loss=loss.value,
+        outlier_sigma=outlier_sigma,
+        keep_outliers=keep_outliers,
+        seed=seed,
+    )
+
+
+@console.stage_command
+def run(
+    robot_dir: Path,
+    measurements: Path,
+    output: Path,
+    *,
+    urdf_out: Path | None = None,
+    cell: Path | None = None,
+    holdout: float | None = None,
+    loss: str = "linear",
+    outlier_sigma: float = 5.0,
+    keep_outliers: bool = False,
+    seed: int = 0,
+) -> dict[str, object]:
+    """The stage as a function (tests call it): returns the summary written to `output`."""
+    output = Path(output)
+    robot = load_robot(robot_dir)
+    ms = read_measurements(measurements, robot)
+    inputs: dict[str, Path] = {
+        "urdf": robot.urdf_path,
+        "drives": robot.drives_path,
+        "measurements": Path(measurements),
+    }
+    t2b = None
+    overrides: dict[str, float] = {}
+    if cell is not None:
+        cell_model = read_yaml_model(cell, Cell)
+        tr = cell_model.tracker
+        t2b = placement_to_se3(tr.tracker_to_base.xyz_m, tr.tracker_to_base.rpy_rad)
+        overrides = {
+            "position_sigma_m": tr.position_sigma_m,
+            "orientation_sigma_rad": tr.orientation_sigma_rad,
+        }
+        inputs["cell"] = Path(cell)
+    try:
+        settings = CalibrateSettings(
+            holdout_fraction=holdout,
+            seed=seed,
+            loss=loss,
+            outlier_sigma=outlier_sigma,
+            drop_outliers=not keep_outliers,
+            **overrides,
+        )
+    except ValidationError as e:
+        err = e.errors()[0]
+        names = {"holdout_fraction": "holdout", "outlier_sigma": "outlier-sigma"}
+        loc = str(err["loc"][0]) if err["loc"] else "options"
+        raise InputError(err["msg"], field=names.get(loc, loc)) from e
+    with console.err.status(f"calibrate: fitting {robot.name} to {ms.n} poses"):
+        res = calibrate(robot, ms, settings, tracker_to_base=t2b)
+    art = calibration_artefact(robot, res, inputs, urdf_out)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    if urdf_out is not None:
+        Path(urdf_out).parent.mkdir(parents=True, exist_ok=True)
+        write_calibrated_urdf(robot, res.fit.errors, urdf_out)
+    write_yaml_artefact(output, art)
+    console.summary_table(f"calibrate → {output}", art.summary)
+    print_table(res)
+    if res.outlier_idx.size:
+        console.out.print(f"  outlier poses: {res.outlier_idx.tolist()}")
+    if res.baseline is not None and res.baseline.fit is None:
+        console.out.print(f"  baseline poses: no fit ({res.baseline.note})")
+    return art.summary

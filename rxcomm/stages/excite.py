@@ -1,0 +1,255 @@
+"""`rxcomm excite`: an optimal exciting trajectory for dynamic identification (paper §4.2, DESIGN §7).
+
+Reads the robot and the cell (its `allowed_region` for tool, wrist centre and elbow), designs the
+rest-to-rest Fourier trajectory of `rxcomm.identification.excitation` and writes
+
+- ``excitation.yaml`` (kind rxcomm/Excitation): coefficients, rest pose, ω_f, per-start results, the
+  drive-cycle limit ratios and the DESIGN §9 summary (cond, cond_raw, baseline_cond, duration_s,
+  seconds, max_limit_ratio);
+- the trajectory `run` executes beside it, ``excitation-trajectory.mcap`` + ``.yaml`` (kind
+  rxcomm/Trajectory: q, q̇, q̈ and τ_ff from the prior model at the drive cycle);
+- with ``--plot``, ``excitation.png``.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from pydantic import ValidationError
+
+from rxcomm import console
+from rxcomm.errors import InputError
+from rxcomm.identification.excitation import ExcitationDesign, design_excitation, region_points
+from rxcomm.io.trajectory import save_trajectory_mcap
+from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
+from rxcomm.model.limits import check_limits
+from rxcomm.model.robot import Robot, load_robot
+from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
+from rxcomm.schemas.plain import sha256_file
+from rxcomm.schemas.trajectory import TrajectorySummary
+
+
+class Objective(StrEnum):
+    cond = "cond"
+    logdet = "logdet"
+
+
+def trajectory_path(output: Path) -> Path:
+    """``excitation.yaml`` -> ``excitation-trajectory.mcap`` (its own ``.yaml`` must not clash)."""
+    return output.with_name(output.stem + "-trajectory.mcap")
+
+
+def parse_start(text: str | None, n: int) -> list[float] | None:
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError as e:
+        raise InputError(f"expected {n} comma-separated radians, got {text!r}", field="start") from e
+    if len(values) != n or not all(np.isfinite(values)):
+        raise InputError(f"expected {n} finite comma-separated radians, got {text!r}", field="start")
+    return values
+
+
+def plot_excitation(robot: Robot, design: ExcitationDesign, path: Path) -> Path:
+    """PNG: joint positions, velocities and feed-forward torques (normalised by their limits) over time,
+    and the tool path (paper Fig. 5a)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = design.samples
+    k = max(1, len(s.t) // 4000)
+    t = s.t[::k]
+    fig = plt.figure(figsize=(12, 8))
+    axes = [fig.add_subplot(2, 2, i + 1) for i in range(3)]
+    for j, name in enumerate(robot.joint_names):
+        axes[0].plot(t, s.q[::k, j], label=name)
+        axes[1].plot(t, s.qd[::k, j] / robot.v_max[j], label=name)
+        axes[2].plot(t, s.tau_ff[::k, j] / robot.tau_max[j], label=name)
+    for ax, what in zip(axes, ("q [rad]", "q̇ / q̇_max", "τ_ff / τ_max (prior model)"), strict=True):
+        ax.set_ylabel(what)
+        ax.grid(alpha=0.3)
+        ax.set_xlabel("t [s]")
+    for ax in axes[1:]:
+        ax.axhline(1.0, color="k", lw=0.6, ls="--")
+        ax.axhline(-1.0, color="k", lw=0.6, ls="--")
+    axes[0].legend(ncol=3, fontsize=8)
+    ax3 = fig.add_subplot(2, 2, 4, projection="3d")
+    pts = region_points(robot, s.q[:: max(1, len(s.t) // 800)])["tool"]
+    ax3.plot(pts[:, 0], pts[:, 1], pts[:, 2], lw=0.8)
+    ax3.set_xlabel("x [m]")
+    ax3.set_ylabel("y [m]")
+    ax3.set_zlabel("z [m]")
+    ax3.set_title("tool path")
+    fig.suptitle(
+        f"excitation: cond {design.cond:.2f} (random feasible {design.baseline_cond:.0f}), "
+        f"{design.samples.duration_s:.2f} s"
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def command(
+    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    cell: Annotated[
+        Path, typer.Option(help="cell.yaml: its allowed_region bounds tool, wrist centre, elbow.")
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output excitation.yaml.")],
+    trajectory_out: Annotated[
+        Path | None,
+        typer.Option(help="Trajectory MCAP for `run` (default: OUTPUT's stem + '-trajectory.mcap')."),
+    ] = None,
+    harmonics: Annotated[int, typer.Option(help="Fourier harmonics per joint (paper: 5).")] = 5,
+    omega: Annotated[float, typer.Option(help="Base frequency ω_f, rad/s (paper: 0.8).")] = 0.8,
+    samples: Annotated[int, typer.Option(help="Objective samples per period k (paper: 80).")] = 80,
+    periods: Annotated[int, typer.Option(help="Periods in the executed trajectory.")] = 1,
+    starts: Annotated[int, typer.Option(help="Seeded random feasible starts; the best is kept.")] = 4,
+    seed: Annotated[int, typer.Option(help="Seed of the random starts and baseline.")] = 0,
+    objective: Annotated[
+        Objective, typer.Option(help="cond(W) of the unit-column base regressor, or −log det(WᵀW)/p.")
+    ] = Objective.cond,
+    torque_fraction: Annotated[float, typer.Option(help="Of peak torque, prior model.")] = 0.8,
+    velocity_fraction: Annotated[float, typer.Option(help="Of the velocity limits.")] = 0.95,
+    acceleration_fraction: Annotated[float, typer.Option(help="Of the acceleration limits.")] = 0.95,
+    position_margin: Annotated[float, typer.Option(help="Kept from each joint limit, rad.")] = 0.05,
+    max_iterations: Annotated[int, typer.Option(help="SLSQP iterations per start.")] = 150,
+    baseline_trajectories: Annotated[
+        int, typer.Option(help="Random feasible trajectories whose median cond is the baseline.")
+    ] = 10,
+    start: Annotated[
+        str | None, typer.Option(help="Fixed rest pose 'q1,…,q6' (rad); optimised when not given.")
+    ] = None,
+    plot: Annotated[bool, typer.Option(help="Write OUTPUT.png: trajectory and tool path.")] = False,
+) -> None:
+    """Design the optimal exciting trajectory (min cond of the base regressor) within every limit."""
+    values = {
+        "harmonics": harmonics,
+        "omega_f_rad_s": omega,
+        "objective_samples": samples,
+        "periods": periods,
+        "starts": starts,
+        "seed": seed,
+        "objective": objective.value,
+        "torque_fraction": torque_fraction,
+        "velocity_fraction": velocity_fraction,
+        "acceleration_fraction": acceleration_fraction,
+        "position_margin_rad": position_margin,
+        "max_iterations": max_iterations,
+        "baseline_trajectories": baseline_trajectories,
+    }
+    run(robot_dir, cell, output, trajectory_out=trajectory_out, settings=values, start=start, plot=plot)
+
+
+@console.stage_command
+def run(
+    robot_dir: Path,
+    cell: Path,
+    output: Path,
+    *,
+    trajectory_out: Path | None = None,
+    settings: ExcitationSettings | dict | None = None,
+    start: str | None = None,
+    plot: bool = False,
+) -> Excitation:
+    """The stage as a function (tests call it): returns the artefact written."""
+    output = Path(output)
+    if output.suffix not in (".yaml", ".yml"):
+        raise InputError("the output must be a .yaml file", field="output")
+    traj_path = Path(trajectory_out) if trajectory_out is not None else trajectory_path(output)
+    if traj_path.suffix != ".mcap":
+        raise InputError("the trajectory output must be NAME.mcap", field="trajectory-out")
+    robot = load_robot(robot_dir)
+    cell_model = read_yaml_model(cell, Cell)
+    values = settings.model_dump() if isinstance(settings, ExcitationSettings) else dict(settings or {})
+    if start is not None:
+        values["start_rad"] = parse_start(start, robot.n)
+    try:
+        opts = ExcitationSettings(**values)
+    except ValidationError as e:
+        err = e.errors()[0]
+        raise InputError(err["msg"], field=".".join(str(p) for p in err["loc"]) or None) from e
+
+    with console.progress() as bar:
+        tasks: dict[str, int] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(f"excite: {stage}", total=total)
+            bar.update(tasks[stage], completed=done)
+
+        design = design_excitation(robot, cell_model.allowed_region, opts, progress=progress)
+
+    samples = design.samples
+    report = check_limits(robot, samples.t, samples.q, samples.qd, samples.qdd, samples.tau_ff)
+    inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "cell": Path(cell)}
+    traj_summary = {
+        "duration_s": samples.duration_s,
+        "solve_seconds": design.seconds,
+        "max_limit_ratio": design.max_limit_ratio,
+        "active_fraction": report.active_fraction(),
+        "q_start": samples.q[0].tolist(),
+        "q_goal": samples.q[-1].tolist(),
+        "cond": design.cond,
+    }
+    output.parent.mkdir(parents=True, exist_ok=True)
+    traj_path.parent.mkdir(parents=True, exist_ok=True)
+    save_trajectory_mcap(traj_path, samples, TrajectorySummary.envelope(inputs, opts, traj_summary))
+    traj = design.trajectory
+    summary = {
+        "cond": design.cond,
+        "cond_raw": design.cond_raw,
+        "baseline_cond": design.baseline_cond,
+        "duration_s": samples.duration_s,
+        "seconds": design.seconds,
+        "max_limit_ratio": design.max_limit_ratio,
+        "cond_dense": design.cond_dense,
+        "improvement_ratio": design.baseline_cond / design.cond,
+        "worst_limit": f"{design.worst_limit[0]} {design.worst_limit[1]} at {design.worst_limit[2]:.3f} s",
+        "n_base_params": design.bset.n_base,
+        "starts_feasible": sum(s.feasible for s in design.starts),
+    }
+    art = Excitation(
+        **Excitation.envelope(inputs, opts, summary),
+        robot=robot.name,
+        robot_joints=list(robot.joint_names),
+        harmonics=traj.harmonics,
+        omega_f_rad_s=traj.omega_rad_s,
+        period_s=traj.period_s,
+        periods=opts.periods,
+        q0_rad=traj.q0.tolist(),
+        q_start_rad=traj.q_start.tolist(),
+        a_rad_s=traj.a.tolist(),
+        b_rad_s=traj.b.tolist(),
+        base_parameters=list(design.bset.names),
+        starts=[
+            ExcitationStart(
+                seed=s.seed,
+                initial_cond=s.initial_cond,
+                cond=s.cond,
+                feasible=s.feasible,
+                iterations=s.iterations,
+                seconds=s.seconds,
+            )
+            for s in design.starts
+        ],
+        limit_ratios=design.limit_ratios,
+        trajectory_file=traj_path.name
+        if traj_path.parent.resolve() == output.parent.resolve()
+        else str(traj_path),
+        trajectory_sha256=sha256_file(traj_path),
+    )
+    write_yaml_artefact(output, art)
+    if plot:
+        png = plot_excitation(robot, design, output.with_suffix(".png"))
+        console.out.print(f"plot: {png}")
+    console.summary_table(f"excite → {output} (+ {traj_path.name})", summary)
+    return art

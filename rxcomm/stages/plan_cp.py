@@ -1,0 +1,353 @@
+"""`rxcomm plan-cp`: time/energy-optimal timing of a Cartesian TCP path (paper §5.1–5.3, DESIGN §7).
+
+Reads the robot, a path file (`rxcomm/Path`, `samples/ROBOT/paths/`), optionally identified dynamics
+and a calibration; plans with `rxcomm.planning.cp.plan_cp` and writes the trajectory `run` executes:
+``NAME.mcap`` (q, q̇, q̈, τ_ff, σ, σ̇ at the drive cycle) with ``NAME.yaml`` beside it (DESIGN §9
+summary), and with ``--plot`` ``NAME.png`` (the paper's Figs. 7 and 8). ``--iso9283 DIR`` instead
+writes the ISO 9283 test-plane paths of the robot (and ``--cell`` workspace) to DIR.
+"""
+
+from __future__ import annotations
+
+import time
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from pydantic import ValidationError
+from rich.markup import escape
+
+from rxcomm import console
+from rxcomm.calibration.fit import load_calibrated_robot
+from rxcomm.errors import InputError
+from rxcomm.io.files import atomic_write_text
+from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
+from rxcomm.io.validate import check_kind, validate_model
+from rxcomm.io.yaml_io import dump_yaml, load_yaml, read_yaml_model
+from rxcomm.model.robot import Robot, load_robot
+from rxcomm.planning.cp import CpPlan, CpSettings, PlanDynamics, path_deviation_m, plan_cp
+from rxcomm.planning.paths import CartesianPath, build_path, iso9283_cube, iso9283_paths
+from rxcomm.schemas.cell import Box, Cell
+from rxcomm.schemas.path import PathSpec
+from rxcomm.schemas.trajectory import TrajectorySummary
+
+
+class Method(StrEnum):
+    nlp = "nlp"
+    toppra = "toppra"
+
+
+# --- inputs -----------------------------------------------------------------------------------------
+def read_path(path: Path, robot: Robot) -> tuple[PathSpec, CartesianPath]:
+    """The path file as spec and `CartesianPath`; InputError names the file and the field."""
+    data = load_yaml(path)
+    check_kind(data, PathSpec, file=path)
+    spec = validate_model(PathSpec, data, file=path)
+    if spec.tcp_xyz_m is not None and not np.allclose(spec.tcp_xyz_m, robot.drives.tcp.xyz_m, atol=1e-6):
+        raise InputError(
+            f"the path was written for a TCP at {list(spec.tcp_xyz_m)} m from "
+            f"{robot.drives.tcp.parent_frame}; the robot's TCP is at {list(robot.drives.tcp.xyz_m)} m",
+            file=path,
+            field="tcp_xyz_m",
+        )
+    if spec.q_start_rad is not None and len(spec.q_start_rad) != robot.n:
+        raise InputError(f"expected {robot.n} joint angles", file=path, field="q_start_rad")
+    try:
+        return spec, build_path(spec)
+    except InputError as e:
+        raise InputError(e.reason, file=path, field=e.field) from e
+
+
+def plan_dynamics(robot: Robot, dynamics: Path | None, eps: float) -> PlanDynamics:
+    from rxcomm.model.base_parameters import load_dynamics
+    from rxcomm.model.dynamics import prior_parameters
+
+    params = prior_parameters(robot) if dynamics is None else load_dynamics(dynamics, robot)
+    return PlanDynamics.from_parameters(robot, params, eps)
+
+
+# --- outputs ----------------------------------------------------------------------------------------
+def summary_of(plan: CpPlan, robot: Robot) -> dict[str, object]:
+    rep = plan.report
+    limit, joint, t_worst, _ = rep.worst()
+    joint = "TCP" if limit.startswith("tcp") else joint
+    sd = plan.sigma_dot
+    n = len(sd)
+    sm, sm_at = plan.joint_path.min_sigma_min
+    out: dict[str, object] = {
+        "duration_s": plan.duration_s,
+        "solve_seconds": plan.timings_s["total_s"],
+        "max_limit_ratio": rep.max_ratio,
+        "active_fraction": plan.active_fraction,
+        "q_start": plan.q[0].tolist(),
+        "q_goal": plan.q[-1].tolist(),
+        "method": plan.method,
+        "path_length_m": plan.joint_path.length_m,
+        "tau_squared_integral_nm2_s": plan.energy_nm2s,
+        "max_tcp_speed_m_s": float(sd.max()),
+        "min_tcp_speed_mid_m_s": float(sd[n // 4 : 3 * n // 4].min()) if n >= 4 else float(sd.min()),
+        "singularity_margin": sm,
+        "singularity_margin_at_m": sm_at,
+        "max_path_deviation_m": path_deviation_m(robot, plan.joint_path),
+        "toppra_duration_s": plan.toppra.profile.duration_s,
+        "toppra_seconds": plan.timings_s["toppra_s"],
+        "ik_seconds": plan.timings_s["ik_s"],
+        "refinements": plan.refinements,
+        "worst_limit": f"{limit} {joint} at {t_worst:.4f} s",
+    }
+    if plan.nlp is not None:
+        out |= {
+            "nlp_seconds": plan.timings_s["nlp_s"],
+            "nlp_iterations": plan.nlp.iterations,
+            "nlp_status": plan.nlp.status,
+        }
+    out |= {f"max_{k}_ratio": v for k, v in rep.max_by_limit().items()}
+    return out
+
+
+def trajectory_of(plan: CpPlan) -> Trajectory:
+    return Trajectory(
+        plan.t, plan.q, plan.qd, plan.qdd, plan.tau, extra={"sigma": plan.sigma, "sigma_dot": plan.sigma_dot}
+    )
+
+
+def plot_cp(plan: CpPlan, robot: Robot, path: Path, title: str) -> Path:
+    """PNG: TCP speed over time and σ (the paper's Fig. 7) and the binding limits normalised to
+    their bounds over time (Fig. 8), with the stretches where no limit is active shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rep = plan.report
+    fig, axes = plt.subplots(3, 1, figsize=(8, 8))
+    axes[0].plot(plan.t, plan.sigma_dot)
+    axes[0].set_xlabel("t [s]")
+    axes[0].set_ylabel("TCP speed [m/s]")
+    axes[1].plot(plan.sigma, plan.sigma_dot)
+    axes[1].set_xlabel("σ (TCP arc length) [m]")
+    axes[1].set_ylabel("TCP speed [m/s]")
+    shown = []
+    for seg in plan.active_segments:
+        if (seg.limit, seg.joint) not in shown:
+            shown.append((seg.limit, seg.joint))
+    for name, joint in shown:
+        r = rep.ratios[name]
+        col = 0 if joint == "TCP" else robot.joint_names.index(joint)
+        axes[2].plot(plan.t, r[:, col], label=f"{name} {joint}", lw=1)
+    mx = np.maximum.reduce([r.max(axis=1) for k, r in rep.ratios.items() if k != "position"])
+    axes[2].fill_between(plan.t, 0, 1.05, where=mx < 0.98, color="0.85", label="no limit active", step="mid")
+    axes[2].axhline(1.0, color="k", lw=0.6, ls="--")
+    axes[2].set_ylim(0, 1.05)
+    axes[2].set_xlabel("t [s]")
+    axes[2].set_ylabel("|value| / limit")
+    axes[2].legend(fontsize=7, ncol=3, loc="lower center")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _print_active(plan: CpPlan) -> None:
+    out = console.out
+    out.print("  binding limits (≥ 98 % of the bound):")
+    for s in plan.active_segments:
+        out.print(
+            f"    {s.t_start_s:6.3f}–{s.t_end_s:6.3f} s   σ {s.sigma_start_m:6.3f}–{s.sigma_end_m:6.3f} m   "
+            f"{s.limit} {s.joint}"
+        )
+
+
+# --- ISO 9283 -----------------------------------------------------------------------------------------
+def write_iso9283(robot: Robot, out_dir: Path, cell: Path | None, rpy_deg: str) -> dict[str, object]:
+    """Find the robot's ISO 9283 test cube and write its test-plane paths to `out_dir`."""
+    try:
+        rpy = np.radians([float(v) for v in rpy_deg.split(",")])
+    except ValueError as e:
+        raise InputError(
+            f"expected three comma-separated angles in degrees, got {rpy_deg!r}", field="iso-rpy"
+        ) from e
+    if rpy.shape != (3,):
+        raise InputError(f"expected three angles, got {rpy_deg!r}", field="iso-rpy")
+    box = None
+    if cell is not None:
+        ws = read_yaml_model(cell, Cell).workspace
+        lo = list(ws.box.min_m)
+        lo[2] = max(lo[2], ws.floor_z_m + ws.floor_clearance_m)
+        box = Box(min_m=tuple(lo), max_m=ws.box.max_m)
+    with console.err.status("plan-cp: searching the largest reachable ISO 9283 cube"):
+        cube = iso9283_cube(robot, tuple(rpy), workspace=box)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, spec in iso9283_paths(cube).items():
+        target = out_dir / f"{name}.yaml"
+        header = f"# ISO 9283 test path for {robot.name}, written by `rxcomm plan-cp --iso9283`.\n"
+        data = spec.model_dump(mode="json", exclude_none=True)
+        if data["geometry"].get("points_m") is None:
+            data["geometry"].pop("full", None)  # only meaningful for the three-point form
+        if not data["limits"]:
+            data.pop("limits")
+        atomic_write_text(target, header + dump_yaml(data))
+        written.append(str(target))
+    facts = {
+        "cube_centre_m": cube.centre_m.tolist(),
+        "cube_side_m": cube.side_m,
+        **{f"{k}_m": v.tolist() for k, v in cube.points_m.items()},
+    }
+    console.summary_table(f"ISO 9283 test cube of {robot.name}", facts)
+    for f in written:
+        console.out.print(f"  wrote {escape(f)}")
+    return facts | {"files": written}
+
+
+# --- the stage --------------------------------------------------------------------------------------
+def command(
+    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    path: Annotated[
+        Path | None, typer.Option("--path", help="Path file (kind rxcomm/Path), TCP in the base frame.")
+    ] = None,
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Output trajectory NAME.mcap (+ NAME.yaml).")
+    ] = None,
+    dynamics: Annotated[
+        Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
+    ] = None,
+    calibration: Annotated[
+        Path | None, typer.Option(help="calibration.yaml: IK along the path on the calibrated robot.")
+    ] = None,
+    k1: Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")] = 1.0,
+    k2: Annotated[float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)² (needs nlp).")] = 0.0,
+    torque_rate: Annotated[
+        bool, typer.Option("--torque-rate/--no-torque-rate", help="Honour the drives' torque-rate limits.")
+    ] = True,
+    method: Annotated[
+        Method, typer.Option(help="nlp: the path NLP warm-started by toppra; toppra: toppra alone (fast).")
+    ] = Method.nlp,
+    intervals: Annotated[int, typer.Option("-N", "--intervals", help="Grid intervals along the path.")] = 200,
+    tcp_speed_max: Annotated[
+        float | None, typer.Option(help="TCP speed limit, m/s (default: the path file's, else none).")
+    ] = None,
+    tcp_acceleration_max: Annotated[
+        float | None, typer.Option(help="TCP acceleration limit, m/s² (default: the path file's, else none).")
+    ] = None,
+    plot: Annotated[
+        bool, typer.Option(help="Write NAME.png: TCP speed (Fig. 7), binding limits (Fig. 8).")
+    ] = False,
+    iso9283: Annotated[
+        Path | None,
+        typer.Option(help="Write the robot's ISO 9283 test-plane paths to this directory and exit."),
+    ] = None,
+    cell: Annotated[Path | None, typer.Option(help="cell.yaml: workspace box for --iso9283.")] = None,
+    iso_rpy_deg: Annotated[
+        str, typer.Option(help="TCP orientation for --iso9283: URDF roll,pitch,yaw in degrees.")
+    ] = "180,0,0",
+) -> None:
+    """Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`."""
+    if iso9283 is not None:
+        iso_paths(robot_dir, iso9283, cell=cell, rpy_deg=iso_rpy_deg)
+        return
+    run(
+        robot_dir,
+        path,
+        output,
+        dynamics=dynamics,
+        calibration=calibration,
+        k1=k1,
+        k2=k2,
+        torque_rate=torque_rate,
+        method=method.value,
+        intervals=intervals,
+        tcp_speed_max=tcp_speed_max,
+        tcp_acceleration_max=tcp_acceleration_max,
+        plot=plot,
+    )
+
+
+@console.stage_command
+def iso_paths(robot_dir: Path, out_dir: Path, *, cell: Path | None = None, rpy_deg: str = "180,0,0") -> dict:
+    return write_iso9283(load_robot(robot_dir), Path(out_dir), cell, rpy_deg)
+
+
+@console.stage_command
+def run(
+    robot_dir: Path,
+    path: Path | None,
+    output: Path | None,
+    *,
+    dynamics: Path | None = None,
+    calibration: Path | None = None,
+    k1: float = 1.0,
+    k2: float = 0.0,
+    torque_rate: bool = True,
+    method: str = "nlp",
+    intervals: int = 200,
+    tcp_speed_max: float | None = None,
+    tcp_acceleration_max: float | None = None,
+    plot: bool = False,
+) -> dict[str, object]:
+    """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    t_all = time.perf_counter()
+    if path is None:
+        raise InputError("give the path to plan with --path PATH.yaml", field="path")
+    if output is None:
+        raise InputError("give the output with -o NAME.mcap", field="output")
+    path, output = Path(path), Path(output)
+    if output.suffix != ".mcap":
+        raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    robot = load_robot(robot_dir)
+    inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}
+    if calibration is not None:
+        robot = load_calibrated_robot(robot, calibration)
+        inputs["calibration"] = Path(calibration)
+    spec, cpath = read_path(path, robot)
+    try:
+        settings = CpSettings(
+            k1=k1,
+            k2=k2,
+            torque_rate=torque_rate,
+            method=method,
+            intervals=intervals,
+            tcp_speed_max_m_s=tcp_speed_max if tcp_speed_max is not None else spec.limits.tcp_speed_max_m_s,
+            tcp_acceleration_max_m_s2=tcp_acceleration_max
+            if tcp_acceleration_max is not None
+            else spec.limits.tcp_acceleration_max_m_s2,
+        )
+    except ValidationError as e:
+        err = e.errors()[0]
+        loc = str(err["loc"][0]) if err["loc"] else "options"
+        raise InputError(err["msg"].removeprefix("Value error, "), field=loc.replace("_", "-")) from e
+    if dynamics is not None:
+        inputs["dynamics"] = Path(dynamics)
+    dyn = plan_dynamics(robot, dynamics, settings.coulomb_eps_rad_s)
+    with console.err.status(
+        f"plan-cp: {spec.name or path.name} ({settings.method}, N = {intervals})"
+    ) as status:
+        plan = plan_cp(robot, cpath, dyn, settings, progress=lambda m: status.update(f"plan-cp: {m}"))
+    summary = summary_of(plan, robot)
+    summary["seconds"] = time.perf_counter() - t_all
+    run_settings = {
+        **settings.model_dump(mode="json"),
+        "dynamics_model": "identified" if dynamics is not None else "prior",
+        "calibrated": calibration is not None,
+        "branch": plan.joint_path.labels,
+    }
+    env = TrajectorySummary.envelope(inputs, run_settings, summary)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    save_trajectory_mcap(output, trajectory_of(plan), env)
+    console.summary_table(f"plan-cp → {output}", summary)
+    _print_active(plan)
+    if plot:
+        png = plot_cp(
+            plan,
+            robot,
+            output.with_suffix(".png"),
+            f"{spec.name or path.stem}: {plan.duration_s:.3f} s ({plan.method}, k2 = {k2:g}), "
+            f"{plan.active_fraction:.1%} with a limit active",
+        )
+        console.out.print(f"plot: {png}")
+    return summary

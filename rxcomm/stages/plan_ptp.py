@@ -1,0 +1,374 @@
+"""`rxcomm plan-ptp`: time/energy-optimal point-to-point motion (paper §5.4–5.5, DESIGN §7).
+
+Reads the robot (and optionally identified dynamics and a calibration), solves the free-final-time
+OCP of `rxcomm.planning.ptp` between two rest states and writes the trajectory artefact `run` executes:
+``NAME.mcap`` (q, q̇, q̈, τ_ff at the drive cycle) with ``NAME.yaml`` beside it (DESIGN §9 summary).
+"""
+
+from __future__ import annotations
+
+import time
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import pinocchio as pin
+import typer
+from pydantic import ValidationError
+
+from rxcomm import console
+from rxcomm.calibration.fit import load_calibrated_robot
+from rxcomm.errors import InputError
+from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
+from rxcomm.model.base_parameters import load_dynamics
+from rxcomm.model.kinematics import cardan_xyz_matrix, inverse_kinematics
+from rxcomm.model.robot import Robot, load_robot
+from rxcomm.planning.path_ik import BranchSelector
+from rxcomm.planning.ptp import (
+    PtpDynamics,
+    PtpLimits,
+    PtpNotConverged,
+    PtpOptions,
+    PtpResult,
+    kinematic_fallback,
+    plan_ptp,
+)
+from rxcomm.schemas.path import Branch
+from rxcomm.schemas.trajectory import TrajectorySummary
+
+POSE_PREFIX = "pose:"
+
+
+class Shoulder(StrEnum):
+    front = "front"
+    back = "back"
+
+
+class Elbow(StrEnum):
+    up = "up"
+    down = "down"
+
+
+class Wrist(StrEnum):
+    positive = "positive"
+    negative = "negative"
+
+
+# --- inputs -----------------------------------------------------------------------------------------
+def parse_numbers(text: str, count: int, field: str) -> np.ndarray:
+    """`count` comma-separated finite numbers, else InputError naming `field`."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        values = np.array([float(p) for p in parts])
+    except ValueError as e:
+        raise InputError(f"expected {count} comma-separated numbers, got {text!r}", field=field) from e
+    if values.shape != (count,) or not np.all(np.isfinite(values)):
+        raise InputError(f"expected {count} finite comma-separated numbers, got {text!r}", field=field)
+    return values
+
+
+def solve_pose_ik(
+    robot: Robot,
+    pose: np.ndarray,
+    branch: Branch,
+    field: str,
+    near: np.ndarray | None = None,
+    n_seeds: int = 96,
+) -> np.ndarray:
+    """Joint angles putting the TCP at `pose` = (x, y, z, α, β, γ) (m; Cardan x-y-z rad, base frame).
+
+    Deterministic multi-start of `kinematics.inverse_kinematics`; among the converged solutions on
+    `branch` within the joint limits, the one nearest `near` (default: the smallest |q|). An
+    unreachable pose is an InputError naming `field` (exit 2).
+    """
+    target = pin.SE3(cardan_xyz_matrix(pose[3:]), pose[:3])
+    selector = BranchSelector(robot, branch)
+    data = robot.create_data()
+    rng = np.random.default_rng(0)
+    lo, hi = np.maximum(robot.q_min, -np.pi), np.minimum(robot.q_max, np.pi)
+    facing, facing_back = np.arctan2(pose[1], pose[0]), np.arctan2(-pose[1], -pose[0])
+    found = []
+    for k in range(n_seeds):
+        seed = rng.uniform(lo, hi)
+        if k % 2 == 0:  # half the seeds face the target, as an arm usually does
+            seed[0] = np.clip(facing if k % 4 == 0 else facing_back, lo[0], hi[0])
+        res = inverse_kinematics(robot, target, seed, max_iterations=100, max_step_rad=0.5)
+        if res.converged and selector.matches(data, res.q):
+            found.append(res.q)
+    if not found:
+        raise InputError(
+            f"TCP pose {np.round(pose, 4).tolist()} is unreachable on branch "
+            f"{branch.model_dump(exclude_none=True)} within the joint limits",
+            field=field,
+        )
+    ref = np.zeros(robot.n) if near is None else near
+    return min(found, key=lambda q: float(np.sum((q - ref) ** 2)))
+
+
+def parse_state(
+    robot: Robot, text: str, field: str, branch: Branch, near: np.ndarray | None = None
+) -> tuple[np.ndarray, str]:
+    """A joint state `q1,…,qn` (rad) or a TCP pose `pose:x,y,z,α,β,γ`; returns (q, "joints"|"pose")."""
+    text = text.strip()
+    if text.lower().startswith(POSE_PREFIX):
+        pose = parse_numbers(text[len(POSE_PREFIX) :], 6, field)
+        return solve_pose_ik(robot, pose, branch, field, near), "pose"
+    return parse_numbers(text, robot.n, field), "joints"
+
+
+def parse_box(text: str | None) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    if text is None:
+        return None
+    v = parse_numbers(text, 6, "tcp-box")
+    if not np.all(v[:3] < v[3:]):
+        raise InputError(f"min corner {v[:3].tolist()} must be below max {v[3:].tolist()}", field="tcp-box")
+    return tuple(v[:3]), tuple(v[3:])
+
+
+# --- outputs ----------------------------------------------------------------------------------------
+def summary_of(result: PtpResult, q_start, q_goal, margin: float) -> dict[str, object]:
+    rep, sol = result.report, result.solution
+    limit, joint, t_worst, _ = rep.worst()
+    out: dict[str, object] = {
+        "duration_s": result.duration_s,
+        "solve_seconds": sol.solve_seconds,
+        "max_limit_ratio": result.max_limit_ratio,
+        "active_fraction": result.active_fraction(),
+        "q_start": np.asarray(q_start).tolist(),
+        "q_goal": np.asarray(q_goal).tolist(),
+        "build_seconds": result.build_seconds,
+        "iterations": sol.iterations,
+        "solver_status": sol.status,
+        "objective": sol.objective,
+        "tau_squared_integral_nm2_s": result.tau_squared_integral,
+        "warm_start_duration_s": result.warm_start.duration_s,
+        "worst_limit": f"{limit} {joint} at {t_worst:.4f} s",
+        # what max_limit_ratio covers (the torque rate is of τ without Coulomb friction, ptp module doc)
+        "limits_checked": ", ".join(rep.ratios) + (", tcp_box" if result.tcp_box_ratio is not None else ""),
+        "fallback": False,
+        "resolves": result.resolves,
+    }
+    out |= {f"max_{k}_ratio": v for k, v in rep.max_by_limit().items()}
+    # the limits whose margin the re-solves widened beyond the option's
+    out |= {f"margin_{k}": v for k, v in (result.margins or {}).items() if v > margin}
+    if result.tcp_box_ratio is not None:
+        out["max_tcp_box_ratio"] = result.tcp_box_ratio
+    return out
+
+
+def plot_ptp(traj: Trajectory, limits: PtpLimits, joint_names, path: Path, title: str) -> Path:
+    """PNG of the torques and velocities normalised by their limits (the paper's Fig. 9)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 6))
+    for j, name in enumerate(joint_names):
+        axes[0].plot(traj.t, traj.tau_ff[:, j] / limits.tau_max[j], label=name)
+        axes[1].plot(traj.t, traj.qd[:, j] / limits.v_max[j], label=name)
+    for ax, what in zip(axes, ("torque τ/τ_max", "velocity q̇/q̇_max"), strict=True):
+        ax.axhline(1.0, color="k", lw=0.6, ls="--")
+        ax.axhline(-1.0, color="k", lw=0.6, ls="--")
+        ax.set_ylabel(what)
+        ax.set_ylim(-1.1, 1.1)
+        ax.grid(alpha=0.3)
+    axes[0].legend(ncol=3, fontsize=8, loc="lower left")
+    axes[1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+# --- the stage --------------------------------------------------------------------------------------
+def command(
+    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    start: Annotated[
+        str,
+        typer.Option(
+            help="Start at rest: joint angles 'q1,…,q6' (rad) or a TCP pose 'pose:x,y,z,α,β,γ' "
+            "(m; Cardan x-y-z angles in rad; base frame)."
+        ),
+    ],
+    goal: Annotated[str, typer.Option(help="Goal at rest, as --start.")],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Output trajectory NAME.mcap (+ NAME.yaml).")
+    ],
+    dynamics: Annotated[
+        Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
+    ] = None,
+    calibration: Annotated[
+        Path | None,
+        typer.Option(help="calibration.yaml: IK of poses and the model use the calibrated robot."),
+    ] = None,
+    k1: Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")] = 1.0,
+    k2: Annotated[float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)².")] = 0.0,
+    intervals: Annotated[int, typer.Option("-N", "--intervals", help="Jerk intervals of the OCP grid.")] = 50,
+    margin: Annotated[float, typer.Option(help="Limits tightened by this fraction in the NLP.")] = 0.01,
+    acceleration_limits: Annotated[
+        bool,
+        typer.Option(
+            help="Limit joint accelerations to drives.yaml, as `run` checks. --no-acceleration-limits "
+            "solves the paper's problem (torque, torque rate, velocity, position only), which `run` refuses."
+        ),
+    ] = True,
+    tcp_box: Annotated[
+        str | None, typer.Option(help="Keep the TCP in 'xmin,ymin,zmin,xmax,ymax,zmax' (m, base frame).")
+    ] = None,
+    shoulder: Annotated[Shoulder, typer.Option(help="IK branch for poses: shoulder.")] = Shoulder.front,
+    elbow: Annotated[Elbow, typer.Option(help="IK branch for poses: elbow.")] = Elbow.up,
+    wrist: Annotated[Wrist, typer.Option(help="IK branch for poses: sign of J5.")] = Wrist.positive,
+    max_wall: Annotated[float | None, typer.Option(help="Solver wall-time cap, s.")] = None,
+    compile_: Annotated[
+        bool,
+        typer.Option(
+            "--compile",
+            help="Compile the NLP's node functions to C (needs gcc/cc; cached in ~/.cache/rxcomm, "
+            "or $RXCOMM_CACHE_DIR): ~2× faster solves after a one-off ~1 min compile.",
+        ),
+    ] = False,
+    fallback: Annotated[
+        bool,
+        typer.Option(help="If the solver fails, write the fastest feasible ruckig profile (still exit 3)."),
+    ] = False,
+    plot: Annotated[bool, typer.Option(help="Write NAME.png: normalised torques and velocities.")] = False,
+) -> None:
+    """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
+    run(
+        robot_dir,
+        start,
+        goal,
+        output,
+        dynamics=dynamics,
+        calibration=calibration,
+        k1=k1,
+        k2=k2,
+        intervals=intervals,
+        margin=margin,
+        acceleration_limits=acceleration_limits,
+        tcp_box=tcp_box,
+        branch=Branch(shoulder=shoulder.value, elbow=elbow.value, wrist=wrist.value),
+        max_wall=max_wall,
+        compile_=compile_,
+        fallback=fallback,
+        plot=plot,
+    )
+
+
+@console.stage_command
+def run(
+    robot_dir: Path,
+    start: str,
+    goal: str,
+    output: Path,
+    *,
+    dynamics: Path | None = None,
+    calibration: Path | None = None,
+    k1: float = 1.0,
+    k2: float = 0.0,
+    intervals: int = 50,
+    margin: float = 0.01,
+    acceleration_limits: bool = False,
+    tcp_box: str | None = None,
+    branch: Branch | None = None,
+    max_wall: float | None = None,
+    compile_: bool = False,
+    fallback: bool = False,
+    plot: bool = False,
+) -> dict[str, object]:
+    """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    t_all = time.perf_counter()
+    output = Path(output)
+    if output.suffix != ".mcap":
+        raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    robot = load_robot(robot_dir)
+    inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
+    if calibration is not None:
+        robot = load_calibrated_robot(robot, calibration)
+        inputs["calibration"] = Path(calibration)
+    params = None
+    if dynamics is not None:
+        params = load_dynamics(dynamics, robot)
+        inputs["dynamics"] = Path(dynamics)
+    try:
+        options = PtpOptions(
+            n_intervals=intervals,
+            k1=k1,
+            k2_per_nm2=k2,
+            margin=margin,
+            acceleration_limits=acceleration_limits,
+            tcp_box_m=parse_box(tcp_box),
+            max_wall_s=max_wall,
+            compile=compile_,
+        )
+    except ValidationError as e:
+        err = e.errors()[0]
+        names = {
+            "n_intervals": "intervals",
+            "k2_per_nm2": "k2",
+            "tcp_box_m": "tcp-box",
+            "max_wall_s": "max-wall",
+        }
+        loc = str(err["loc"][0]) if err["loc"] else "options"
+        raise InputError(err["msg"], field=names.get(loc, loc)) from e
+    branch = branch or Branch()
+    q_start, start_kind = parse_state(robot, start, "start", branch)
+    q_goal, goal_kind = parse_state(robot, goal, "goal", branch, near=q_start)
+    dyn = PtpDynamics.from_parameters(robot, params)
+    settings = {
+        "start": start,
+        "goal": goal,
+        "start_kind": start_kind,
+        "goal_kind": goal_kind,
+        "branch": branch.model_dump(),
+        "options": options.model_dump(mode="json"),
+        "dynamics_model": "identified" if params is not None else "prior",
+        "calibrated": calibration is not None,
+    }
+    with console.err.status(f"plan-ptp: solving the OCP (N = {intervals})"):
+        try:
+            result = plan_ptp(robot, dyn, q_start, q_goal, options)
+        except PtpNotConverged as e:
+            if fallback:
+                _write_fallback(robot, dyn, q_start, q_goal, options, output, inputs, settings, e)
+            raise
+    summary = summary_of(result, q_start, q_goal, options.margin)
+    summary["seconds"] = time.perf_counter() - t_all
+    env = TrajectorySummary.envelope(inputs, settings, summary)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    save_trajectory_mcap(output, result.trajectory, env)
+    if plot:
+        limits = PtpLimits.from_robot(robot, acceleration=acceleration_limits)
+        png = plot_ptp(
+            result.trajectory,
+            limits,
+            robot.joint_names,
+            output.with_suffix(".png"),
+            f"PtP {result.duration_s:.3f} s (k1 = {k1:g}, k2 = {k2:g}): normalised torques and velocities",
+        )
+        console.out.print(f"plot: {png}")
+    console.summary_table(f"plan-ptp → {output}", summary)
+    return summary
+
+
+def _write_fallback(robot, dyn, q_start, q_goal, options, output, inputs, settings, error) -> None:
+    traj, report = kinematic_fallback(robot, dyn, q_start, q_goal, options)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    summary = {
+        "duration_s": traj.duration_s,
+        "solve_seconds": error.solution.solve_seconds,
+        "max_limit_ratio": report.max_ratio,
+        "active_fraction": report.active_fraction(),
+        "q_start": np.asarray(q_start).tolist(),
+        "q_goal": np.asarray(q_goal).tolist(),
+        "solver_status": error.status,
+        "fallback": True,
+    }
+    save_trajectory_mcap(output, traj, TrajectorySummary.envelope(inputs, settings, summary))
+    console.err.print(
+        f"[yellow]fallback[/]: wrote the kinematic (ruckig) profile, {traj.duration_s:.3f} s, "
+        f"max limit ratio {report.max_ratio:.3f}, to {output}"
+    )

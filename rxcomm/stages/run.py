@@ -1,0 +1,405 @@
+"""`rxcomm run`: execute a plan on the robot cell over the drive gateway (paper §2.3, DESIGN §7 run).
+
+PLAN is a trajectory MCAP (excite / plan-cp / plan-ptp) or a pose list (`configs.yaml` from
+select-configs: a measurement campaign). Trajectory → ``-o NAME.mcap`` (+ ``NAME.yaml``, kind
+`rxcomm/RunLog`); pose list → ``-o NAME.yaml`` (kind `rxcomm/Measurements`, what `calibrate` reads).
+Without ``--gateway`` an embedded simulated cell is started on an ephemeral loopback port.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from rxcomm import console
+from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
+from rxcomm.execution.campaign import (
+    CampaignSettings,
+    campaign_summary,
+    check_poses,
+    measured_poses,
+    run_campaign,
+)
+from rxcomm.execution.log import read_run_log, write_run_log
+from rxcomm.execution.plan import prepare_plan
+from rxcomm.execution.session import RunSettings, StreamSettings, run_trajectory
+from rxcomm.gateway.client import GatewayClient
+from rxcomm.gateway.net import is_loopback
+from rxcomm.io.trajectory import load_trajectory_mcap
+from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
+from rxcomm.model.base_parameters import load_dynamics
+from rxcomm.model.dynamics import DynamicParameters, prior_parameters
+from rxcomm.model.robot import Robot, load_robot
+from rxcomm.schemas.configs import Configs
+from rxcomm.schemas.measurements import Measurements
+
+REQUEST_TIMEOUT_S = 0.5
+
+
+# --- inputs ---------------------------------------------------------------------------------------
+def parse_gateway(text: str, allow_remote: bool) -> tuple[str, int]:
+    """``HOST:PORT`` (IPv6 as ``[::1]:1502``); a non-loopback host needs ``allow_remote``."""
+    host, sep, port_s = text.strip().rpartition(":")
+    host = host.strip("[]")
+    try:
+        port = int(port_s)
+    except ValueError:
+        port = -1
+    if not sep or not host or not 0 < port < 65536:
+        raise InputError(f"expected HOST:PORT, got {text!r}", field="gateway")
+    if not is_loopback(host) and not allow_remote:
+        raise InputError(
+            f"{host} is not a loopback address: a run on a real cell needs --allow-remote", field="gateway"
+        )
+    return host, port
+
+
+def plan_kind(plan: Path) -> str:
+    """'trajectory' for NAME.mcap, 'poses' for a YAML pose list."""
+    suffix = plan.suffix.lower()
+    if suffix == ".mcap":
+        return "trajectory"
+    if suffix in (".yaml", ".yml"):
+        return "poses"
+    raise InputError("PLAN must be a trajectory NAME.mcap or a pose list NAME.yaml", file=plan)
+
+
+def load_model(robot: Robot, dynamics: Path | None) -> tuple[DynamicParameters, str]:
+    if dynamics is not None:
+        return load_dynamics(dynamics, robot), "identified"
+    return prior_parameters(robot), "prior"
+
+
+def load_poses(path: Path, robot: Robot) -> Configs:
+    cfg = read_yaml_artefact(path, Configs)
+    if list(cfg.joint_names) != list(robot.joint_names):
+        raise InputError(
+            f"poses are for joints {cfg.joint_names}, the robot has {list(robot.joint_names)}",
+            file=path,
+            field="joint_names",
+        )
+    return cfg
+
+
+# --- the cell -------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def connect(
+    gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool
+) -> Iterator[tuple[GatewayClient, bool]]:
+    """A connected client (and whether the cell is embedded); stops an embedded cell on exit."""
+    server = None
+    if gateway is None:
+        try:
+            from rxcomm.cell.sim import start_embedded_cell  # the simulator, only when asked for
+        except ModuleNotFoundError as e:
+            raise GatewayError("this build has no simulated cell (rxcomm.cell.sim): pass --gateway") from e
+
+        truth = Path(truth) if truth is not None else Path(robot_dir) / "truth.yaml"
+        if not truth.is_file():
+            raise InputError(
+                "no truth file for the embedded simulated cell (pass --truth or --gateway)", file=truth
+            )
+        server = start_embedded_cell(truth, port=0, realtime=realtime)
+        host, port = server.host, server.port
+        pacing = "realtime" if realtime else "virtual time"
+        console.err.print(f"embedded simulated cell on {host}:{port} ({pacing}, truth {truth})")
+    else:
+        host, port = parse_gateway(gateway, allow_remote)
+    try:
+        client = GatewayClient(host, port, timeout_s=REQUEST_TIMEOUT_S, allow_remote=allow_remote)
+        client.connect()
+        try:
+            yield client, server is not None
+        finally:
+            client.close()
+    finally:
+        if server is not None:
+            server.stop()
+
+
+def _progress() -> tuple[Callable[[str, float], None], Callable[[], None]]:
+    bar = console.progress()
+    bar.start()
+    tasks: dict[str, Any] = {}
+
+    def update(what: str, fraction: float) -> None:
+        if what not in tasks:
+            tasks[what] = bar.add_task(what, total=1000)
+        bar.update(tasks[what], completed=int(1000 * fraction))
+
+    return update, bar.stop
+
+
+def _with_context(error: RxcommError, note: str, written: Path | None) -> RxcommError:
+    """The stop, one line, with what became of the drives and where the log is."""
+    extra = "; ".join(p for p in (note, f"log kept in {written}" if written else "") if p)
+    text = f"{error}; {extra}" if extra else str(error)
+    if isinstance(error, GatewayError):
+        return GatewayError(text)
+    if isinstance(error, SafetyStop):
+        return SafetyStop(text)
+    return error
+
+
+# --- the stage ------------------------------------------------------------------------------------
+def execute(
+    plan: Path,
+    robot_dir: Path,
+    output: Path,
+    *,
+    gateway: str | None = None,
+    truth: Path | None = None,
+    dynamics: Path | None = None,
+    feedforward: bool = True,
+    approach: bool = False,
+    allow_remote: bool = False,
+    realtime: bool = False,
+    interpolation_ratio: int | None = None,
+    speed: float = 0.2,
+    fault_reset: bool = False,
+    plot: bool = False,
+    compare: Path | None = None,
+    show_progress: bool = True,
+) -> dict[str, Any]:
+    """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
+    plan, output = Path(plan), Path(output)
+    kind = plan_kind(plan)
+    want = ".mcap" if kind == "trajectory" else ".yaml"
+    if output.suffix != want:
+        what = (
+            "a run log NAME.mcap (NAME.yaml beside it)" if kind == "trajectory" else "measurements NAME.yaml"
+        )
+        raise InputError(f"a {kind} plan writes {what}", file=output, field="output")
+    if compare is not None and not plot:
+        raise InputError("--compare draws into the --plot figure: pass --plot too", field="compare")
+    robot = load_robot(robot_dir)
+    params, model_name = load_model(robot, dynamics)
+    ff_name = model_name if feedforward else "none"
+    inputs: dict[str, Path] = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
+    if dynamics is not None:
+        inputs["dynamics"] = Path(dynamics)
+    stream_settings = StreamSettings(interpolation_ratio=interpolation_ratio)
+    update, stop_bar = _progress() if show_progress else (None, lambda: None)
+    try:
+        if kind == "trajectory":
+            traj, _ = load_trajectory_mcap(plan)
+            settings = RunSettings(
+                feedforward=feedforward,
+                approach=approach,
+                approach_speed_fraction=speed,
+                fault_reset=fault_reset,
+                stream=stream_settings,
+            )
+            prepared = prepare_plan(
+                robot,
+                traj,
+                params,
+                robot.drives.cycle_s,
+                feedforward=feedforward,
+                limit_tolerance=settings.limit_tolerance,
+            )
+            with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, embedded):
+                result = run_trajectory(client, robot, prepared, params, settings, update)
+            stop_bar()
+            written, summary = write_run_log(
+                output,
+                robot,
+                result,
+                inputs=inputs,
+                settings={
+                    **settings.model_dump(mode="json"),
+                    "model": model_name,
+                    "embedded_cell": embedded,
+                    "realtime": realtime,
+                },
+                feedforward=ff_name,
+                embedded_cell=embedded,
+            )
+            _print_run(summary, written, robot)
+            if plot:
+                figure = plot_lags(written, compare, output.with_suffix(".png"), robot)
+                console.out.print(f"figure: {figure}")
+            if result.error is not None:
+                raise _with_context(result.error, result.stop_note, written)
+            return summary
+        cfg = load_poses(plan, robot)
+        check_poses(robot, [p.q_rad for p in cfg.poses])  # refused before touching the cell
+        settings_c = CampaignSettings(
+            feedforward=feedforward, speed_fraction=speed, fault_reset=fault_reset, stream=stream_settings
+        )
+        with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, embedded):
+            camp = run_campaign(client, robot, [p.q_rad for p in cfg.poses], params, settings_c, update)
+        stop_bar()
+        summary = campaign_summary(camp)
+        env = Measurements.envelope(
+            inputs,
+            {**settings_c.model_dump(mode="json"), "model": model_name, "embedded_cell": embedded},
+            summary,
+        )
+        meas = Measurements(
+            **env,
+            robot=robot.name,
+            joint_names=list(robot.joint_names),
+            poses=measured_poses(camp, [p.role for p in cfg.poses]),
+        )
+        written = output if camp.run.error is None else output.with_name(output.name + ".part")
+        write_yaml_artefact(written, meas)
+        console.summary_table(
+            f"run: {summary['n_valid']}/{summary['n_poses']} poses measured → {written}", summary
+        )
+        if camp.run.error is not None:
+            raise _with_context(camp.run.error, camp.run.stop_note, written)
+        return summary
+    finally:
+        stop_bar()
+
+
+def _print_run(summary: dict[str, Any], written: Path, robot: Robot) -> None:
+    keys = (
+        "outcome",
+        "duration_s",
+        "underruns",
+        "max_lag_rad",
+        "rms_lag_rad",
+        "max_tcp_error_m",
+        "interpolation_ratio",
+        "n_records",
+        "lost_records",
+        "min_lead_s",
+        "round_trip_p50_s",
+        "round_trip_p99_s",
+        "approach_s",
+    )
+    console.summary_table(f"run → {written}", {k: summary[k] for k in keys if k in summary})
+
+
+def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> Path:
+    """PNG: lag (following) error per joint over time, and the TCP error; with ``compare``, both runs
+    (the paper's Fig. 2: with and without feed-forward)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    logs = [read_run_log(log_path)]
+    if compare is not None:
+        logs.append(read_run_log(compare))
+    n = robot.n
+    fig, axes = plt.subplots((n + 2) // 2, 2, sharex=True, figsize=(10, 2.0 * ((n + 2) // 2)))
+    axes = axes.ravel()
+    for k, (log, path) in enumerate(zip(logs, [log_path, compare], strict=False)):
+        settings = log.envelope.get("settings", {})
+        ff = (
+            "feed-forward off"
+            if not settings.get("feedforward", True)
+            else f"feed-forward ({settings.get('model')})"
+        )
+        label = f"{Path(path).name}: {ff}"
+        j = log.joints
+        style = {"lw": 0.9, "alpha": 0.9 if k == 0 else 0.7}
+        for i in range(n):
+            axes[i].plot(j.t, 1e3 * j["following_error"][:, i], label=label, **style)
+        axes[n].plot(j.t, 1e3 * j["tcp_error_m"], label=label, **style)
+    for i in range(n):
+        axes[i].set_ylabel(f"{robot.joint_names[i]} lag [mrad]")
+        axes[i].grid(alpha=0.3)
+    axes[n].set_ylabel("TCP error [mm]")
+    axes[n].grid(alpha=0.3)
+    axes[n].legend(fontsize=7)
+    for ax in axes[n + 1 :]:
+        ax.axis("off")
+    for ax in axes[max(0, n - 1) : n + 1]:
+        ax.set_xlabel("t [s]")
+    fig.suptitle("lag errors per joint and TCP error (nominal kinematics)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def command(
+    plan: Annotated[
+        Path,
+        typer.Argument(
+            help="A trajectory NAME.mcap (excite, plan-cp, plan-ptp) or a pose list configs.yaml "
+            "(select-configs: a measurement campaign)."
+        ),
+    ],
+    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    output: Annotated[
+        Path,
+        typer.Option(
+            "-o",
+            "--output",
+            help="Trajectory: the run log NAME.mcap (/run/joints at the setpoint rate, /run/gateway) with "
+            "its summary NAME.yaml beside it. Pose list: the measurements NAME.yaml (e.g. calib-meas.yaml) "
+            "that calibrate reads. A run that ends in a stop keeps its output as NAME.part.",
+        ),
+    ],
+    gateway: Annotated[
+        str | None,
+        typer.Option(
+            help="Drive gateway HOST:PORT. Default: an embedded simulated cell on an ephemeral loopback port."
+        ),
+    ] = None,
+    truth: Annotated[
+        Path | None, typer.Option(help="The embedded cell's truth file (default: ROBOT_DIR/truth.yaml).")
+    ] = None,
+    dynamics: Annotated[
+        Path | None,
+        typer.Option(
+            help="Identified dynamics.yaml for τ_ff and the torque checks (default: the prior URDF model)."
+        ),
+    ] = None,
+    feedforward: Annotated[
+        bool, typer.Option("--feedforward/--no-feedforward", help="Stream τ_ff = M(q)q̈ + g(q, q̇), or zeros.")
+    ] = True,
+    approach: Annotated[
+        bool, typer.Option(help="If the robot is not at the plan's start, move there first (jerk-limited).")
+    ] = False,
+    allow_remote: Annotated[bool, typer.Option(help="Allow a non-loopback --gateway (a real cell).")] = False,
+    realtime: Annotated[bool, typer.Option(help="Embedded cell: wall-clock pacing (demos).")] = False,
+    interpolation_ratio: Annotated[
+        int | None,
+        typer.Option(help="Drive cycles per setpoint (1-64). Default: chosen from the measured round trip."),
+    ] = None,
+    speed: Annotated[
+        float, typer.Option(help="Approach and campaign moves: fraction of the velocity/acceleration limits.")
+    ] = 0.2,
+    fault_reset: Annotated[
+        bool, typer.Option(help="Reset drive faults and latched gateway stops before moving.")
+    ] = False,
+    plot: Annotated[
+        bool, typer.Option(help="Write NAME.png: lag errors per joint and TCP error over time.")
+    ] = False,
+    compare: Annotated[
+        Path | None,
+        typer.Option(
+            help="Another run log to draw in the --plot figure (e.g. the run without feed-forward)."
+        ),
+    ] = None,
+) -> None:
+    """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque, record,
+    report lag errors. Exit 2 bad input, 4 communication fault, 5 safety stop or a plan outside the
+    limits / not at its start."""
+    console.stage_command(execute)(
+        plan,
+        robot_dir,
+        output,
+        gateway=gateway,
+        truth=truth,
+        dynamics=dynamics,
+        feedforward=feedforward,
+        approach=approach,
+        allow_remote=allow_remote,
+        realtime=realtime,
+        interpolation_ratio=interpolation_ratio,
+        speed=speed,
+        fault_reset=fault_reset,
+        plot=plot,
+        compare=compare,
+    )
