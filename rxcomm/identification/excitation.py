@@ -66,8 +66,6 @@ from rxcomm.schemas.cell import AllowedRegion, Box
 from rxcomm.schemas.excitation import ExcitationSettings
 
 REGION_POINTS = ("tool", "wrist_centre", "elbow")
-ELBOW_JOINT = 3  # Pinocchio joint index whose origin is the elbow (1-based: joint 3)
-WRIST_JOINT = 5  # ... and the wrist centre (joint 5)
 _TIGHTEN = 3e-4  # NLP limits are this fraction inside the design limits: room for dense-grid curvature
 
 Progress = Callable[[str, int, int], None]
@@ -259,16 +257,16 @@ def base_regressor(robot: Robot, bset: BaseParameterSet, q, qd, qdd) -> np.ndarr
 
 
 def region_points(robot: Robot, q: np.ndarray) -> dict[str, np.ndarray]:
-    """Tool (TCP), wrist centre (joint 5 origin) and elbow (joint 3 origin) positions [N, 3], base
-    frame, by Pinocchio."""
+    """Tool (TCP), wrist centre and elbow (origins of `Robot.wrist_joint_id`, `elbow_joint_id`)
+    positions [N, 3], base frame, by Pinocchio."""
     q = np.atleast_2d(q)
     model, data = robot.model, robot.create_data()
     out = {k: np.empty((len(q), 3)) for k in REGION_POINTS}
     for i, qi in enumerate(q):
         pin.forwardKinematics(model, data, qi)
         out["tool"][i] = pin.updateFramePlacement(model, data, robot.tcp_frame_id).translation
-        out["wrist_centre"][i] = data.oMi[WRIST_JOINT].translation
-        out["elbow"][i] = data.oMi[ELBOW_JOINT].translation
+        out["wrist_centre"][i] = data.oMi[robot.wrist_joint_id].translation
+        out["elbow"][i] = data.oMi[robot.elbow_joint_id].translation
     return out
 
 
@@ -420,8 +418,8 @@ class ExcitationProblem:
         tau_p = inverse_dynamics_expr(robot, q, qd, qdd, self.prior, COULOMB_EPS_NLP_RAD_S)
         outs = [tau_p]
         if self.region is not None:
-            elbow = robot.model.getFrameId(robot.model.names[ELBOW_JOINT], pin.FrameType.JOINT)
-            wrist = robot.model.getFrameId(robot.model.names[WRIST_JOINT], pin.FrameType.JOINT)
+            elbow = robot.model.getFrameId(robot.model.names[robot.elbow_joint_id], pin.FrameType.JOINT)
+            wrist = robot.model.getFrameId(robot.model.names[robot.wrist_joint_id], pin.FrameType.JOINT)
             for fid in (robot.tcp_frame_id, wrist, elbow):
                 outs.append(frame_placement_expr(robot, q, fid)[0])
         h = ca.vertcat(*outs)
