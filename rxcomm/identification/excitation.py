@@ -36,16 +36,10 @@ result wins. The same random feasible trajectories give the baseline figure the 
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import shutil
-import subprocess
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -53,6 +47,7 @@ import pinocchio as pin
 import scipy.linalg as sla
 from scipy.optimize import minimize
 
+from rxcomm import casadi_build
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import Trajectory
 from rxcomm.model.base_parameters import BaseParameterSet, base_parameters
@@ -76,63 +71,6 @@ WRIST_JOINT = 5  # ... and the wrist centre (joint 5)
 _TIGHTEN = 3e-4  # NLP limits are this fraction inside the design limits: room for dense-grid curvature
 
 Progress = Callable[[str, int, int], None]
-
-
-# ------------------------------------------------------------------------------------------------
-# Compiled CasADi functions
-
-
-def _cache_dir() -> Path:
-    return Path(os.environ.get("RXCOMM_CACHE_DIR") or Path.home() / ".cache" / "rxcomm") / "casadi"
-
-
-def compiled(functions: list[ca.Function]) -> list[ca.Function]:
-    """The functions compiled to C (gcc -O1), loaded back with `casadi.external`: 3–10× faster than
-    CasADi's SX virtual machine here. Shared objects are cached by the hash of their code in
-    `$RXCOMM_CACHE_DIR/casadi` (default ~/.cache/rxcomm/casadi), so a robot compiles once (≈ 2 s).
-    Without a C compiler, a writable cache, or with RXCOMM_NO_COMPILE=1, the functions are returned
-    as they are (same results, slower)."""
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None or os.environ.get("RXCOMM_NO_COMPILE"):
-        return functions
-    cache = _cache_dir()
-    try:
-        cache.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return functions
-    jobs = []
-    for f in functions:
-        cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
-        cg.add(f)
-        code = cg.dump()
-        so = cache / f"{f.name()}_{hashlib.sha256(code.encode()).hexdigest()[:20]}.so"
-        if so.exists():
-            jobs.append((f, so, None, None))
-            continue
-        fd, c_path = tempfile.mkstemp(suffix=".c", dir=cache)
-        with os.fdopen(fd, "w") as fh:
-            fh.write(code)
-        part = so.with_name(f"{so.name}.{os.getpid()}.part")
-        proc = subprocess.Popen(
-            [cc, "-O1", "-shared", "-fPIC", "-o", str(part), c_path],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        jobs.append((f, so, proc, (c_path, part)))
-    out = []
-    for f, so, proc, paths in jobs:
-        if proc is not None:
-            ok = proc.wait(timeout=300) == 0
-            c_path, part = paths
-            Path(c_path).unlink(missing_ok=True)
-            if ok:
-                os.replace(part, so)  # atomic: a concurrent reader sees the whole file or none
-            else:
-                part.unlink(missing_ok=True)
-                out.append(f)
-                continue
-        out.append(ca.external(f.name(), str(so)))
-    return out
 
 
 class Mapped:
@@ -496,7 +434,7 @@ class ExcitationProblem:
             ["h", "dh_dq", "dh_dqd", "dh_dqdd"],
         )
         self.n_nl = int(h.shape[0])
-        self._f_yb, self._f_adj, self._f_h, self._f_hj = compiled(
+        self._f_yb, self._f_adj, self._f_h, self._f_hj = casadi_build.compiled(
             [self._f_yb, self._f_adj, self._f_h, self._f_hj]
         )
 
