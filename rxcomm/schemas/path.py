@@ -35,7 +35,9 @@ Vec3 = tuple[float, float, float]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # NaN and inf are refused by name (YAML reads `.nan`, `.inf` as floats): a path file is bad input,
+    # not an IK failure at "σ = nan m"
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Line(_Strict):
