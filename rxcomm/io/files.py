@@ -142,7 +142,7 @@ def atomic_write_bytes(path: str | Path, data: bytes, *, part_suffix: str = PART
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException as e:
-        if isinstance(e, OSError) and e.filename is None:
+        if isinstance(e, OSError) and e.errno is not None and e.filename is None:
             e.filename = str(tmp)  # a full disk at write or fsync names no file by itself
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)

@@ -24,13 +24,12 @@ from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
-from rxcomm.io.validate import check_kind, validate_model
-from rxcomm.io.yaml_io import dump_yaml, load_yaml, read_yaml_model
+from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.planning.cp import CpPlan, CpSettings, PlanDynamics, path_deviation_m, plan_cp
-from rxcomm.planning.paths import CartesianPath, build_path, check_within_reach, iso9283_cube, iso9283_paths
+from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
+from rxcomm.planning.paths import load_path
 from rxcomm.schemas.cell import Box, Cell
-from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.trajectory import TrajectorySummary
 
 
@@ -40,35 +39,6 @@ class Method(StrEnum):
 
 
 # --- inputs -----------------------------------------------------------------------------------------
-def read_path(path: Path, robot: Robot) -> tuple[PathSpec, CartesianPath]:
-    """The path file as spec and `CartesianPath`; InputError names the file and the field."""
-    data = load_yaml(path)
-    check_kind(data, PathSpec, file=path)
-    spec = validate_model(PathSpec, data, file=path)
-    if spec.tcp_xyz_m is not None and not np.allclose(spec.tcp_xyz_m, robot.drives.tcp.xyz_m, atol=1e-6):
-        raise InputError(
-            f"the path was written for a TCP at {list(spec.tcp_xyz_m)} m from "
-            f"{robot.drives.tcp.parent_frame}; the robot's TCP is at {list(robot.drives.tcp.xyz_m)} m",
-            file=path,
-            field="tcp_xyz_m",
-        )
-    if spec.q_start_rad is not None and len(spec.q_start_rad) != robot.n:
-        raise InputError(f"expected {robot.n} joint angles", file=path, field="q_start_rad")
-    try:
-        check_within_reach(spec, robot)
-        return spec, build_path(spec)
-    except InputError as e:
-        raise InputError(e.reason, file=path, field=e.field) from e
-
-
-def plan_dynamics(robot: Robot, dynamics: Path | None, eps: float) -> PlanDynamics:
-    from rxcomm.model.base_parameters import load_dynamics
-    from rxcomm.model.dynamics import prior_parameters
-
-    params = prior_parameters(robot) if dynamics is None else load_dynamics(dynamics, robot)
-    return PlanDynamics.from_parameters(robot, params, eps)
-
-
 # --- outputs ----------------------------------------------------------------------------------------
 def summary_of(plan: CpPlan, robot: Robot) -> dict[str, object]:
     rep = plan.report
@@ -310,7 +280,7 @@ def run(
     if calibration is not None:
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
-    spec, cpath = read_path(path, robot)
+    spec, cpath = load_path(path, robot)
     try:
         settings = CpSettings(
             k1=k1,
@@ -329,7 +299,7 @@ def run(
         raise InputError(err["msg"].removeprefix("Value error, "), field=loc.replace("_", "-")) from e
     if dynamics is not None:
         inputs["dynamics"] = Path(dynamics)
-    dyn = plan_dynamics(robot, dynamics, settings.coulomb_eps_rad_s)
+    dyn = PlanDynamics.load(robot, dynamics, settings.coulomb_eps_rad_s)
     with console.err.status(
         f"plan-cp: {spec.name or path.name} ({settings.method}, N = {intervals})"
     ) as status:

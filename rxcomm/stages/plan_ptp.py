@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
-import pinocchio as pin
 import typer
 from pydantic import ValidationError
 
@@ -23,9 +22,8 @@ from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
 from rxcomm.model.base_parameters import load_dynamics
-from rxcomm.model.kinematics import cardan_xyz_matrix, inverse_kinematics
+from rxcomm.model.kinematics import solve_pose_ik
 from rxcomm.model.robot import Robot, load_robot, robot_files
-from rxcomm.planning.path_ik import BranchSelector
 from rxcomm.planning.ptp import (
     PtpDynamics,
     PtpLimits,
@@ -67,44 +65,6 @@ def parse_numbers(text: str, count: int, field: str) -> np.ndarray:
     if values.shape != (count,) or not np.all(np.isfinite(values)):
         raise InputError(f"expected {count} finite comma-separated numbers, got {text!r}", field=field)
     return values
-
-
-def solve_pose_ik(
-    robot: Robot,
-    pose: np.ndarray,
-    branch: Branch,
-    field: str,
-    near: np.ndarray | None = None,
-    n_seeds: int = 96,
-) -> np.ndarray:
-    """Joint angles putting the TCP at `pose` = (x, y, z, α, β, γ) (m; Cardan x-y-z rad, base frame).
-
-    Deterministic multi-start of `kinematics.inverse_kinematics`; among the converged solutions on
-    `branch` within the joint limits, the one nearest `near` (default: the smallest |q|). An
-    unreachable pose is an InputError naming `field` (exit 2).
-    """
-    target = pin.SE3(cardan_xyz_matrix(pose[3:]), pose[:3])
-    selector = BranchSelector(robot, branch)
-    data = robot.create_data()
-    rng = np.random.default_rng(0)
-    lo, hi = np.maximum(robot.q_min, -np.pi), np.minimum(robot.q_max, np.pi)
-    facing, facing_back = np.arctan2(pose[1], pose[0]), np.arctan2(-pose[1], -pose[0])
-    found = []
-    for k in range(n_seeds):
-        seed = rng.uniform(lo, hi)
-        if k % 2 == 0:  # half the seeds face the target, as an arm usually does
-            seed[0] = np.clip(facing if k % 4 == 0 else facing_back, lo[0], hi[0])
-        res = inverse_kinematics(robot, target, seed, max_iterations=100, max_step_rad=0.5)
-        if res.converged and selector.matches(data, res.q):
-            found.append(res.q)
-    if not found:
-        raise InputError(
-            f"TCP pose {np.round(pose, 4).tolist()} is unreachable on branch "
-            f"{branch.model_dump(exclude_none=True)} within the joint limits",
-            field=field,
-        )
-    ref = np.zeros(robot.n) if near is None else near
-    return min(found, key=lambda q: float(np.sum((q - ref) ** 2)))
 
 
 def parse_state(
