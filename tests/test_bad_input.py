@@ -273,6 +273,28 @@ def test_report_into_a_bad_place_is_refused(tmp_path, place, restore_modes):
     assert_untouched(before, tmp_path)
 
 
+def _stage_args(stage: str, tmp_path: Path, out: Path) -> list[object]:
+    """The stage's command line with cheap settings (what the old code ran before failing)."""
+    cell = ROBOT / "cell.yaml"
+    return {
+        "select-configs": ["select-configs", "--robot", ROBOT, "--cell", cell, "-n", 4, "--intervals", 3,
+                           "--max-candidates", 60, "--restarts", 1, "--n-validation", 0, "-o", out],
+        "excite": ["excite", "--robot", ROBOT, "--cell", cell, "--harmonics", 2, "--starts", 1,
+                   "--samples", 50, "-o", out],
+        "identify": ["identify", "--robot", ROBOT, "--log", tmp_path / "log.mcap", "-o", out],
+    }[stage]  # fmt: skip
+
+
+@pytest.mark.parametrize("stage", ["select-configs", "excite", "identify"])
+def test_every_other_stage_refuses_a_directory_as_output(tmp_path, stage):
+    out, reason = _bad_place("directory", tmp_path, "out.yaml")
+    (tmp_path / "log.mcap").write_bytes(b"not read: the output is refused first")
+    before = snapshot(tmp_path)
+    res = invoke(*_stage_args(stage, tmp_path, out))
+    assert_refused(res, 2, str(out), reason)
+    assert_untouched(before, tmp_path)
+
+
 def test_a_failing_cleanup_does_not_hide_the_first_error(tmp_path):
     (tmp_path / "notes.txt").write_text("a file\n")
     with pytest.raises(NotADirectoryError) as e:
@@ -347,12 +369,10 @@ def test_circle_radius_in_millimetres_is_bad_input(tmp_path):
     assert_untouched(before, tmp_path)
 
 
-def test_path_just_beyond_reach_in_metres_stays_unreachable_exit_3(tmp_path, rx130l):
-    """The bound is the robot's longest possible reach: a metre-scale path beyond what this arm
-    reaches on its branch is still an infeasible plan (3), not bad input."""
-    from rxcomm.planning.paths import longest_reach_m  # here: the file imports on the old main too
-
-    r = 0.9 * longest_reach_m(rx130l)
+def test_path_just_beyond_reach_in_metres_stays_unreachable_exit_3(tmp_path):
+    """The bound is the robot's longest possible reach (RX130L: 2.36 m from the base origin): a
+    metre-scale path beyond what this arm reaches on its branch is still an infeasible plan (3)."""
+    r = 2.1  # m: beyond the arm (1.81 m shoulder → TCP stretched), within the bound
     path = path_file(tmp_path / "p.yaml", _set("geometry.end_m", [r, 0.0, 0.3]))
     res = invoke("plan-cp", "--robot", ROBOT, "--path", path, "-o", tmp_path / "cp.mcap", *CP_FAST)
     assert_refused(res, 3, "unreachable")
