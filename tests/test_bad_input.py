@@ -277,7 +277,7 @@ def _stage_args(stage: str, tmp_path: Path, out: Path) -> list[object]:
     """The stage's command line with cheap settings (what the old code ran before failing)."""
     cell = ROBOT / "cell.yaml"
     return {
-        "select-configs": ["select-configs", "--robot", ROBOT, "--cell", cell, "-n", 4, "--intervals", 3,
+        "select-configs": ["select-configs", "--robot", ROBOT, "--cell", cell, "-n", 6, "--intervals", 3,
                            "--max-candidates", 60, "--restarts", 1, "--n-validation", 0, "-o", out],
         "excite": ["excite", "--robot", ROBOT, "--cell", cell, "--harmonics", 2, "--starts", 1,
                    "--samples", 50, "-o", out],
