@@ -14,16 +14,17 @@ from typing import Annotated
 
 import numpy as np
 import typer
-from pydantic import ValidationError
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
+from rxcomm.io.validate import settings_from_options
 from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.kinematics import solve_pose_ik
 from rxcomm.model.robot import Robot, load_robot, robot_files
+from rxcomm.options import parse_numbers
 from rxcomm.planning.ptp import (
     PtpDynamics,
     PtpLimits,
@@ -55,18 +56,6 @@ class Wrist(StrEnum):
 
 
 # --- inputs -----------------------------------------------------------------------------------------
-def parse_numbers(text: str, count: int, field: str) -> np.ndarray:
-    """`count` comma-separated finite numbers, else InputError naming `field`."""
-    parts = [p.strip() for p in text.split(",")]
-    try:
-        values = np.array([float(p) for p in parts])
-    except ValueError as e:
-        raise InputError(f"expected {count} comma-separated numbers, got {text!r}", field=field) from e
-    if values.shape != (count,) or not np.all(np.isfinite(values)):
-        raise InputError(f"expected {count} finite comma-separated numbers, got {text!r}", field=field)
-    return values
-
-
 def parse_state(
     robot: Robot, text: str, field: str, branch: Branch, near: np.ndarray | None = None
 ) -> tuple[np.ndarray, str]:
@@ -120,10 +109,7 @@ def summary_of(result: PtpResult, q_start, q_goal, margin: float) -> dict[str, o
 
 def plot_ptp(traj: Trajectory, limits: PtpLimits, joint_names, path: Path, title: str) -> Path:
     """PNG of the torques and velocities normalised by their limits (the paper's Fig. 9)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = plotting.pyplot()
 
     fig, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 6))
     for j, name in enumerate(joint_names):
@@ -258,8 +244,9 @@ def run(
     if dynamics is not None:
         params = load_dynamics(dynamics, robot)
         inputs["dynamics"] = Path(dynamics)
-    try:
-        options = PtpOptions(
+    options = settings_from_options(
+        PtpOptions,
+        dict(
             n_intervals=intervals,
             k1=k1,
             k2_per_nm2=k2,
@@ -268,17 +255,9 @@ def run(
             tcp_box_m=parse_box(tcp_box),
             max_wall_s=max_wall,
             compile=compile_,
-        )
-    except ValidationError as e:
-        err = e.errors()[0]
-        names = {
-            "n_intervals": "intervals",
-            "k2_per_nm2": "k2",
-            "tcp_box_m": "tcp-box",
-            "max_wall_s": "max-wall",
-        }
-        loc = str(err["loc"][0]) if err["loc"] else "options"
-        raise InputError(err["msg"], field=names.get(loc, loc)) from e
+        ),
+        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"},
+    )
     branch = branch or Branch()
     q_start, start_kind = parse_state(robot, start, "start", branch)
     q_goal, goal_kind = parse_state(robot, goal, "goal", branch, near=q_start)
