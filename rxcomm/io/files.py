@@ -33,11 +33,11 @@ def mcap_summary_path(mcap_path: str | Path) -> Path:
 
 def _same_file(a: Path, b: Path) -> bool:
     """Same resolved path, or (both existing) the same inode: symlinks and hard links included."""
-    if a.resolve() == b.resolve():
-        return True
     try:
+        if a.resolve() == b.resolve():
+            return True
         return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
+    except (OSError, RuntimeError):  # a symlink loop: not the same as any real file
         return False
 
 
