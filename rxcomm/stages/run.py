@@ -24,13 +24,14 @@ from rxcomm.execution.campaign import (
     measured_poses,
     run_campaign,
 )
-from rxcomm.execution.log import read_run_log, write_run_log
+from rxcomm.execution.log import write_run_log
 from rxcomm.execution.plan import prepare_plan
 from rxcomm.execution.session import RunSettings, StreamSettings, run_trajectory
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.net import is_loopback
 from rxcomm.io.files import check_outputs
 from rxcomm.io.mcap_io import read_mcap_envelope
+from rxcomm.io.run_log import read_run_log
 from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
