@@ -1,4 +1,4 @@
-"""Optimal measurement poses for geometric calibration (paper §3.3; DESIGN §7 select-configs).
+"""Optimal measurement poses for geometric calibration (paper §3.3; architecture §7 select-configs).
 
 1. **Candidates.** A joint grid (default 13 equal intervals per axis, their midpoints: 13⁶ ≈ 4.8 M
    configurations) is streamed in blocks with bounded memory: FK is split into the arm (q1..q3, one

@@ -1,6 +1,6 @@
 """Time/energy-optimal point-to-point motion (paper §5.4–5.5) as a scaled free-final-time OCP.
 
-Formulation (DESIGN §7, "Planning facts"): the joints are a triple integrator driven by a jerk that is
+Formulation (architecture §7, "Planning facts"): the joints are a triple integrator driven by a jerk that is
 constant on each of N intervals of a normalised time s ∈ [0, 1]; t = T·s with the final time T a
 decision variable. The nodes carry (q, q̇, q̈); the torques come from the inverse dynamics at the nodes
 (no forward dynamics, no numerical integrator: integrating a constant jerk is exact). This is what

@@ -1,4 +1,4 @@
-"""`rxcomm run`: execute a plan on the robot cell over the drive gateway (paper §2.3, DESIGN §7 run).
+"""`rxcomm run`: execute a plan on the robot cell over the drive gateway (paper §2.3, architecture §7 run).
 
 PLAN is a trajectory MCAP (excite / plan-cp / plan-ptp) or a pose list (`configs.yaml` from
 select-configs: a measurement campaign). Trajectory → ``-o NAME.mcap`` (+ ``NAME.yaml``, kind
