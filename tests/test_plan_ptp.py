@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.cli import app
-from rxcomm.errors import InputError
+from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.base_parameters import base_parameters, dynamics_artefact_fields
@@ -173,9 +173,9 @@ def test_boundary_state_checks(rx130l, rx_dyn):
     assert e.value.field == "start[joint_2]"
     weak = dataclasses.replace(lim, tau_max=np.full(6, 10.0))
     q[1] = -1.5  # arm stretched: J2 holds ~180 N·m even with the spring
-    with pytest.raises(InputError, match="holding torque") as e:
-        check_boundary_state(rx_dyn, weak, q, "goal", rx130l.joint_names)
-    assert e.value.field == "goal[joint_2]"
+    with pytest.raises(InfeasibleError, match=r"goal \[joint_2\]: holding torque") as e:
+        check_boundary_state(rx_dyn, weak, q, "goal", rx130l.joint_names, rx130l.drives_path)
+    assert e.value.file == str(rx130l.drives_path) and e.value.field == "joints[1].peak_torque_nm"
 
 
 # --- small solves (fast) ----------------------------------------------------------------------------

@@ -155,6 +155,17 @@ class Robot:
         )
 
 
+def robot_files(robot_dir: str | Path) -> dict[str, Path]:
+    """The files a robot is loaded from, by name, without loading it (for `check_outputs`, which runs
+    before any input is read): drives.yaml and every URDF beside it."""
+    robot_dir = Path(robot_dir)
+    drives_path = robot_dir if robot_dir.is_file() else robot_dir / "drives.yaml"
+    files = {"robot drives.yaml": drives_path}
+    if drives_path.parent.is_dir():
+        files |= {f"robot URDF {p.name}": p for p in sorted(drives_path.parent.glob("*.urdf"))}
+    return files
+
+
 def load_robot(robot_dir: str | Path, urdf: str | Path | None = None) -> Robot:
     """Load `ROBOT_DIR/drives.yaml` and the URDF it names (or `urdf`, e.g. a calibrated one).
 

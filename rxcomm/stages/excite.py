@@ -22,11 +22,12 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.identification.excitation import ExcitationDesign, design_excitation, region_points
+from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.limits import check_limits
-from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
@@ -152,6 +153,14 @@ def run(
     traj_path = Path(trajectory_out) if trajectory_out is not None else trajectory_path(output)
     if traj_path.suffix != ".mcap":
         raise InputError("the trajectory output must be NAME.mcap", field="trajectory-out")
+    check_outputs(
+        {
+            "output": output,
+            "trajectory-out": traj_path,
+            "plot": output.with_suffix(".png") if plot else None,
+        },
+        {"cell": cell, **robot_files(robot_dir)},
+    )
     robot = load_robot(robot_dir)
     cell_model = read_yaml_model(cell, Cell)
     values = settings.model_dump() if isinstance(settings, ExcitationSettings) else dict(settings or {})

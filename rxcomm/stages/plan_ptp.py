@@ -18,11 +18,12 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.errors import InputError
+from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.kinematics import solve_pose_ik
-from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
 from rxcomm.planning.ptp import (
     PtpDynamics,
@@ -230,6 +231,10 @@ def run(
     output = Path(output)
     if output.suffix != ".mcap":
         raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    check_outputs(
+        {"output": output, "plot": output.with_suffix(".png") if plot else None},
+        {"dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
+    )
     robot = load_robot(robot_dir)
     inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
     if calibration is not None:
