@@ -67,6 +67,41 @@ def tcp_pose(robot: Robot, q: np.ndarray, errors: ErrorModel | None = None) -> t
 # Cardan angles x-y-z (paper §3.4, Table 2): R = Rx(α) Ry(β) Rz(γ).
 
 
+def stretched_pose(robot: Robot) -> np.ndarray:
+    """All joints at zero except J2, chosen within its limits to put the flange furthest from the J1 axis.
+
+    For arms whose zero pose is upright (both samples) this is the arm stretched horizontally, the
+    worst case for J2's gravity load.
+    """
+    data = robot.create_data()
+
+    def reach(q2: float) -> float:
+        q = np.zeros(robot.n)
+        q[1] = q2
+        pin.framesForwardKinematics(robot.model, data, q)
+        p = data.oMf[robot.flange_frame_id].translation
+        return float(np.hypot(p[0], p[1]))
+
+    grid = np.linspace(robot.q_min[1], robot.q_max[1], 721)
+    i = int(np.argmax([reach(x) for x in grid]))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    from scipy.optimize import minimize_scalar  # scipy's optimiser only here
+
+    best = minimize_scalar(lambda x: -reach(x), bounds=(lo, hi), method="bounded", options={"xatol": 1e-9})
+    q = np.zeros(robot.n)
+    q[1] = best.x
+    return q
+
+
+def flange_reach_m(robot: Robot) -> float:
+    """The arm's reach: the flange's distance from the J1 axis in `stretched_pose` (m). The one reach
+    figure (robot-info prints it; calibrate's unit check uses it)."""
+    data = robot.create_data()
+    pin.framesForwardKinematics(robot.model, data, stretched_pose(robot))
+    p = data.oMf[robot.flange_frame_id].translation
+    return float(np.hypot(p[0], p[1]))
+
+
 def cardan_xyz(rotation: np.ndarray) -> np.ndarray:
     """Cardan angles (α, β, γ) in rad of R = Rx(α)·Ry(β)·Rz(γ); works on [..., 3, 3] stacks.
 
