@@ -10,21 +10,29 @@ weighted residual of pose i
 and position and orientation are weighed by their precision). Levenberg–Marquardt
 (`scipy.optimize.least_squares`, `method="lm"`; `trf` when a robust loss is asked) with the
 analytic Jacobian of `geometric_errors` (orientation rows through the exact derivative of log3),
-started at p_e = 0 as the paper. Standard deviations from the covariance s²·(JᵀJ)⁻¹ with s² the
+started at the closed-form base and tool frames, the joint errors at 0 (the paper starts at
+p_e = 0). Standard deviations from the covariance s²·(JᵀJ)⁻¹ with s² the
 residual variance per degree of freedom.
 
-Around the fit: the nominal `tracker_to_base` (measurements file, cell, or — if neither is given —
-a rigid registration of the nominal TCP positions onto the measured ones, Kabsch); poses with a
-component beyond `outlier_sigma` robust σ after a first fit are flagged (and dropped, by default,
-before the final fit); held-out poses (`validation` role, or a seeded `holdout_fraction`) are never
-fitted; the paper's Table 2 (`error_table`) before/after on fitted and held-out poses; the honest
-baseline "base + tool frames only" fitted the same way; and, when the file has `baseline` poses (a
-naive pose set measured for comparison), the full calibration fitted to those instead and judged on
-the same held-out poses (`BaselineComparison`).
+Around the fit (docs/calibrate-csv.md): the base and tool frames estimated from the data in closed
+form (`estimate_frames`), so no guess is needed; a `tracker_to_base` from the measurements file or
+the cell is the reference when it agrees with the data's, else replaced by it with a note; the
+tracker noise given (settings, file) or estimated from the residuals (variance components,
+`_Fitter.noise_from_residuals`); poses with a component beyond `outlier_sigma` robust σ after a first
+fit are flagged (and dropped, by default, before the final fit); held-out poses (`validation` role,
+or a seeded `holdout_fraction`) are never fitted; candidate models (base + tool frames; + joint
+offsets; the full identifiable set; + joint compliance δq_j = c_j·τ_j with τ the prior model's
+holding torque) compared by k-fold cross-validation over the fit poses, the simplest within one
+standard error of the best chosen; the paper's Table 2 (`error_table`) before/after on fitted and
+held-out poses, with the frames-only fit beside it; and, when the file has `baseline` poses (a naive
+pose set measured for comparison), the chosen calibration fitted to those instead and judged on the
+same held-out poses (`BaselineComparison`).
 
 Input checks raise `InputError` (exit 2) with file and field: NaN rows, too few poses (says how
 many are needed), a pose set that cannot identify some parameters (names them), positions that look
-like millimetres, joint angles that look like degrees, measurements that do not fit the robot.
+like millimetres, joint angles that look like degrees, orientations that do not fit a rigid tool
+(angle convention), measurements that do not fit the robot even after the fit. A calibration worse
+than the nominal model on the held-out poses raises `InfeasibleError` (exit 3).
 
 Outputs: `write_calibrated_urdf` folds the errors into the URDF joint origins (base error into the
 first joint's origin, so the URDF root stays the nominal base frame of the cell; tool error into
