@@ -152,7 +152,7 @@ class Calibration(Artefact):
     baseline_fit: BaselineFit | None = Field(None, description="the calibration from the baseline poses")
     tracker_noise: TrackerNoise
     model_selection: ModelSelection
-    compliance: list[ComplianceEstimate] = Field(description="of the chosen model; empty when rigid")
-    undetermined: list[str] = Field(description="parameters with σ above the threshold (see settings)")
-    notes: list[str]
+    compliance: list[ComplianceEstimate] = Field([], description="of the chosen model; empty when rigid")
+    undetermined: list[str] = Field([], description="parameters with σ above the threshold (see settings)")
+    notes: list[str] = Field([], description="what the user should act on")
     calibrated_urdf: str | None = None
