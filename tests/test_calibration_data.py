@@ -15,7 +15,7 @@ from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.model.dynamics import RobotDynamics, truth_parameters
 from rxcomm.model.geometric_errors import predict_poses, random_poses
-from rxcomm.model.kinematics import cardan_xyz, flange_reach_m
+from rxcomm.model.kinematics import cardan_xyz
 from rxcomm.model.robot import load_robot
 from rxcomm.schemas.calibration import Calibration
 
@@ -204,14 +204,14 @@ def test_camera_noise_few_poses_model_chosen_by_the_data(robot):
 def test_one_reach_figure(tmp_path, robot):
     """robot-info's reach is the unit check's."""
     r = CliRunner().invoke(app, ["robot-info", str(ROBOT)])
-    assert r.exit_code == 0 and f"{flange_reach_m(robot):.3f} m" in r.output
+    assert r.exit_code == 0 and f"{robot.reach_m:.3f} m" in r.output
     qs = random_poses(robot, 10, np.random.default_rng(0))
     p, _ = predict_poses(robot, qs)
     lines = ["q1_rad,q2_rad,q3_rad,q4_rad,q5_rad,q6_rad,x_m,y_m,z_m"]
     lines += [",".join(f"{v:.12g}" for v in [*qs[i], *(p[i] * 1000)]) for i in range(10)]
     path = tmp_path / "mm.csv"
     path.write_text("\n".join(lines) + "\n")
-    reach = flange_reach_m(robot) + float(np.linalg.norm(robot.drives.tcp.xyz_m))
+    reach = robot.reach_m
     with pytest.raises(InputError, match=f"reaches only ≈{reach:.2f} m"):
         read_measurements(path, robot)
 

@@ -27,29 +27,26 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class ParameterEstimate(_Strict):
+class ParameterEstimate(Strict):
     name: str
     value: float = Field(description="m for t*, rad for r*")
     std: float | None = Field(None, description="standard deviation from the covariance; None if fixed")
     estimated: bool
 
 
-class DroppedParameter(_Strict):
+class DroppedParameter(Strict):
     name: str
     reason: str
 
 
-class ErrorRow(_Strict):
+class ErrorRow(Strict):
     quantity: Literal["x", "y", "z", "alpha", "beta", "gamma"]
     unit: Literal["m", "rad"]
     max_abs: float
@@ -57,7 +54,7 @@ class ErrorRow(_Strict):
     rms: float
 
 
-class ErrorTable(_Strict):
+class ErrorTable(Strict):
     pose_set: Literal["fit", "heldout"]
     model: Literal["nominal", "calibrated", "frames_only", "baseline_poses", "rigid"] = Field(
         description="rigid: the full rigid model, shown when the chosen one has joint compliance"
@@ -69,7 +66,7 @@ class ErrorTable(_Strict):
     rows: list[ErrorRow]
 
 
-class BaselineFit(_Strict):
+class BaselineFit(Strict):
     n_poses: int = Field(description="valid baseline poses measured")
     parameters: list[ParameterEstimate] = Field(description="empty when the poses cannot identify them")
     fit_poses: list[int] = Field(description="indices into the measurement file's poses")
@@ -82,7 +79,7 @@ class BaselineFit(_Strict):
     note: str | None = Field(None, description="why there is no fit")
 
 
-class TrackerNoise(_Strict):
+class TrackerNoise(Strict):
     position_sigma_m: float = Field(gt=0, description="1σ per axis used to weigh position residuals")
     orientation_sigma_rad: float | None = Field(
         description="1σ per axis used to weigh orientation residuals; None: position-only measurements"
@@ -92,7 +89,7 @@ class TrackerNoise(_Strict):
     )
 
 
-class CandidateModel(_Strict):
+class CandidateModel(Strict):
     name: Literal["frames", "offsets", "full", "full+compliance"]
     n_parameters: int
     parameters: list[str] = Field(description="the geometric parameters, then `{joint}.compliance`")
@@ -106,14 +103,14 @@ class CandidateModel(_Strict):
     note: str | None = None
 
 
-class ModelSelection(_Strict):
+class ModelSelection(Strict):
     folds: int
     rule: str
     chosen: str
     candidates: list[CandidateModel]
 
 
-class ComplianceEstimate(_Strict):
+class ComplianceEstimate(Strict):
     joint: str
     compliance_rad_per_nm: float
     std: float

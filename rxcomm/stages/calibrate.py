@@ -16,7 +16,6 @@ from typing import Annotated
 
 import numpy as np
 import typer
-from pydantic import ValidationError
 
 from rxcomm import console
 from rxcomm.calibration.fit import (
@@ -28,9 +27,11 @@ from rxcomm.calibration.fit import (
     write_calibrated_urdf,
 )
 from rxcomm.errors import InputError
+from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.geometric_errors import parameter_names, placement_to_se3, se3_to_xyz_rpy
 from rxcomm.model.robot import Robot, load_robot
+from rxcomm.options import parse_numbers
 from rxcomm.schemas.calibration import (
     BaselineFit,
     Calibration,
@@ -305,17 +306,13 @@ def print_model_and_noise(robot: Robot, res: CalibrationResult, source: str) -> 
 
 
 def _parse_sigma(text: str | None) -> tuple[float | None, float | None]:
+    """`--tracker-sigma POS_M[,ORI_RAD]`: (σ_p, σ_o or None)."""
     if text is None:
         return None, None
-    try:
-        vals = [float(v) for v in text.split(",")]
-    except ValueError as e:
-        raise InputError(f"not numbers: {text!r} (give POS_M[,ORI_RAD])", field="tracker-sigma") from e
-    if len(vals) not in (1, 2) or not all(v > 0 for v in vals):
-        raise InputError(
-            f"give one or two positive values POS_M[,ORI_RAD], got {text!r}", field="tracker-sigma"
-        )
-    return vals[0], vals[1] if len(vals) == 2 else None
+    vals = parse_numbers(text, 2 if "," in text else 1, "tracker-sigma", "POS_M[,ORI_RAD]")
+    if not np.all(vals > 0):
+        raise InputError(f"noise must be > 0, got {text!r}", field="tracker-sigma")
+    return float(vals[0]), float(vals[1]) if vals.size == 2 else None
 
 
 def command(
@@ -413,8 +410,9 @@ def run(
         overrides = {"position_sigma_m": sp, "orientation_sigma_rad": so}
         noise_source = "option"
     overrides = {k: v for k, v in overrides.items() if v is not None}
-    try:
-        settings = CalibrateSettings(
+    settings = settings_from_options(
+        CalibrateSettings,
+        dict(
             holdout_fraction=holdout,
             seed=seed,
             loss=loss,
@@ -422,12 +420,9 @@ def run(
             drop_outliers=not keep_outliers,
             model=model,
             **overrides,
-        )
-    except ValidationError as e:
-        err = e.errors()[0]
-        names = {"holdout_fraction": "holdout", "outlier_sigma": "outlier-sigma"}
-        loc = str(err["loc"][0]) if err["loc"] else "options"
-        raise InputError(err["msg"], field=names.get(loc, loc)) from e
+        ),
+        {"holdout_fraction": "holdout", "outlier_sigma": "outlier-sigma"},
+    )
     with console.err.status(f"calibrate: fitting {robot.name} to {ms.n} poses"):
         res = calibrate(robot, ms, settings, tracker_to_base=t2b)
     art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)

@@ -6,17 +6,42 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
+import pinocchio as pin
 import typer
+from scipy.optimize import minimize_scalar
 
 from rxcomm import console
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters
 from rxcomm.model.geometric_errors import identifiable_count
-from rxcomm.model.kinematics import flange_reach_m, stretched_pose
 from rxcomm.model.robot import Robot, load_robot
 
 # A tracker target 50 mm off the TCP's z axis (in the TCP frame): position-only calibration needs one
 # off the J6 axis, or the J6 offset and the tool's in-axis terms are invisible.
 OFF_AXIS_POINT = (0.05, 0.0, 0.0)
+
+
+def stretched_pose(robot: Robot) -> np.ndarray:
+    """All joints at zero except J2, chosen within its limits to put the flange furthest from the J1 axis.
+
+    For arms whose zero pose is upright (both samples) this is the arm stretched horizontally, the
+    worst case for J2's gravity load.
+    """
+    data = robot.create_data()
+
+    def reach(q2: float) -> float:
+        q = np.zeros(robot.n)
+        q[1] = q2
+        pin.framesForwardKinematics(robot.model, data, q)
+        p = data.oMf[robot.flange_frame_id].translation
+        return float(np.hypot(p[0], p[1]))
+
+    grid = np.linspace(robot.q_min[1], robot.q_max[1], 721)
+    i = int(np.argmax([reach(x) for x in grid]))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    best = minimize_scalar(lambda x: -reach(x), bounds=(lo, hi), method="bounded", options={"xatol": 1e-9})
+    q = np.zeros(robot.n)
+    q[1] = best.x
+    return q
 
 
 def robot_facts(robot: Robot) -> dict[str, object]:
@@ -29,7 +54,7 @@ def robot_facts(robot: Robot) -> dict[str, object]:
         "name": robot.name,
         "dof": robot.n,
         "moving_mass_kg": float(sum(robot.model.inertias[i].mass for i in range(1, robot.model.njoints))),
-        "reach_flange_m": flange_reach_m(robot),
+        "reach_m": robot.reach_m,
         "stretched_pose_rad": q.tolist(),
         "stretched_gravity_torque_nm": g.tolist(),
         "stretched_spring_torque_nm": spring.tolist(),
@@ -59,7 +84,9 @@ def run(robot_dir: Path) -> dict[str, object]:
     out.print(f"[bold]{robot.name}[/]  ({robot.urdf_path}, {robot.drives_path})")
     out.print(f"  degrees of freedom    {robot.n}")
     out.print(f"  moving mass           {facts['moving_mass_kg']:.1f} kg")
-    out.print(f"  flange reach          {facts['reach_flange_m']:.3f} m (from the J1 axis, arm stretched)")
+    out.print(
+        f"  reach                 {facts['reach_m']:.3f} m (shoulder → TCP, links in a line: Robot.reach_m)"
+    )
     out.print(f"  drive cycle           {robot.drives.cycle_s * 1e6:.0f} µs")
     out.print("")
     out.print("  joint       lower°    upper°   vmax°/s   amax rad/s²  peak N·m  cont N·m  ratio")
