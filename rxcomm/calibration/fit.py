@@ -1142,44 +1142,51 @@ def calibrate(
         if settings.model != "auto" and name not in (settings.model, "frames"):
             continue
         f = fitter_for(idx, comp, full_f)
+        idx_t = tuple(int(i) for i in idx)
         try:
             whole = f.fit(fit)
+        except (InputError, InfeasibleError) as e:
+            cands.append(Candidate(name, idx_t, comp, None, None, None, None, None, note=str(e)))
+            continue
+        try:
             mis, e_p, e_o = f.cross_validate(fit, whole, folds)
         except (InputError, InfeasibleError) as e:
-            cands.append(Candidate(name, tuple(idx), comp, None, None, None, None, None, note=str(e)))
+            note = f"not cross-validated: {e}"
+            cands.append(Candidate(name, idx_t, comp, whole, None, None, None, None, note=note))
             continue
         per_pose[name] = mis
         rms_o = None if po else float(np.sqrt(np.mean(e_o)))
         cands.append(
             Candidate(
-                name,
-                tuple(int(i) for i in idx),
-                comp,
-                whole,
-                float(np.mean(mis)),
-                None,
-                float(np.sqrt(np.mean(e_p))),
-                rms_o,
+                name, idx_t, comp, whole, float(np.mean(mis)), None, float(np.sqrt(np.mean(e_p))), rms_o
             )
         )
-    best = min((c for c in cands if c.cv_misfit is not None), key=lambda c: c.cv_misfit)
-    cands = [
-        c
-        if c.cv_misfit is None
-        else replace(
-            c, cv_se=float(np.std(per_pose[c.name] - per_pose[best.name], ddof=1) / math.sqrt(fit.size))
-        )
-        for c in cands
-    ]
-    chosen = (
-        _choose(cands) if settings.model == "auto" else next(c for c in cands if c.name == settings.model)
-    )
+    if per_pose:
+        best = min((c for c in cands if c.cv_misfit is not None), key=lambda c: c.cv_misfit)
+        cands = [
+            c
+            if c.cv_misfit is None
+            else replace(
+                c, cv_se=float(np.std(per_pose[c.name] - per_pose[best.name], ddof=1) / math.sqrt(fit.size))
+            )
+            for c in cands
+        ]
+    if settings.model != "auto":
+        chosen = next(c for c in cands if c.name == settings.model)
+    elif per_pose:
+        chosen = _choose(cands)
+    else:
+        # Too few poses to hold any out: the full rigid model, said so.
+        chosen = next(c for c in cands if c.name == "full")
+        notes.append(f"{fit.size} fit poses are too few to cross-validate the models: the full model is used")
     frames_c = next(c for c in cands if c.name == "frames")
     if chosen.fit is None:
         raise InputError(
             f"model {chosen.name!r} cannot be fitted: {chosen.note}", file=ms.source, field="model"
         )
     result, frames = chosen.fit, frames_c.fit
+    if frames is None:
+        raise InputError(f"the base + tool frames cannot be fitted: {frames_c.note}", file=ms.source)
     fitter = fitter_for(np.array(chosen.idx), chosen.comp, full_f)
     # Plausibility after the fit: what the frames and errors cannot explain is the wrong robot.
     ms_fit = ms.subset(fit)

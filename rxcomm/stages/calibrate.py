@@ -283,7 +283,7 @@ def print_model_and_noise(robot: Robot, res: CalibrationResult, source: str) -> 
     for c in res.candidates:
         mark = "→" if c.name == res.model else " "
         if c.cv_misfit is None:
-            out.print(f"   {mark} {c.name:<16}{c.n_parameters:3d} p   not fitted: {c.note}")
+            out.print(f"   {mark} {c.name:<16}{c.n_parameters:3d} p   not scored: {c.note}")
             continue
         o = "" if c.cv_rms_orientation_rad is None else f" / {c.cv_rms_orientation_rad * 1e3:.4g} mrad"
         out.print(
