@@ -260,3 +260,10 @@ def test_joint_compliance_is_seen_and_modelled(robot):
         assert abs(c - ratio / k) < 3 * sd, (name, 1 / c, k / ratio, sd / c**2)
         assert sd < 0.15 * c  # determined, not named
     assert not [n for n in bent.undetermined if n.endswith("compliance")]
+    # With the true torques (as from an identified dynamics model) the stiffness is the truth's.
+    exact = calibrate(robot, ms, settings, tracker_to_base=t2b, dynamics=st)
+    assert exact.model == "full+compliance"
+    for name, k in k_true.items():
+        j = robot.joint_names.index(name)
+        c, sd = exact.fit.compliance[j], exact.fit.compliance_std[j]
+        assert abs(c - 1 / k) < 3 * sd, (name, 1 / c, k, sd / c**2)

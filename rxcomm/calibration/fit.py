@@ -61,7 +61,7 @@ from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.files import atomic_write_text
 from rxcomm.io.validate import check_kind, validate_model
 from rxcomm.io.yaml_io import load_yaml, read_yaml_artefact
-from rxcomm.model.dynamics import RobotDynamics, prior_parameters
+from rxcomm.model.dynamics import DynamicParameters, RobotDynamics, prior_parameters
 from rxcomm.model.geometric_errors import (
     COMPONENTS,
     ErrorModel,
@@ -479,10 +479,11 @@ def _jlog3(phi: np.ndarray) -> np.ndarray:
 TAU_REF_NM = 1000.0
 
 
-def holding_torques(robot: Robot, q: np.ndarray) -> np.ndarray:
-    """[N, n] static holding torque (gravity + balancer spring) of the PRIOR dynamics model, N·m:
-    what the joints' transmissions carry at standstill, so what bends them."""
-    return RobotDynamics(robot, prior_parameters(robot)).gravity_torque(np.atleast_2d(q))
+def holding_torques(robot: Robot, q: np.ndarray, params: DynamicParameters | None = None) -> np.ndarray:
+    """[N, n] static holding torque (gravity + balancer spring), N·m, of `params` (default the PRIOR
+    dynamics model): what the joints' transmissions carry at standstill, so what bends them."""
+    params = prior_parameters(robot) if params is None else params
+    return RobotDynamics(robot, params).gravity_torque(np.atleast_2d(q))
 
 
 @dataclass(frozen=True)
@@ -1037,10 +1038,13 @@ def calibrate(
     ms: MeasurementSet,
     settings: CalibrateSettings | None = None,
     tracker_to_base: pin.SE3 | None = None,
+    dynamics: DynamicParameters | None = None,
 ) -> CalibrationResult:
     """Identify the geometric errors from `ms` (see the module docstring). `tracker_to_base` (e.g.
     from the cell) overrides the measurement file's as the guessed base; without either, or when the
-    guess is far from the base the data give, the data's base (closed form) is the reference."""
+    guess is far from the base the data give, the data's base (closed form) is the reference.
+    `dynamics`: the model whose holding torques bend the joints (default the prior; an identified
+    one makes the stiffness the true one rather than scaled by the prior's torque error)."""
     t0 = time.perf_counter()
     settings = settings or CalibrateSettings()
     point = None if settings.point_in_tcp_m is None else np.array(settings.point_in_tcp_m)
@@ -1112,7 +1116,7 @@ def calibrate(
     sp = settings.position_sigma_m or ms.position_sigma_m
     so = settings.orientation_sigma_rad or ms.orientation_sigma_rad
     noise_source = "settings" if settings.position_sigma_m else "measurements" if sp else "estimated"
-    tau = holding_torques(robot, ms.q)
+    tau = holding_torques(robot, ms.q, dynamics)
 
     def fitter_for(idx: np.ndarray, comp: tuple[int, ...], base: _Fitter | None = None) -> _Fitter:
         x0 = np.concatenate([start[idx], np.zeros(len(comp))])

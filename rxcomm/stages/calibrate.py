@@ -29,6 +29,7 @@ from rxcomm.calibration.fit import (
 from rxcomm.errors import InputError
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
+from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.geometric_errors import parameter_names, placement_to_se3, se3_to_xyz_rpy
 from rxcomm.model.robot import Robot, load_robot
 from rxcomm.options import parse_numbers
@@ -181,6 +182,7 @@ def calibration_artefact(
         "tracker_orientation_sigma_rad": res.noise.orientation_sigma_rad,
         "tracker_sigma_source": source,
         "n_undetermined": len(res.undetermined),
+        "compliance_torque_model": "identified" if "dynamics" in inputs else "prior",
         "heldout_rms_position_error_m": stat("heldout", "calibrated", "rms_position_error_m"),
         "n_fit": int(res.fit_idx.size),
         "n_heldout": int(res.heldout_idx.size),
@@ -349,6 +351,13 @@ def command(
     model: Annotated[
         Model, typer.Option(help="Error model; auto: chosen by cross-validation over the fit poses.")
     ] = Model.auto,
+    dynamics: Annotated[
+        Path | None,
+        typer.Option(
+            help="dynamics.yaml (identify): its holding torques bend the joints in the compliance "
+            "model (default: the prior model of the URDF and drives.yaml)."
+        ),
+    ] = None,
 ) -> None:
     """Identify the robot's geometric errors from tracker measurements; write the calibration."""
     run(
@@ -364,6 +373,7 @@ def command(
         seed=seed,
         tracker_sigma=tracker_sigma,
         model=model.value,
+        dynamics=dynamics,
     )
 
 
@@ -382,6 +392,7 @@ def run(
     seed: int = 0,
     tracker_sigma: str | None = None,
     model: str = "auto",
+    dynamics: Path | None = None,
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written to `output`."""
     output = Path(output)
@@ -423,8 +434,12 @@ def run(
         ),
         {"holdout_fraction": "holdout", "outlier_sigma": "outlier-sigma"},
     )
+    params = None
+    if dynamics is not None:
+        params = load_dynamics(dynamics, robot)
+        inputs["dynamics"] = Path(dynamics)
     with console.err.status(f"calibrate: fitting {robot.name} to {ms.n} poses"):
-        res = calibrate(robot, ms, settings, tracker_to_base=t2b)
+        res = calibrate(robot, ms, settings, tracker_to_base=t2b, dynamics=params)
     art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)
     output.parent.mkdir(parents=True, exist_ok=True)
     if urdf_out is not None:
