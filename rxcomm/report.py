@@ -165,7 +165,7 @@ def calibration_section(s: Mapping, tables: Sequence[Mapping]) -> Section:
         ],
         table=calibration_table(tables),
         note="Errors are measured on held-out poses the fit never saw, on the simulated cell's tracker "
-        "(σ = 0.05 mm, 0.1 mrad; the sample truth bends J2/J3 under gravity, 1.1e6 / 4.2e5 N·m/rad).",
+        "(σ = 0.05 mm, 0.1 mrad), whose joints bend under gravity.",
     )
 
 
