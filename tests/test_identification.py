@@ -329,26 +329,33 @@ def test_noise_free_prior_is_recovered(rx130l, bset_rx, random_traj, validation_
     assert np.all(res.validation.nrmse < 1e-2)
     # every base parameter's error moves the torque by < 0.1 % of its RMS (a random trajectory leaves
     # the wrist's 1e-5 kg·m² products of inertia poorly determined, but they do not matter)
-    w = bset_rx.base_regressor(regressor(rx130l, preprocess(log, IdentifySettings())))
+    w = bset_rx.base_regressor(regressor(rx130l, preprocess(log, IdentifySettings(), rx130l)))
     tau_rms = np.linalg.norm(w @ bset_rx.project(prior))
     effect = np.linalg.norm(w * (res.estimate.p_b - bset_rx.project(prior)), axis=0) / tau_rms
     assert effect.max() < 1e-3, bset_rx.names[int(np.argmax(effect))]
     assert res.physical_fit.mahalanobis < 1.0  # the prior is consistent
 
 
-def test_a_joint_standing_still_is_judged_by_its_static_friction_band(rx130l, bset_rx, random_traj):
+def test_a_joint_standing_still_is_not_scored_and_never_clipped(rx130l, bset_rx, random_traj):
     prior = prior_parameters(rx130l)
     t, q, qd, qdd = sampled(rx130l, random_traj)
     q[:, 3], qd[:, 3], qdd[:, 3] = 0.3, 0.0, 0.0  # J4 held still (as on an ISO path)
     tau = RobotDynamics(rx130l, prior).inverse_dynamics(q, qd, qdd)
     stuck = tau.copy()
     stuck[:, 3] += 0.5 * prior.coulomb_nm[3]  # static friction somewhere inside ±Fc
-    data = preprocess(JointLog(t, q, stuck), IdentifySettings())
+    data = preprocess(JointLog(t, q, stuck), IdentifySettings(), rx130l)
     val = validate(rx130l, prior, data, "test")
-    assert val.standstill_fraction[3] == 1.0 and val.rms_nm[3] < 1e-9
-    stuck[:, 3] += 2.0 * prior.coulomb_nm[3]  # outside the band: an error of 1.5 Fc − Fc
-    val = validate(rx130l, prior, preprocess(JointLog(t, q, stuck), IdentifySettings()), "test")
-    assert val.rms_nm[3] == pytest.approx(1.5 * prior.coulomb_nm[3], rel=1e-3)
+    # nothing moved: not scored (NaN, null in the summary), never a perfect 0
+    assert val.standstill_fraction[3] == 1.0 and not val.scored[3]
+    assert math.isnan(val.rms_nm[3]) and math.isnan(val.nrmse[3]) and math.isnan(val.r2[3])
+    assert val.scored[[0, 1, 2, 4, 5]].all() and np.all(val.r2[[0, 1, 2, 4, 5]] > 0.999)
+    # standstill scored apart: inside the stiction band, and the plain error is not clipped away
+    assert val.standstill_in_band_fraction[3] == 1.0
+    assert val.standstill_rms_nm[3] == pytest.approx(0.5 * prior.coulomb_nm[3], rel=1e-3)
+    stuck[:, 3] += 2.0 * prior.coulomb_nm[3]  # outside the band
+    val = validate(rx130l, prior, preprocess(JointLog(t, q, stuck), IdentifySettings(), rx130l), "test")
+    assert val.standstill_in_band_fraction[3] == 0.0
+    assert val.standstill_rms_nm[3] == pytest.approx(2.5 * prior.coulomb_nm[3], rel=1e-3)
 
 
 def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
@@ -362,8 +369,10 @@ def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
     )
     assert res.exit_code == 0, res.output
     art = read_yaml_artefact(out, Dynamics)
-    assert art.summary["validation"].startswith("held out: last 20 %")
-    assert art.summary["n_base_params"] == len(art.base_parameters) == 59
+    assert art.summary["validation"].startswith("held out: last 20 % of each of 5 blocks")
+    # 59 + the coupled wrist motor's Coulomb and viscous friction (drives.yaml default: both)
+    assert art.summary["n_base_params"] == len(art.base_parameters) == 61
+    assert art.summary["friction"] == "both"
     assert len(art.summary["validation_nrmse"]) == 6 and max(art.summary["validation_nrmse"]) < 0.05
     # what plan-cp, plan-ptp and run load reproduces the identified torques
     params = load_dynamics(out, rx130l)

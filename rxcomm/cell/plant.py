@@ -22,6 +22,14 @@ Gauss–Seidel on the equivalent LCP in h·A⁻¹ is the fallback should the set
 break-away stays exactly still — no chattering, no creeping — and a joint reverses through rest
 without the sign flipping back and forth. A braked (disabled) joint is the same constraint with the
 brake's holding torque added to its friction capacity.
+
+Motor-side friction (truth `motor_*_friction_nm`): a motor's viscous friction adds Fv_m·R_iᵀR_i to
+F_v; its Coulomb friction acts on the motor velocity R_i·q̇, not on a joint's. The box LCP stays a box
+in the friction basis D (row j: e_j for joint friction, R_j for the motor of axis j when that motor
+has Coulomb friction): with u = D·q̇ the step reads D⁻ᵀAD⁻¹·u⁺ = D⁻ᵀr − h·f, the same problem. A row
+holds one element, so an axis whose motor has Coulomb friction has none at its joint (refused
+otherwise). The plant also needs positive-definite link inertias (M must be SPD); a massless link or a
+point mass is fine for identification priors, not here.
 """
 
 from __future__ import annotations
@@ -54,7 +62,7 @@ class Plant:
         substeps: int = 1,
         brake_torque_nm: np.ndarray | None = None,
     ):
-        params.check_robot(robot)
+        params.check_robot(robot, friction=False)
         if substeps < 1:
             raise ValueError("substeps must be >= 1")
         n = robot.n
@@ -64,7 +72,25 @@ class Plant:
         r = robot.joint_to_motor
         self.rotor = r.T @ np.diag(params.rotor_inertia_kgm2) @ r
         self.fc = np.array(params.coulomb_nm, dtype=float)
-        self.fv = np.array(params.viscous_nm_s_per_rad, dtype=float)
+        fv = np.diag(np.array(params.viscous_nm_s_per_rad, dtype=float))
+        self.basis: np.ndarray | None = None  # friction basis D (None: the joints)
+        if params.has_motor_friction:
+            fv = fv + r.T @ np.diag(params.motor_viscous_nm_s_per_rad) @ r
+            mfc = np.array(params.motor_coulomb_nm, dtype=float)
+            if np.any(mfc):
+                both = np.flatnonzero((mfc != 0) & (self.fc != 0))
+                if len(both):
+                    raise InputError(
+                        f"the simulated plant models Coulomb friction of motor {robot.joint_names[both[0]]} "
+                        "in place of its joint's: set that joint's coulomb_friction_nm to 0 (or the motor's)",
+                        field="dynamics.motor_coulomb_friction_nm",
+                    )
+                d = np.eye(n)
+                d[mfc != 0] = r[mfc != 0]
+                self.basis = d
+                self._basis_inv = np.linalg.inv(d)
+                self.fc = np.where(mfc != 0, mfc, self.fc)
+        self.fv_matrix = fv
         self.offset = np.array(params.offset_nm, dtype=float)
         self.h = (robot.drives.cycle_s if cycle_s is None else cycle_s) / substeps
         self.substeps = substeps
@@ -86,7 +112,7 @@ class Plant:
         self.v = np.zeros(n)
         self.friction = np.zeros(n)  # last friction torque f (N·m), warm start of the next solve
         self._static_q: np.ndarray | None = None  # static torque at q, valid while the arm rests
-        self._hfv = np.diag(self.h * self.fv)
+        self._hfv = self.h * self.fv_matrix
         m = pin.crba(self.model, self.data, np.linspace(0.3, 0.8, n))
         self._crba_full = bool(np.allclose(m, m.T))
 
@@ -106,6 +132,8 @@ class Plant:
     def step(self, tau_nm: np.ndarray, braked: np.ndarray) -> None:
         """Advance one drive cycle with joint torques `tau_nm` held; `braked` joints are held by brakes."""
         cap = self.fc + self.brake * braked
+        if self.basis is not None:  # a brake on a motor-basis row holds through that row's scale
+            cap = self.fc + self.brake * braked / np.abs(np.diag(self.basis))
         for _ in range(self.substeps):
             if not self.v.any():
                 # At rest the all-sticking solution of the friction problem is f = τ − static(q)
@@ -114,7 +142,8 @@ class Plant:
                 if self._static_q is None:
                     self._static_q = self.static_torque(self.q)
                 f = tau_nm - self._static_q
-                if (np.abs(f) <= cap).all():
+                fe = f if self.basis is None else self._basis_inv.T @ f
+                if (np.abs(fe) <= cap).all():
                     self.friction = f
                     return
             self._substep(tau_nm, cap)
@@ -129,7 +158,13 @@ class Plant:
         b = pin.nonLinearEffects(self.model, self.data, q, v) + self.offset + self.spring_torque(q)
         a = m + self._hfv
         r = m @ v + h * (tau - b)
-        v_new, f = friction_step(a, r, h, cap, v)
+        if self.basis is None:
+            v_new, f = friction_step(a, r, h, cap, v)
+        else:  # in the friction basis u = D·q̇ (module docstring)
+            di = self._basis_inv
+            a_u = di.T @ a @ di
+            u_new, f_u = friction_step(0.5 * (a_u + a_u.T), di.T @ r, h, cap, self.basis @ v)
+            v_new, f = di @ u_new, self.basis.T @ f_u
         self.friction = f
         self.v = v_new
         self.q = q + h * v_new
