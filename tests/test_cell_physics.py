@@ -190,6 +190,28 @@ def test_stiction_holds_below_breakaway_and_slides_above_without_chatter(rx_trut
     assert stop > 0 and np.all(vs[:stop] > 0) and np.all(vs[stop:] == 0.0)  # never below zero, stays
 
 
+def test_coupled_motor_friction_sticks_and_slides_in_motor_space(rx_truth):
+    """The RX130L truth puts joint_6's Coulomb friction on motor 6 (turning at 40·(q̇6 + 0.4·q̇5)): a
+    motor torque below its break-away, felt as Rᵀ·τ_m on joints 5 and 6, holds exactly; above it the
+    motor slides, turning joint 6 while joint 5's own friction (1.96 N·m > 16·τ_m) holds it."""
+    robot, params = rx_truth.robot, rx_truth.params
+    assert params.coulomb_nm[5] == 0.0 and params.motor_coulomb_nm[5] > 0
+    r = robot.joint_to_motor
+    free = np.zeros(6, dtype=bool)
+    plant = Plant(robot, params, Q_LOADED)
+    hold = plant.static_torque(Q_LOADED)
+    e6 = np.eye(6)[5]
+    stick = hold + r.T @ (0.9 * params.motor_coulomb_nm[5] * e6)  # 0.35 N·m on joint 5, 0.98 on 6
+    for _ in range(500):
+        plant.step(stick, free)
+    np.testing.assert_array_equal(plant.q, Q_LOADED)
+    slide = hold + r.T @ (1.5 * params.motor_coulomb_nm[5] * e6)
+    for _ in range(200):
+        plant.step(slide, free)
+    assert (r @ plant.v)[5] > 0 and plant.v[5] > 0  # motor 6 turns, with joint 6
+    assert plant.v[4] == 0.0
+
+
 def test_brakes_hold_disabled_axes_exactly(rx_truth):
     cell = cell_at(rx_truth, Q_LOADED)
     for _ in range(2500):

@@ -839,7 +839,7 @@ def holdout_mask(t: np.ndarray, fraction: float, blocks: int) -> np.ndarray:
     t0, span = t[0], t[-1] - t[0]
     phase = ((t - t0) / span * blocks) % 1.0
     last = (t - t0) >= span * (1.0 - 1e-12)
-    return (phase >= 1.0 - fraction) | last
+    return (phase >= 1.0 - fraction - 1e-9) | last
 
 
 # ------------------------------------------------------------------------------------------------
@@ -881,9 +881,7 @@ class Identification:
         """Links whose pseudo-inertia (closest full vector to the prior) is not positive definite, with
         the smallest eigenvalue: no body has that mass distribution."""
         names = self.params.joint_names
-        return [
-            f"{names[i]} ({v:.3g} kg·m²)" for i, v in enumerate(self.link_min_eig_kgm2) if v <= 0
-        ]
+        return [f"{names[i]} ({v:.3g} kg·m²)" for i, v in enumerate(self.link_min_eig_kgm2) if v <= 0]
 
     def warnings(self, settings: IdentifySettings | None = None) -> list[str]:
         """What a user should act on: too few rows per parameter, parameters the data barely see."""
@@ -904,7 +902,7 @@ class Identification:
             more = f" and {len(big) - 5} more" if len(big) > 5 else ""
             out.append(
                 f"{len(big)} base parameters have a relative standard deviation above 100 % "
-                f"({', '.join(big[:5])}{more}): the log hardly excites them"
+                f"({', '.join(big[:5])}{more}): small, or the log hardly excites them"
             )
         return out
 

@@ -190,7 +190,9 @@ class DynamicParameters:
         if extra := [n for n in values if n not in names]:
             raise InputError(f"unknown dynamic parameters {extra[:5]} for robot {robot.name!r}")
         p = np.array([values[n] for n in names])
-        return cls.from_vector(robot.joint_names, p, robot.drives.spring is not None, robot.has_motor_friction)
+        return cls.from_vector(
+            robot.joint_names, p, robot.drives.spring is not None, robot.has_motor_friction
+        )
 
     def check_robot(self, robot: Robot, friction: bool = True) -> None:
         """Raise InputError unless these parameters describe `robot`'s joints, spring and (unless

@@ -2,7 +2,8 @@
 
 Reads the robot and a joint log (`run`'s MCAP, topic /run/joints, or a CSV: docs/identify-csv.md),
 identifies the base parameters (`rxcomm.identification.fit`), validates them on another log
-(``--validate``, e.g. an ISO 9283 path) or on the held-out last 20 % of the log, and writes
+(``--validate``, e.g. an ISO 9283 path) or on held-out parts of the log (the last 20 % of each of
+5 blocks), and writes
 ``dynamics.yaml`` (kind rxcomm/Dynamics), which plan-cp, plan-ptp and run load. ``--plot`` writes
 ``dynamics.png``: measured against predicted torques on the validation data (paper Fig. 5b).
 """
@@ -31,6 +32,20 @@ class Method(StrEnum):
     ols = "ols"
 
 
+class Friction(StrEnum):
+    joint = "joint"
+    motor = "motor"
+    both = "both"
+
+
+NOT_SCORED = "not scored"
+
+
+def per_joint(values: list[float | None], scale: float = 1.0, unit: str = "") -> str:
+    """Per-joint figures; a joint that did not move on the validation data reads "not scored"."""
+    return ", ".join(NOT_SCORED if v is None else f"{v * scale:.3g}{unit}" for v in values)
+
+
 def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
     """PNG: measured and predicted joint torques on the validation data, one panel per joint."""
     import matplotlib
@@ -45,7 +60,11 @@ def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
         ax.plot(val.t, val.measured[:, j], lw=1.0, label="measured")
         ax.plot(val.t, val.predicted[:, j], lw=1.0, ls="--", label="identified model")
         ax.set_ylabel(f"{robot.joint_names[j]} [N·m]")
-        ax.set_title(f"RMS {val.rms_nm[j]:.3g} N·m, NRMSE {100 * val.nrmse[j]:.2f} %", fontsize=9)
+        if val.scored[j]:
+            title = f"RMS {val.rms_nm[j]:.3g} N·m, NRMSE {100 * val.nrmse[j]:.2f} %, R² {val.r2[j]:.3f}"
+        else:
+            title = "not scored: the joint did not move"
+        ax.set_title(title, fontsize=9)
         ax.grid(alpha=0.3)
     axes.ravel()[0].legend(fontsize=8)
     for ax in axes.ravel()[-2:]:
@@ -65,7 +84,14 @@ def command(
     output: Annotated[Path, typer.Option("-o", "--output", help="Output dynamics.yaml.")],
     validate: Annotated[
         Path | None,
-        typer.Option(help="Validation log (another trajectory, e.g. ISO 9283); default: last 20 % of LOG."),
+        typer.Option(
+            help="Validation log (another trajectory, e.g. ISO 9283); default: the last 20 % of each of "
+            "5 blocks of LOG."
+        ),
+    ] = None,
+    friction: Annotated[
+        Friction | None,
+        typer.Option(help="Friction model: joint, motor or both (default: drives.yaml's friction)."),
     ] = None,
     physical: Annotated[
         bool,
@@ -111,6 +137,7 @@ def command(
         "max_gap_s": max_gap,
         "torque_lag_s": torque_lag,
         "stick_guard_s": stick_guard,
+        "friction": None if friction is None else friction.value,
     }
     run(robot_dir, log, output, validate=validate, settings=values, plot=plot)
 
@@ -174,21 +201,24 @@ def run(
     if plot:
         png = plot_validation(robot, result, output.with_suffix(".png"))
         console.out.print(f"plot: {png}")
-    shown = {
-        k: summary[k]
-        for k in (
-            "n_base_params",
-            "cond",
-            "validation",
-            "validation_nrmse",
-            "validation_rms_nm",
-            "fit_rms_nm",
-            "max_relative_std",
-            "n_inconsistent_links",
-            "consistency_distance_sigma",
-            "method",
-            "seconds",
+    shown = {k: summary[k] for k in ("n_base_params", "friction", "cond", "cutoff_hz", "sample_hz")}
+    shown["rows_per_parameter"] = f"{summary['rows_per_parameter']:.1f} ({est.n_rows} rows)"
+    shown["validation"] = summary["validation"]
+    shown["validation_rms_nm (moving rows)"] = per_joint(summary["validation_rms_nm"])
+    shown["validation_nrmse"] = per_joint(summary["validation_nrmse"], 100, " %")
+    shown["validation_r2"] = per_joint(summary["validation_r2"])
+    shown["standstill_in_band_fraction"] = per_joint(summary["validation_standstill_in_band_fraction"])
+    for k in ("fit_rms_nm", "max_relative_std", "n_inconsistent_links"):
+        shown[k] = summary[k]
+    if summary["inconsistent_links"]:
+        shown["inconsistent_links"] = (
+            f"{summary['inconsistent_links']}: pseudo-inertia not positive definite (no body has that mass "
+            f"distribution); the nearest consistent estimate is {summary['consistency_distance_sigma']:.3g} σ "
+            "away (≲ √n_base: within the noise; --physical writes it)"
         )
-    }
+    for k in ("consistency_distance_sigma", "method", "seconds"):
+        shown[k] = summary[k]
     console.summary_table(f"identify → {output}", shown)
+    for w in result.warnings(opts):
+        console.err.print(f"[yellow]warning:[/] {w}")
     return art
