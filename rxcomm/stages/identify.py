@@ -211,10 +211,11 @@ def run(
     for k in ("fit_rms_nm", "max_relative_std", "n_inconsistent_links"):
         shown[k] = summary[k]
     if summary["inconsistent_links"]:
+        dist = summary["consistency_distance_sigma"]
         shown["inconsistent_links"] = (
             f"{summary['inconsistent_links']}: pseudo-inertia not positive definite (no body has that mass "
-            f"distribution); the nearest consistent estimate is {summary['consistency_distance_sigma']:.3g} σ "
-            "away (≲ √n_base: within the noise; --physical writes it)"
+            f"distribution); the nearest consistent estimate is {dist:.3g} σ away (≲ √n_base: within "
+            "the noise; --physical writes it)"
         )
     for k in ("consistency_distance_sigma", "method", "seconds"):
         shown[k] = summary[k]
