@@ -67,6 +67,14 @@ class Plant:
             raise ValueError("substeps must be >= 1")
         n = robot.n
         self.n = n
+        for name, pi in zip(robot.joint_names, params.inertial, strict=True):
+            # Identification accepts a massless link or a point mass as a prior; integrating needs
+            # M(q) positive definite, i.e. every link a body with mass.
+            if not pi[0] > 0:
+                raise InputError(
+                    f"the simulated plant needs a positive mass for every link; {name} has {pi[0]:g} kg",
+                    field="dynamics.links",
+                )
         self.model = model_with_inertials(robot.model, params.inertial)
         self.data = self.model.createData()
         r = robot.joint_to_motor
