@@ -544,6 +544,52 @@ def test_default_holdout_is_interleaved_and_a_still_tail_does_not_blind_it(rx130
     assert all(v is None for v in last.summary()["validation_nrmse"])
 
 
+def test_scoring_a_model_on_a_log_reproduces_its_validation(
+    tmp_path, rx130l, truth_rx, random_traj, validation_traj
+):
+    truth = truth_parameters(rx130l, truth_rx)
+    noise = truth_rx.noise.torque_noise_nm
+    t, q, qd, qdd = sampled(rx130l, random_traj)
+    q_m, tau_m = measured(rx130l, truth, t, q, qd, qdd, noise, 1e-6, seed=3)
+    log = write_run_log(tmp_path / "excite-log.mcap", t, q_m, tau_m)
+    tv, qv, qdv, qddv = sampled(rx130l, validation_traj)
+    qv_m, tauv_m = measured(rx130l, truth, tv, qv, qdv, qddv, noise, 1e-6, seed=4)
+    vlog = write_run_log(tmp_path / "iso-log.mcap", tv, qv_m, tauv_m)
+    out = tmp_path / "dynamics.yaml"
+    rx = str(SAMPLES / "rx130l")
+    res = CliRunner().invoke(
+        app,
+        [
+            "identify",
+            "--robot",
+            rx,
+            "--log",
+            str(log),
+            "--validate",
+            str(vlog),
+            "-o",
+            str(out),
+            "--cutoff-hz",
+            "12",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    made = read_yaml_artefact(out, Dynamics).summary
+    from rxcomm.stages.identify import score_run
+
+    csv = tmp_path / "torques.csv"
+    val = score_run(SAMPLES / "rx130l", out, vlog, torques_csv=csv)  # the model's own cut-off: 12 Hz
+    np.testing.assert_allclose(val.rms_nm, made["validation_rms_nm"], rtol=1e-9)
+    np.testing.assert_allclose(val.r2, made["validation_r2"], rtol=1e-9)
+    table = np.loadtxt(csv, delimiter=",", comments="#", skiprows=2)
+    assert table.shape == (len(val.t), 1 + 3 * 6)
+    np.testing.assert_allclose(table[:, 7:13], val.predicted, rtol=1e-8, atol=1e-8)
+    res = CliRunner().invoke(app, ["identify", "--robot", rx, "--model", str(out), "--validate", str(vlog)])
+    assert res.exit_code == 0 and "scored on iso-log.mcap" in res.output, res.output
+    res = CliRunner().invoke(app, ["identify", "--robot", rx, "--model", str(out), "--log", str(vlog)])
+    assert res.exit_code == 2 and "--validate" in res.output
+
+
 # --------------------------------------------------------------------------------------------- recovery
 
 

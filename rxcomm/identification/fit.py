@@ -1023,3 +1023,31 @@ def identify(
         cutoff_hz=settings.cutoff_hz,
         timings=timings,
     )
+
+
+def score(
+    robot: Robot, params: DynamicParameters, log: JointLog, settings: IdentifySettings | None = None
+) -> Validation:
+    """An identified model checked on another log without refitting (e.g. last month's model against
+    today's recording): the same processing and figures as `identify`'s validation."""
+    settings = settings or IdentifySettings()
+    if settings.friction is not None and settings.friction != robot.friction_mode:
+        robot = robot.with_friction(settings.friction)
+    data = preprocess(check_log(log, robot, settings), settings, robot)
+    return validate(robot, params, data, f"log: {Path(log.source).name or 'given'}", settings.min_speed_rad_s)
+
+
+def write_torques_csv(path: str | Path, joint_names: tuple[str, ...], val: Validation) -> Path:
+    """The validation rows as CSV: time_s, then per joint the measured and predicted torque (N·m, both
+    through the same low-pass) and whether the joint moved (scored) on that row."""
+    path = Path(path)
+    n = len(joint_names)
+    header = ["time_s"]
+    header += [f"tau{i + 1}_measured_nm" for i in range(n)] + [f"tau{i + 1}_predicted_nm" for i in range(n)]
+    header += [f"moving{i + 1}" for i in range(n)]
+    table = np.column_stack([val.t, val.measured, val.predicted, val.moving.astype(float)])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(f"# {val.source}; joints {', '.join(joint_names)}\n" + ",".join(header) + "\n")
+        np.savetxt(f, table, delimiter=",", fmt="%.10g")
+    return path
