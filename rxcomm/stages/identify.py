@@ -52,9 +52,11 @@ class Friction(StrEnum):
 NOT_SCORED = "not scored"
 
 
-def per_joint(values: list[float | None], scale: float = 1.0, unit: str = "") -> str:
+def per_joint(
+    values: list[float | None], scale: float = 1.0, unit: str = "", none: str = NOT_SCORED, fmt: str = ".3g"
+) -> str:
     """Per-joint figures; a joint that did not move on the validation data reads "not scored"."""
-    return ", ".join(NOT_SCORED if v is None else f"{v * scale:.3g}{unit}" for v in values)
+    return ", ".join(none if v is None else f"{v * scale:{fmt}}{unit}" for v in values)
 
 
 def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
@@ -195,8 +197,8 @@ def validation_rows(val: Validation) -> dict[str, object]:
         "validation_nrmse": per_joint(
             [None if not ok else float(v) for v, ok in zip(val.nrmse, val.scored, strict=True)], 100, " %"
         ),
-        "validation_r2": per_joint([None if not np.isfinite(v) else float(v) for v in val.r2]),
-        "standstill_in_band_fraction": per_joint(nan),
+        "validation_r2": per_joint([None if not np.isfinite(v) else float(v) for v in val.r2], fmt=".4f"),
+        "standstill_in_band_fraction": per_joint(nan, none="no standstill"),
     }
 
 
