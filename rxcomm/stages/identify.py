@@ -19,9 +19,8 @@ from typing import Annotated
 
 import numpy as np
 import typer
-from pydantic import ValidationError
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.identification.fit import (
     Identification,
@@ -32,6 +31,7 @@ from rxcomm.identification.fit import (
     score,
     write_torques_csv,
 )
+from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
 from rxcomm.model.base_parameters import dynamics_artefact_fields, dynamics_from_artefact
 from rxcomm.model.robot import Robot, load_robot
@@ -61,10 +61,7 @@ def per_joint(
 
 def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
     """PNG: measured and predicted joint torques on the validation data, one panel per joint."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = plotting.pyplot()
 
     val = result.validation
     n = robot.n
@@ -179,11 +176,7 @@ def _check_mode(model: Path | None, log: Path | None, output: Path | None, valid
 
 def _settings(settings: IdentifySettings | dict | None) -> IdentifySettings:
     values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
-    try:
-        return IdentifySettings(**values)
-    except ValidationError as e:
-        err = e.errors()[0]
-        raise InputError(err["msg"], field=".".join(str(p) for p in err["loc"]) or None) from e
+    return settings_from_options(IdentifySettings, values)
 
 
 def validation_rows(val: Validation) -> dict[str, object]:

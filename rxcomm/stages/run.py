@@ -15,7 +15,7 @@ from typing import Annotated, Any
 
 import typer
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.campaign import (
     CampaignSettings,
@@ -280,10 +280,7 @@ def _print_run(summary: dict[str, Any], written: Path, robot: Robot) -> None:
 def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> Path:
     """PNG: lag (following) error per joint over time, and the TCP error; with ``compare``, both runs
     (the paper's Fig. 2: with and without feed-forward)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = plotting.pyplot()
 
     logs = [read_run_log(log_path)]
     if compare is not None:
