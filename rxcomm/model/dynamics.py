@@ -361,7 +361,8 @@ class RobotDynamics:
         if p.has_motor_friction:
             r = self.robot.joint_to_motor
             vm = qd @ r.T  # motor velocities
-            tau_m = p.motor_coulomb_nm * coulomb_shape(vm, self.coulomb_eps_rad_s)
+            # smoothing on the axis's joint scale (ε per joint rad/s), exact sign unchanged
+            tau_m = p.motor_coulomb_nm * coulomb_shape(vm / np.abs(np.diag(r)), self.coulomb_eps_rad_s)
             tau = tau + (tau_m + p.motor_viscous_nm_s_per_rad * vm) @ r
         if qdd is not None:
             tau = tau + qdd @ self.rotor_matrix.T
@@ -458,7 +459,8 @@ def joint_torque_regressor(robot: Robot, q, qd, qdd, coulomb_eps_rad_s=None) -> 
     if robot.has_motor_friction:
         m0 = 14 * n + (2 if robot.drives.spring is not None else 0)
         vm = qd @ r.T
-        y[:, :, m0 : m0 + n] = r.T[None, :, :] * coulomb_shape(vm, coulomb_eps_rad_s)[:, None, :]
+        shape = coulomb_shape(vm / np.abs(np.diag(r)), coulomb_eps_rad_s)
+        y[:, :, m0 : m0 + n] = r.T[None, :, :] * shape[:, None, :]
         y[:, :, m0 + n : m0 + 2 * n] = r.T[None, :, :] * vm[:, None, :]
         if robot.friction_mode == "motor":
             y[:, :, 11 * n : 13 * n] = 0.0

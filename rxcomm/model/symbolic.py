@@ -139,7 +139,8 @@ def inverse_dynamics_expr(robot: Robot, q, qd, qdd, p, coulomb_eps_rad_s: float 
         fc_m = ca.vertcat(*[p[m0 + i] for i in range(n)])
         fv_m = ca.vertcat(*[p[m0 + n + i] for i in range(n)])
         vm = ca.mtimes(r, qd)
-        tau = tau + ca.mtimes(r.T, fc_m * _coulomb(vm, coulomb_eps_rad_s) + fv_m * vm)
+        scale = ca.DM(np.abs(np.diag(robot.joint_to_motor)))  # ε on the axis's joint scale
+        tau = tau + ca.mtimes(r.T, fc_m * _coulomb(vm / scale, coulomb_eps_rad_s) + fv_m * vm)
     return tau
 
 
