@@ -545,6 +545,10 @@ def test_default_holdout_is_interleaved_and_a_still_tail_does_not_blind_it(rx130
     last = identify(rx130l, JointLog(t, q, tau), settings.model_copy(update={"holdout_blocks": 1}))
     assert not last.validation.scored.any()  # the last 20 %: nothing moved, nothing scored
     assert all(v is None for v in last.summary()["validation_nrmse"])
+    # guidance: rows per base parameter stated, and a suggestion when they are few
+    assert res.summary()["rows_per_parameter"] == pytest.approx(res.estimate.n_rows / res.bset.n_base)
+    (few,) = [w for w in res.warnings(IdentifySettings(min_rows_per_parameter=1e4)) if "per parameter" in w]
+    assert "--cutoff-hz" in few and "--decimate-hz" in few
 
 
 def test_scoring_a_model_on_a_log_reproduces_its_validation(
