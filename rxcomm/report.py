@@ -183,16 +183,23 @@ def excitation_section(s: Mapping, image: str | None) -> Section:
     )
 
 
-def _per_joint(values: Sequence[float | None] | None, scale: float = 1.0, unit: str = "") -> str:
-    """Per-joint figures; None (a joint that did not move on the validation data) is "not scored"."""
+def _per_joint(
+    values: Sequence[float | None] | None,
+    scale: float = 1.0,
+    unit: str = "",
+    none: str = "not scored",
+    decimals: int | None = None,
+) -> str:
+    """Per-joint figures (3 significant digits, or `decimals` fixed); None (a joint that did not move
+    on the validation data) is "not scored"."""
     if values is None:
         return "—"
-    return (
-        "["
-        + ", ".join("not scored" if v is None else _f(v, scale) for v in values)
-        + "]"
-        + (f" {unit}" if unit else "")
-    )
+
+    def one(v: float) -> str:
+        return _f(v, scale) if decimals is None else f"{float(v) * scale:.{decimals}f}"
+
+    text = ", ".join(none if v is None else one(v) for v in values)
+    return f"[{text}]" + (f" {unit}" if unit else "")
 
 
 def dynamics_section(s: Mapping, image: str | None) -> Section:
@@ -213,10 +220,10 @@ def dynamics_section(s: Mapping, image: str | None) -> Section:
                 _per_joint(s["validation_nrmse"], 100, "%"),
                 "Fig. 5b: close match",
             ),
-            Figure("validation R² per joint", _per_joint(s.get("validation_r2"))),
+            Figure("validation R² per joint", _per_joint(s.get("validation_r2"), decimals=4)),
             Figure(
                 "standstill rows inside the stiction band, per joint",
-                _per_joint(s.get("validation_standstill_in_band_fraction")),
+                _per_joint(s.get("validation_standstill_in_band_fraction"), none="no standstill"),
             ),
             Figure(
                 "low-pass cut-off; fit rows per base parameter",
