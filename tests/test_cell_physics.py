@@ -7,6 +7,7 @@ are quantised exactly as a master's would be (1 µrad, 0.1 % rated torque).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import pinocchio as pin
@@ -190,26 +191,32 @@ def test_stiction_holds_below_breakaway_and_slides_above_without_chatter(rx_trut
     assert stop > 0 and np.all(vs[:stop] > 0) and np.all(vs[stop:] == 0.0)  # never below zero, stays
 
 
-def test_coupled_motor_friction_sticks_and_slides_in_motor_space(rx_truth):
-    """The RX130L truth puts joint_6's Coulomb friction on motor 6 (turning at 40·(q̇6 + 0.4·q̇5)): a
-    motor torque below its break-away, felt as Rᵀ·τ_m on joints 5 and 6, holds exactly; above it the
-    motor slides, turning joint 6 while joint 5's own friction (1.96 N·m > 16·τ_m) holds it."""
+def test_coupled_motor_friction_loads_both_wrist_joints(rx_truth):
+    """The RX130L truth's motor 6 (turning at 40·(q̇6 + 0.4·q̇5)) has Coulomb friction of its own: while
+    it turns, joint torques Rᵀ·Fc_m·sgn(R·q̇) load joint 5 (16·Fc_m) as well as joint 6 (40·Fc_m); at
+    rest it adds nothing (the joints' stiction holds the arm)."""
     robot, params = rx_truth.robot, rx_truth.params
-    assert params.coulomb_nm[5] == 0.0 and params.motor_coulomb_nm[5] > 0
-    r = robot.joint_to_motor
-    free = np.zeros(6, dtype=bool)
-    plant = Plant(robot, params, Q_LOADED)
-    hold = plant.static_torque(Q_LOADED)
-    e6 = np.eye(6)[5]
-    stick = hold + r.T @ (0.9 * params.motor_coulomb_nm[5] * e6)  # 0.35 N·m on joint 5, 0.98 on 6
-    for _ in range(500):
-        plant.step(stick, free)
-    np.testing.assert_array_equal(plant.q, Q_LOADED)
-    slide = hold + r.T @ (1.5 * params.motor_coulomb_nm[5] * e6)
+    fc_m = params.motor_coulomb_nm[5]
+    assert fc_m > 0
+    plain = replace(params, motor_coulomb_nm=np.zeros(6))
+    q = Q_LOADED
+    for qd in (np.array([0.0, 0, 0, 0, 0.5, 0.3]), np.array([0.0, 0, 0, 0, -0.9, 0.2])):
+        dv = []
+        for p in (params, plain):
+            plant = Plant(robot, p, q, cycle_s=1e-7)
+            plant.v = qd.copy()
+            plant.step(RobotDynamics(robot, plain).inverse_dynamics(q, qd, np.zeros(6)), np.zeros(6, bool))
+            dv.append(plant.v - qd)
+        m = RobotDynamics(robot, params).mass_matrix(q)
+        tau_extra = -(m @ (dv[0] - dv[1])) / 1e-7  # the torque the motor friction took
+        expected = robot.joint_to_motor[5] * fc_m * np.sign(qd[5] + 0.4 * qd[4])
+        # joints 1–4 stick in both runs; on joints 5 and 6 the difference is the motor's friction
+        np.testing.assert_allclose(tau_extra[4:], expected[4:], atol=1e-3 * fc_m * 40)
+        assert abs(expected[4]) == pytest.approx(16 * fc_m)
+    plant = Plant(robot, params, q)
     for _ in range(200):
-        plant.step(slide, free)
-    assert (r @ plant.v)[5] > 0 and plant.v[5] > 0  # motor 6 turns, with joint 6
-    assert plant.v[4] == 0.0
+        plant.step(plant.static_torque(q), np.zeros(6, bool))
+    np.testing.assert_array_equal(plant.q, q)
 
 
 def test_brakes_hold_disabled_axes_exactly(rx_truth):

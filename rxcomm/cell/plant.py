@@ -24,12 +24,14 @@ without the sign flipping back and forth. A braked (disabled) joint is the same 
 brake's holding torque added to its friction capacity.
 
 Motor-side friction (truth `motor_*_friction_nm`): a motor's viscous friction adds Fv_m·R_iᵀR_i to
-F_v; its Coulomb friction acts on the motor velocity R_i·q̇, not on a joint's. The box LCP stays a box
-in the friction basis D (row j: e_j for joint friction, R_j for the motor of axis j when that motor
-has Coulomb friction): with u = D·q̇ the step reads D⁻ᵀAD⁻¹·u⁺ = D⁻ᵀr − h·f, the same problem. A row
-holds one element, so an axis whose motor has Coulomb friction has none at its joint (refused
-otherwise). The plant also needs positive-definite link inertias (M must be SPD); a massless link or a
-point mass is fine for identification priors, not here.
+F_v (implicit); its Coulomb friction acts on the motor velocity R_i·q̇, which no joint's box in the
+LCP can express, and is applied explicitly, regularised: Rᵀ·Fc_m·tanh(R·q̇ / (N·ε)), ε =
+`MOTOR_COULOMB_EPS_RAD_S` in the axis's joint units (stable: h·Fc_m·R_ii/ε is well below the axis
+inertia). A motor's Coulomb friction therefore has no stiction of its own; the joints' hold the arm.
+(Putting joint 6's Coulomb friction on motor 6 instead, as stiction, left joint 6's joint-side drive
+loop without friction: 31 mrad lag on the excitation, near the 35 mrad trip.) The plant needs
+positive-definite link inertias (M must be SPD): a massless link or a point mass is fine for
+identification priors, not here.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ from rxcomm.model.dynamics import DynamicParameters, model_with_inertials
 from rxcomm.model.robot import Robot
 
 PGS_MAX_SWEEPS = 60
+MOTOR_COULOMB_EPS_RAD_S = 0.01  # regularisation of motor-side Coulomb friction (joint units)
 PGS_TOL_RAD_S = 1e-12
 
 
@@ -81,23 +84,13 @@ class Plant:
         self.rotor = r.T @ np.diag(params.rotor_inertia_kgm2) @ r
         self.fc = np.array(params.coulomb_nm, dtype=float)
         fv = np.diag(np.array(params.viscous_nm_s_per_rad, dtype=float))
-        self.basis: np.ndarray | None = None  # friction basis D (None: the joints)
+        self._motor_coulomb: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         if params.has_motor_friction:
             fv = fv + r.T @ np.diag(params.motor_viscous_nm_s_per_rad) @ r
             mfc = np.array(params.motor_coulomb_nm, dtype=float)
             if np.any(mfc):
-                both = np.flatnonzero((mfc != 0) & (self.fc != 0))
-                if len(both):
-                    raise InputError(
-                        f"the simulated plant models Coulomb friction of motor {robot.joint_names[both[0]]} "
-                        "in place of its joint's: set that joint's coulomb_friction_nm to 0 (or the motor's)",
-                        field="dynamics.motor_coulomb_friction_nm",
-                    )
-                d = np.eye(n)
-                d[mfc != 0] = r[mfc != 0]
-                self.basis = d
-                self._basis_inv = np.linalg.inv(d)
-                self.fc = np.where(mfc != 0, mfc, self.fc)
+                scale = 1.0 / (np.abs(np.diag(r)) * MOTOR_COULOMB_EPS_RAD_S)
+                self._motor_coulomb = (r, mfc, scale)
         self.fv_matrix = fv
         self.offset = np.array(params.offset_nm, dtype=float)
         self.h = (robot.drives.cycle_s if cycle_s is None else cycle_s) / substeps
@@ -140,8 +133,6 @@ class Plant:
     def step(self, tau_nm: np.ndarray, braked: np.ndarray) -> None:
         """Advance one drive cycle with joint torques `tau_nm` held; `braked` joints are held by brakes."""
         cap = self.fc + self.brake * braked
-        if self.basis is not None:  # a brake on a motor-basis row holds through that row's scale
-            cap = self.fc + self.brake * braked / np.abs(np.diag(self.basis))
         for _ in range(self.substeps):
             if not self.v.any():
                 # At rest the all-sticking solution of the friction problem is f = τ − static(q)
@@ -150,8 +141,7 @@ class Plant:
                 if self._static_q is None:
                     self._static_q = self.static_torque(self.q)
                 f = tau_nm - self._static_q
-                fe = f if self.basis is None else self._basis_inv.T @ f
-                if (np.abs(fe) <= cap).all():
+                if (np.abs(f) <= cap).all():
                     self.friction = f
                     return
             self._substep(tau_nm, cap)
@@ -164,15 +154,12 @@ class Plant:
             m = np.triu(m) + np.triu(m, 1).T
         m = m + self.rotor
         b = pin.nonLinearEffects(self.model, self.data, q, v) + self.offset + self.spring_torque(q)
+        if self._motor_coulomb is not None:  # explicit, regularised (module docstring)
+            rm, mfc, scale = self._motor_coulomb
+            b = b + rm.T @ (mfc * np.tanh((rm @ v) * scale))
         a = m + self._hfv
         r = m @ v + h * (tau - b)
-        if self.basis is None:
-            v_new, f = friction_step(a, r, h, cap, v)
-        else:  # in the friction basis u = D·q̇ (module docstring)
-            di = self._basis_inv
-            a_u = di.T @ a @ di
-            u_new, f_u = friction_step(0.5 * (a_u + a_u.T), di.T @ r, h, cap, self.basis @ v)
-            v_new, f = di @ u_new, self.basis.T @ f_u
+        v_new, f = friction_step(a, r, h, cap, v)
         self.friction = f
         self.v = v_new
         self.q = q + h * v_new

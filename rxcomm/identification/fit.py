@@ -31,7 +31,7 @@ such a sample at the source rate: the low-pass spreads the stick phase's frictio
 ±Fc) over that time, which parallel filtering of sgn(q̇) cannot reproduce; near reversals the
 residual is 2–6× the noise, beyond 1/cutoff at the noise. A coupled motor with friction sticks when
 its own velocity R_i·q̇ passes zero, so its slow samples guard every joint it loads: without that
-guard the RX130L's motor-6 Coulomb friction came out 4σ low on the simulated cell, with it 0.2σ.
+guard a simulated motor-6 stiction of 0.027 N·m came out 4σ low on the cell, with it 0.2σ.
 Ordinary least squares, then weighted least squares with each joint's rows divided by its noise
 standard deviation σ_j² = ‖r_j‖²/(m_j − p)
 from the OLS residuals (Gautier's WLS); covariance (WᵀΣ⁻¹W)⁻¹ and relative standard deviations
