@@ -43,7 +43,7 @@ bench: $(STAMP)
 $(BUILD):
 	mkdir -p $@
 
-# ---- the commissioning chain (DESIGN §1): every step a rule on files -------------------------------
+# ---- the commissioning chain (architecture §1): every step a rule on files -------------------------------
 # Each `run` without --gateway starts the embedded simulated cell (ROBOT/truth.yaml) on a loopback port.
 N_POSES   ?= 32
 CP_PATH   ?= $(ROBOT)/paths/line-near-singularity.yaml

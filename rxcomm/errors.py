@@ -1,6 +1,6 @@
 """One root exception; a subclass per failure class, each mapped to a CLI exit code.
 
-Exit codes (DESIGN §7): 0 ok, 2 bad input, 3 infeasible / not converged, 4 gateway or
+Exit codes (architecture §7): 0 ok, 2 bad input, 3 infeasible / not converged, 4 gateway or
 communication fault, 5 safety stop.
 """
 

@@ -53,7 +53,7 @@ from rxcomm.schemas.truth import CellTruth
 from .conftest import SAMPLES
 
 RUNNER = CliRunner()
-# DESIGN §9: the line near the wrist singularity, TCP orientation rpy (180°, 45°, 180°)
+# architecture §9: the line near the wrist singularity, TCP orientation rpy (180°, 45°, 180°)
 LINE_START_M = (1.05, -0.60, 0.35)
 LINE_END_M = (1.05, 0.60, 0.35)
 
@@ -292,7 +292,7 @@ def test_ptp_near_singularity_beats_cp_within_limits(rx130l, rx_dyn, line_ends):
     np.testing.assert_allclose(q0, line_ends[0], atol=1e-6)  # the same end states as our pose IK
     np.testing.assert_allclose(q1, line_ends[1], atol=1e-6)
     res = plan_ptp(rx130l, rx_dyn, q0, q1, PtpOptions(n_intervals=50))
-    assert cp.duration_s > 1.3  # DESIGN §9: ≈ 1.47 s, the speed dips near the wrist singularity
+    assert cp.duration_s > 1.3  # architecture §9: ≈ 1.47 s, the speed dips near the wrist singularity
     assert res.duration_s <= 0.7 * cp.duration_s
     assert res.max_limit_ratio <= 1.01
 
@@ -422,11 +422,11 @@ def test_compiled_node_functions_match_and_are_cached(tmp_path, monkeypatch, m90
             np.testing.assert_allclose(
                 np.asarray(ca.densify(v)), np.asarray(ca.densify(u)), rtol=1e-9, atol=1e-9
             )
-    libs = sorted(p.name for p in tmp_path.glob("*.so"))
+    libs = sorted(p.name for p in tmp_path.glob("casadi/*.so"))
     assert len(libs) == 3  # Jacobian, gradient, Hessian of the node window
     again = PtpOcp(dyn, lim, opts)  # from the cache: no compiler run
     assert again.build_seconds < 5.0
-    assert sorted(p.name for p in tmp_path.glob("*.so")) == libs
+    assert sorted(p.name for p in tmp_path.glob("casadi/*.so")) == libs
     q0, q1 = np.array([0.0, 0.2, -0.2, 0.0, 0.5, 0.0]), np.array([0.4, 0.3, -0.1, 0.2, 0.6, 0.3])
     res = plan_ptp(m900, dyn, q0, q1, opts, ocp=again)
     assert res.solution.success and res.max_limit_ratio <= 1.01

@@ -1,6 +1,6 @@
 """File primitives: atomic (write-then-rename) writes.
 
-A stage never leaves a half-written output (DESIGN §3): everything is written to ``NAME.part`` in the
+A stage never leaves a half-written output (architecture §3): everything is written to ``NAME.part`` in the
 same directory (so the rename stays on one file system) and renamed over ``NAME`` only when complete.
 """
 

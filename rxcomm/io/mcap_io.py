@@ -1,4 +1,4 @@
-"""MCAP time series that Foxglove plots, with the artefact envelope inside (DESIGN §3).
+"""MCAP time series that Foxglove plots, with the artefact envelope inside (architecture §3).
 
 Layout of a file written here:
 

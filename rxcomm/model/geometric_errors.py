@@ -1,6 +1,6 @@
 """Geometric error model of a 6R arm, its identification Jacobian and identifiable subset (paper §3.1).
 
-The model (DESIGN §7 calibrate): 48 parameters, each group a small twist δ = [tx, ty, tz, rx, ry, rz]
+The model (architecture §7 calibrate): 48 parameters, each group a small twist δ = [tx, ty, tz, rx, ry, rz]
 (m, m, m, rad, rad, rad; Pinocchio's order: linear then angular) applied **on the right** of a nominal
 placement, placement' = placement · exp6(δ):
 
@@ -67,10 +67,6 @@ def parameter_names(robot: Robot) -> tuple[str, ...]:
     """The 48 names: base.tx … base.rz, {joint}.tx … {joint}.rz per joint in chain order, tool.*."""
     groups = (BASE, *robot.joint_names, TOOL)
     return tuple(f"{g}.{c}" for g in groups for c in COMPONENTS)
-
-
-def _groups(robot: Robot) -> tuple[str, ...]:
-    return (BASE, *robot.joint_names, TOOL)
 
 
 def characteristic_length_m(robot: Robot) -> float:

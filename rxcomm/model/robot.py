@@ -1,4 +1,4 @@
-"""The robot: an immutable Pinocchio model of a 6R arm plus its drives data (DESIGN §4).
+"""The robot: an immutable Pinocchio model of a 6R arm plus its drives data (architecture §4).
 
 `Robot` describes; scratch data comes from `robot.create_data()` (Pinocchio's Model/Data split).
 A robot is loaded from a directory holding one URDF and `drives.yaml`; loading validates both and

@@ -52,7 +52,7 @@ from rxcomm.planning.topp import PlanLimits, ToppResult, time_optimal
 from rxcomm.schemas.path import Branch
 
 ACTIVE_THRESHOLD = 0.98  # a limit counts as active at ≥ 98 % of its bound (LimitReport.active_fraction)
-MAX_RATIO = 1.01  # the sampled output may exceed no limit by more (DESIGN §9 summary, max_limit_ratio)
+MAX_RATIO = 1.01  # the sampled output may exceed no limit by more (architecture §9 summary, max_limit_ratio)
 
 
 class CpSettings(BaseModel):

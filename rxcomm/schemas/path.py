@@ -1,4 +1,4 @@
-"""`PATH.yaml`: a Cartesian TCP path for `plan-cp` (DESIGN §7 plan-cp, paper §5.1).
+"""`PATH.yaml`: a Cartesian TCP path for `plan-cp` (architecture §7 plan-cp, paper §5.1).
 
 A config file written by hand or by the ISO 9283 generator (`rxcomm.planning.paths.iso9283_paths`): no
 envelope, but `kind`/`schema_version` so a wrong file is refused by name. Every position and

@@ -1,4 +1,4 @@
-"""`rxcomm calibrate`: geometric calibration from tracker measurements (paper §3.1–3.2, DESIGN §7).
+"""`rxcomm calibrate`: geometric calibration from tracker measurements (paper §3.1–3.2, architecture §7).
 
 Reads the robot and a measurements file (a `rxcomm/Measurements` artefact written by `run`, or a
 tracker CSV — see `rxcomm.calibration.fit.CSV_HELP`), fits the identifiable geometric error parameters

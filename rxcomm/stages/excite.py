@@ -1,10 +1,10 @@
-"""`rxcomm excite`: an optimal exciting trajectory for dynamic identification (paper §4.2, DESIGN §7).
+"""`rxcomm excite`: an optimal exciting trajectory for dynamic identification (paper §4.2, architecture §7).
 
 Reads the robot and the cell (its `allowed_region` for tool, wrist centre and elbow), designs the
 rest-to-rest Fourier trajectory of `rxcomm.identification.excitation` and writes
 
 - ``excitation.yaml`` (kind rxcomm/Excitation): coefficients, rest pose, ω_f, per-start results, the
-  drive-cycle limit ratios and the DESIGN §9 summary (cond, cond_raw, baseline_cond, duration_s,
+  drive-cycle limit ratios and the architecture §9 summary (cond, cond_raw, baseline_cond, duration_s,
   seconds, max_limit_ratio);
 - the trajectory `run` executes beside it, ``excitation-trajectory.mcap`` + ``.yaml`` (kind
   rxcomm/Trajectory: q, q̇, q̈ and τ_ff from the prior model at the drive cycle);

@@ -1,8 +1,8 @@
-"""`rxcomm plan-cp`: time/energy-optimal timing of a Cartesian TCP path (paper §5.1–5.3, DESIGN §7).
+"""`rxcomm plan-cp`: time/energy-optimal timing of a Cartesian TCP path (paper §5.1–5.3, architecture §7).
 
 Reads the robot, a path file (`rxcomm/Path`, `samples/ROBOT/paths/`), optionally identified dynamics
 and a calibration; plans with `rxcomm.planning.cp.plan_cp` and writes the trajectory `run` executes:
-``NAME.mcap`` (q, q̇, q̈, τ_ff, σ, σ̇ at the drive cycle) with ``NAME.yaml`` beside it (DESIGN §9
+``NAME.mcap`` (q, q̇, q̈, τ_ff, σ, σ̇ at the drive cycle) with ``NAME.yaml`` beside it (architecture §9
 summary), and with ``--plot`` ``NAME.png`` (the paper's Figs. 7 and 8). ``--iso9283 DIR`` instead
 writes the ISO 9283 test-plane paths of the robot (and ``--cell`` workspace) to DIR.
 """

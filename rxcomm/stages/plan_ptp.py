@@ -1,8 +1,8 @@
-"""`rxcomm plan-ptp`: time/energy-optimal point-to-point motion (paper §5.4–5.5, DESIGN §7).
+"""`rxcomm plan-ptp`: time/energy-optimal point-to-point motion (paper §5.4–5.5, architecture §7).
 
 Reads the robot (and optionally identified dynamics and a calibration), solves the free-final-time
 OCP of `rxcomm.planning.ptp` between two rest states and writes the trajectory artefact `run` executes:
-``NAME.mcap`` (q, q̇, q̈, τ_ff at the drive cycle) with ``NAME.yaml`` beside it (DESIGN §9 summary).
+``NAME.mcap`` (q, q̇, q̈, τ_ff at the drive cycle) with ``NAME.yaml`` beside it (architecture §9 summary).
 """
 
 from __future__ import annotations

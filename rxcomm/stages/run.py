@@ -1,4 +1,4 @@
-"""`rxcomm run`: execute a plan on the robot cell over the drive gateway (paper §2.3, DESIGN §7 run).
+"""`rxcomm run`: execute a plan on the robot cell over the drive gateway (paper §2.3, architecture §7 run).
 
 PLAN is a trajectory MCAP (excite / plan-cp / plan-ptp) or a pose list (`configs.yaml` from
 select-configs: a measurement campaign). Trajectory → ``-o NAME.mcap`` (+ ``NAME.yaml``, kind
@@ -24,11 +24,12 @@ from rxcomm.execution.campaign import (
     measured_poses,
     run_campaign,
 )
-from rxcomm.execution.log import read_run_log, write_run_log
+from rxcomm.execution.log import write_run_log
 from rxcomm.execution.plan import prepare_plan
 from rxcomm.execution.session import RunSettings, StreamSettings, run_trajectory
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.net import is_loopback
+from rxcomm.io.run_log import read_run_log
 from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
 from rxcomm.model.base_parameters import load_dynamics

@@ -1,4 +1,4 @@
-"""`rxcomm select-configs`: optimal measurement poses for calibration (paper §3.3, DESIGN §7).
+"""`rxcomm select-configs`: optimal measurement poses for calibration (paper §3.3, architecture §7).
 
 Reads the robot and the cell, streams the joint grid through the cell checks, runs the exchange
 algorithm of `rxcomm.calibration.pose_selection` and writes `configs.yaml` (kind `rxcomm/Configs`): the
