@@ -218,18 +218,56 @@ def excitation_section(s: Mapping, image: str | None) -> Section:
     )
 
 
+def _per_joint(
+    values: Sequence[float | None] | None,
+    scale: float = 1.0,
+    unit: str = "",
+    none: str = "not scored",
+    decimals: int | None = None,
+) -> str:
+    """Per-joint figures (3 significant digits, or `decimals` fixed); None (a joint that did not move
+    on the validation data) is "not scored"."""
+    if values is None:
+        return "—"
+
+    def one(v: float) -> str:
+        return _f(v, scale) if decimals is None else f"{float(v) * scale:.{decimals}f}"
+
+    text = ", ".join(none if v is None else one(v) for v in values)
+    return f"[{text}]" + (f" {unit}" if unit else "")
+
+
 def dynamics_section(s: Mapping, image: str | None) -> Section:
+    cutoff = s.get("cutoff_hz")
+    rows = s.get("rows_per_parameter")
     return Section(
         "Dynamic identification (paper §4.1, §4.3, Fig. 5b)",
         [
-            Figure("base parameters", str(s["n_base_params"])),
             Figure(
-                "validation NRMSE per joint", _f(s["validation_nrmse"], 100, 3, "%"), "Fig. 5b: close match"
+                "base parameters (friction model)", f"{s['n_base_params']} ({s.get('friction', 'joint')})"
             ),
-            Figure("validation RMS error per joint", _f(s["validation_rms_nm"], unit="N·m")),
+            Figure(
+                "validation RMS prediction error per joint, moving rows (headline)",
+                _per_joint(s["validation_rms_nm"], unit="N·m"),
+            ),
+            Figure(
+                "validation NRMSE per joint",
+                _per_joint(s["validation_nrmse"], 100, "%"),
+                "Fig. 5b: close match",
+            ),
+            Figure("validation R² per joint", _per_joint(s.get("validation_r2"), decimals=4)),
+            Figure(
+                "standstill rows inside the stiction band, per joint",
+                _per_joint(s.get("validation_standstill_in_band_fraction"), none="no standstill"),
+            ),
+            Figure(
+                "low-pass cut-off; fit rows per base parameter",
+                f"{_f(cutoff, unit='Hz')}; {_f(rows)}",
+            ),
             Figure("compute time", _f(s["seconds"], unit="s")),
         ],
         image,
+        note=f"validated on {s.get('validation', '?')}; a joint that did not move there is not scored.",
     )
 
 

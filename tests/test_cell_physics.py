@@ -7,6 +7,7 @@ are quantised exactly as a master's would be (1 µrad, 0.1 % rated torque).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import pinocchio as pin
@@ -188,6 +189,34 @@ def test_stiction_holds_below_breakaway_and_slides_above_without_chatter(rx_trut
     vs = np.array(vs)
     stop = int(np.argmax(vs == 0.0))
     assert stop > 0 and np.all(vs[:stop] > 0) and np.all(vs[stop:] == 0.0)  # never below zero, stays
+
+
+def test_coupled_motor_friction_loads_both_wrist_joints(rx_truth):
+    """The RX130L truth's motor 6 (turning at 40·(q̇6 + 0.4·q̇5)) has Coulomb friction of its own: while
+    it turns, joint torques Rᵀ·Fc_m·sgn(R·q̇) load joint 5 (16·Fc_m) as well as joint 6 (40·Fc_m); at
+    rest it adds nothing (the joints' stiction holds the arm)."""
+    robot, params = rx_truth.robot, rx_truth.params
+    fc_m = params.motor_coulomb_nm[5]
+    assert fc_m > 0
+    plain = replace(params, motor_coulomb_nm=np.zeros(6))
+    q = Q_LOADED
+    for qd in (np.array([0.0, 0, 0, 0, 0.5, 0.3]), np.array([0.0, 0, 0, 0, -0.9, 0.2])):
+        dv = []
+        for p in (params, plain):
+            plant = Plant(robot, p, q, cycle_s=1e-7)
+            plant.v = qd.copy()
+            plant.step(RobotDynamics(robot, plain).inverse_dynamics(q, qd, np.zeros(6)), np.zeros(6, bool))
+            dv.append(plant.v - qd)
+        m = RobotDynamics(robot, params).mass_matrix(q)
+        tau_extra = -(m @ (dv[0] - dv[1])) / 1e-7  # the torque the motor friction took
+        expected = robot.joint_to_motor[5] * fc_m * np.sign(qd[5] + 0.4 * qd[4])
+        # joints 1–4 stick in both runs; on joints 5 and 6 the difference is the motor's friction
+        np.testing.assert_allclose(tau_extra[4:], expected[4:], atol=1e-3 * fc_m * 40)
+        assert abs(expected[4]) == pytest.approx(16 * fc_m)
+    plant = Plant(robot, params, q)
+    for _ in range(200):
+        plant.step(plant.static_torque(q), np.zeros(6, bool))
+    np.testing.assert_array_equal(plant.q, q)
 
 
 def test_brakes_hold_disabled_axes_exactly(rx_truth):

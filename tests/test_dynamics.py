@@ -42,7 +42,7 @@ def perturbed(robot, seed=7, rel=0.3):
     p = p0.vector() * rng.uniform(1 - rel, 1 + rel, p0.vector().shape)
     n = robot.n
     p[13 * n : 14 * n] = rng.normal(0, 5, n)
-    return DynamicParameters.from_vector(robot.joint_names, p, p0.has_spring)
+    return DynamicParameters.from_vector(robot.joint_names, p, p0.has_spring, p0.has_motor_friction)
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,10 @@ def test_parameter_names_and_vector(rx130l, m900):
     d = p.as_dict()
     assert d["joint_2.m"] == pytest.approx(38.8) and d["joint_2.mcz"] == pytest.approx(38.8 * 0.3)
     assert d["spring.kL0"] == pytest.approx(7500 * 0.08) and d["joint_6.rotor_inertia"] == 2e-5
-    back = DynamicParameters.from_vector(rx130l.joint_names, p.vector(), True)
+    # the RX130L's coupled wrist: friction "both" by default, 2 × 6 motor friction entries at the end
+    assert rx130l.friction_mode == "both" and m900.friction_mode == "joint"
+    assert p.names[-12:] == tuple(f"joint_{i}.{k}" for k in ("fc_motor", "fv_motor") for i in range(1, 7))
+    back = DynamicParameters.from_vector(rx130l.joint_names, p.vector(), True, True)
     np.testing.assert_array_equal(back.vector(), p.vector())
     assert DynamicParameters.from_dict(rx130l, d).as_dict() == d
     with pytest.raises(ValueError):
@@ -183,7 +186,10 @@ def test_base_parameters_rx130l(rx130l, bset_rx):
         f"\nRX130L: {b.n_base} base parameters of {len(b.full_names)}; |R_ii| gap {b.r_min_kept:.3g} / "
         f"{b.r_max_dropped:.3g}; cond (unit columns, random states) {b.cond:.2f}"
     )
-    assert b.n_base == 59
+    # 59 + the coupled motor 6's Coulomb and viscous friction; motors 1–5 regroup with their joints
+    assert b.n_base == 61
+    assert b.labels[b.names.index("joint_1.fc_R")] == "joint_1.fc + 180·joint_1.fc_motor"
+    assert "joint_6.fc_motor" in b.names and "joint_6.fv_motor" in b.names and "joint_6.fc" in b.names
     assert b.r_min_kept > 1e-3 and b.r_max_dropped < 1e-12
     # 11 columns without effect: link 1 except Izz (vertical axis through its origin), m2 and mcy2
     # (link 2's origin lies on axis 1; mcy2 lies along axis 2).
@@ -208,15 +214,23 @@ def test_base_parameters_rx130l(rx130l, bset_rx):
     for j in (3, 4, 5, 6):
         assert combos[f"joint_{j}.rotor_inertia"] == {f"joint_{j}.rotor_inertia": 1.0}
     for j in range(1, 7):
-        for f in ("fc", "fv", "offset"):
-            assert combos[f"joint_{j}.{f}"] == {f"joint_{j}.{f}": 1.0}
+        assert combos[f"joint_{j}.offset"] == {f"joint_{j}.offset": 1.0}
+        for f in ("fc", "fv"):
+            if j == 6:  # motor 6 turns with joint 5: its friction is a direction of its own
+                assert combos[f"joint_6.{f}"] == {f"joint_6.{f}": 1.0}
+                assert combos[f"joint_6.{f}_motor"] == {f"joint_6.{f}_motor": 1.0}
+            else:  # an uncoupled motor's friction is its joint's, scaled by N (Coulomb) or N² (viscous)
+                scale = rx130l.gear_ratio[j - 1] ** (1 if f == "fc" else 2)
+                assert combos[f"joint_{j}.{f}_R"] == pytest.approx(
+                    {f"joint_{j}.{f}": 1.0, f"joint_{j}.{f}_motor": scale}, rel=1e-9
+                )
     i = b.names.index("joint_2.mcz_R")
     assert b.labels[i].startswith("joint_2.mcz + 0.625·joint_3.m") and "− 0.00611621·spring.k" in b.labels[i]
 
 
 def test_base_parameters_reproduce_torques(robot):
     b = base_parameters(robot, n_samples=200, seed=3)
-    expected = 59 if robot.drives.spring is not None else 58
+    expected = 61 if robot.drives.spring is not None else 58  # RX130L: + motor 6 friction
     assert b.n_base == expected
     with pytest.raises(ValueError):
         base_parameters(robot, n_samples=10)

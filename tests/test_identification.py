@@ -22,6 +22,7 @@ from rxcomm.identification.fit import (
     _link_jacobian,
     _theta_from_link,
     check_log,
+    holdout_mask,
     identify,
     link_min_eigenvalues,
     load_joint_log,
@@ -34,6 +35,7 @@ from rxcomm.io.mcap_io import McapWriter
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.model.base_parameters import base_parameters, load_dynamics
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters, truth_parameters
+from rxcomm.model.robot import load_robot
 from rxcomm.model.robot_csv import read_robot_csv, write_robot_csv
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.dynamics import Dynamics
@@ -329,26 +331,33 @@ def test_noise_free_prior_is_recovered(rx130l, bset_rx, random_traj, validation_
     assert np.all(res.validation.nrmse < 1e-2)
     # every base parameter's error moves the torque by < 0.1 % of its RMS (a random trajectory leaves
     # the wrist's 1e-5 kg·m² products of inertia poorly determined, but they do not matter)
-    w = bset_rx.base_regressor(regressor(rx130l, preprocess(log, IdentifySettings())))
+    w = bset_rx.base_regressor(regressor(rx130l, preprocess(log, IdentifySettings(), rx130l)))
     tau_rms = np.linalg.norm(w @ bset_rx.project(prior))
     effect = np.linalg.norm(w * (res.estimate.p_b - bset_rx.project(prior)), axis=0) / tau_rms
     assert effect.max() < 1e-3, bset_rx.names[int(np.argmax(effect))]
     assert res.physical_fit.mahalanobis < 1.0  # the prior is consistent
 
 
-def test_a_joint_standing_still_is_judged_by_its_static_friction_band(rx130l, bset_rx, random_traj):
+def test_a_joint_standing_still_is_not_scored_and_never_clipped(rx130l, bset_rx, random_traj):
     prior = prior_parameters(rx130l)
     t, q, qd, qdd = sampled(rx130l, random_traj)
     q[:, 3], qd[:, 3], qdd[:, 3] = 0.3, 0.0, 0.0  # J4 held still (as on an ISO path)
     tau = RobotDynamics(rx130l, prior).inverse_dynamics(q, qd, qdd)
     stuck = tau.copy()
     stuck[:, 3] += 0.5 * prior.coulomb_nm[3]  # static friction somewhere inside ±Fc
-    data = preprocess(JointLog(t, q, stuck), IdentifySettings())
+    data = preprocess(JointLog(t, q, stuck), IdentifySettings(), rx130l)
     val = validate(rx130l, prior, data, "test")
-    assert val.standstill_fraction[3] == 1.0 and val.rms_nm[3] < 1e-9
-    stuck[:, 3] += 2.0 * prior.coulomb_nm[3]  # outside the band: an error of 1.5 Fc − Fc
-    val = validate(rx130l, prior, preprocess(JointLog(t, q, stuck), IdentifySettings()), "test")
-    assert val.rms_nm[3] == pytest.approx(1.5 * prior.coulomb_nm[3], rel=1e-3)
+    # nothing moved: not scored (NaN, null in the summary), never a perfect 0
+    assert val.standstill_fraction[3] == 1.0 and not val.scored[3]
+    assert math.isnan(val.rms_nm[3]) and math.isnan(val.nrmse[3]) and math.isnan(val.r2[3])
+    assert val.scored[[0, 1, 2, 4, 5]].all() and np.all(val.r2[[0, 1, 2, 4, 5]] > 0.999)
+    # standstill scored apart: inside the stiction band, and the plain error is not clipped away
+    assert val.standstill_in_band_fraction[3] == 1.0
+    assert val.standstill_rms_nm[3] == pytest.approx(0.5 * prior.coulomb_nm[3], rel=1e-3)
+    stuck[:, 3] += 2.0 * prior.coulomb_nm[3]  # outside the band
+    val = validate(rx130l, prior, preprocess(JointLog(t, q, stuck), IdentifySettings(), rx130l), "test")
+    assert val.standstill_in_band_fraction[3] == 0.0
+    assert val.standstill_rms_nm[3] == pytest.approx(2.5 * prior.coulomb_nm[3], rel=1e-3)
 
 
 def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
@@ -362,8 +371,10 @@ def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
     )
     assert res.exit_code == 0, res.output
     art = read_yaml_artefact(out, Dynamics)
-    assert art.summary["validation"].startswith("held out: last 20 %")
-    assert art.summary["n_base_params"] == len(art.base_parameters) == 59
+    assert art.summary["validation"].startswith("held out: last 20 % of each of 5 blocks")
+    # 59 + the coupled wrist motor's Coulomb and viscous friction (drives.yaml default: both)
+    assert art.summary["n_base_params"] == len(art.base_parameters) == 61
+    assert art.summary["friction"] == "both"
     assert len(art.summary["validation_nrmse"]) == 6 and max(art.summary["validation_nrmse"]) < 0.05
     # what plan-cp, plan-ptp and run load reproduces the identified torques
     params = load_dynamics(out, rx130l)
@@ -383,6 +394,207 @@ def test_identify_stage_refuses_a_bad_log(tmp_path):
     )
     assert res.exit_code == 2 and "bad.csv" in res.output
     assert not (tmp_path / "d.yaml").exists()
+
+
+# --------------------------------------------------------------------------------------------- drive trains
+
+
+def _robot_copy(tmp_path: Path, edits: list[tuple[str, str, str]]) -> Path:
+    import shutil
+
+    d = tmp_path / "rx130l"
+    shutil.copytree(SAMPLES / "rx130l", d)
+    for file, old, new in edits:
+        text = (d / file).read_text()
+        assert old in text, old
+        (d / file).write_text(text.replace(old, new, 1))
+    return d
+
+
+@pytest.mark.slow
+def test_motor_friction_of_the_coupled_wrist_is_recovered(
+    rx130l, truth_rx, bset_rx, optimal_traj, validation_traj
+):
+    """The truth's motor 6 friction (it turns at 40·(q̇6 + 0.4·q̇5)) is recovered within 3σ with the
+    motor columns (drives.yaml default "both" for a coupled wrist); without them joint 5 cannot be
+    predicted: its held-out error is several times larger."""
+    truth = truth_parameters(rx130l, truth_rx)
+    noise = truth_rx.noise.torque_noise_nm
+    t, q, qd, qdd = sampled(rx130l, optimal_traj, periods=2)  # excite designs for the motor columns too
+    _, tau_m = measured(rx130l, truth, t, q, qd, qdd, noise, seed=1)
+    tv, qv, qdv, qddv = sampled(rx130l, validation_traj)
+    _, tauv_m = measured(rx130l, truth, tv, qv, qdv, qddv, noise, seed=2)
+    log, val = JointLog(t, q, tau_m), JointLog(tv, qv, tauv_m)
+    res = identify(rx130l, log, bset=bset_rx, validation_log=val)
+    assert res.friction_mode == "both" and res.summary()["friction"] == "both"
+    z = _z_scores(res, bset_rx, truth)
+    std = np.sqrt(np.diag(res.estimate.cov))
+    figures = {}
+    for name in ("joint_6.fc_motor", "joint_6.fv_motor", "joint_6.fc", "joint_6.fv", "joint_5.fc_R"):
+        i = bset_rx.names.index(name)
+        figures[name] = (res.estimate.p_b[i], std[i], bset_rx.project(truth)[i])
+        assert abs(z[i]) <= 3.0, (name, figures[name])
+    assert figures["joint_6.fc_motor"][1] < 0.5 * truth.motor_coulomb_nm[5]  # measured, not noise
+    assert np.all(np.abs(z) <= 3.5), bset_rx.names[int(np.argmax(np.abs(z)))]
+    joint_only = identify(rx130l, log, IdentifySettings(friction="joint"), validation_log=val)
+    assert joint_only.bset.n_base == bset_rx.n_base - 2
+    rms_motor, rms_joint = res.validation.rms_nm[4], joint_only.validation.rms_nm[4]
+    print(
+        f"\nmotor 6 friction: Fc {figures['joint_6.fc_motor']}, Fv {figures['joint_6.fv_motor']} (value, σ, "
+        f"truth); J5 validation RMS {rms_joint:.3f} N·m (joint friction) → {rms_motor:.3f} N·m (both); "
+        f"R² {joint_only.validation.r2[4]:.4f} → {res.validation.r2[4]:.4f}"
+    )
+    assert rms_joint > 3.0 * rms_motor and res.validation.r2[4] > 0.99
+
+
+def test_csv_with_encoder_offsets_a_reversed_axis_and_the_wrist_coupling(tmp_path, rx130l, random_traj):
+    # motor side, rad: what each (multi-turn) encoder reads at the calibrated zero
+    offsets = [1200.0, -1.25, 300.0, 0.0, 2.0, -7.5]
+    edits = [("drives.yaml", "gear_ratio: 140,", "gear_ratio: 140, motor_sign: -1,")]
+    for i, o in enumerate(offsets):
+        name = f"name: joint_{i + 1},"
+        edits.append(("drives.yaml", name, f"{name} encoder_offset_rad: {o},"))
+    d = _robot_copy(tmp_path, edits)
+    robot = load_robot(d)
+    assert robot.motor_sign[2] == -1 and robot.encoder_offset[5] == -7.5
+    t, q, qd, qdd = sampled(robot, random_traj)
+    tau = RobotDynamics(robot, prior_parameters(robot)).inverse_dynamics(q, qd, qdd)
+    path = write_robot_csv(tmp_path / "robot.csv", robot, t, q, tau, positions="motor", torques="current")
+    row = np.array(path.read_text().splitlines()[1].split(","), dtype=float)
+    # as a drive reports them: motor 3 reversed, motor 6 = 40·(q6 + 0.4·q5), each plus its offset
+    assert row[3] == pytest.approx(-140 * q[0, 2] + 300.0, rel=1e-8)
+    assert row[6] == pytest.approx(40 * (q[0, 5] + 0.4 * q[0, 4]) - 7.5, rel=1e-8)
+    csv = read_robot_csv(path, robot)
+    assert np.allclose(csv.q, q, atol=1e-8) and np.allclose(csv.tau, tau, rtol=1e-7, atol=1e-6)
+    out = tmp_path / "dynamics.yaml"
+    res = CliRunner().invoke(app, ["identify", "--robot", str(d), "--log", str(path), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    art = read_yaml_artefact(out, Dynamics)
+    assert max(v for v in art.summary["validation_nrmse"] if v is not None) < 1e-2
+    # the same file read with the offsets forgotten puts the robot outside its limits: exit 2
+    no_offsets = _robot_copy(
+        tmp_path / "plain", [("drives.yaml", "gear_ratio: 140,", "gear_ratio: 140, motor_sign: -1,")]
+    )
+    res = CliRunner().invoke(
+        app, ["identify", "--robot", str(no_offsets), "--log", str(path), "-o", str(out)]
+    )
+    assert res.exit_code == 2 and "motor" in res.output and "outside its limits" in res.output
+
+
+def test_positions_in_degrees_are_refused_naming_the_column(tmp_path, rx130l, random_traj):
+    t, q, qd, qdd = sampled(rx130l, random_traj)
+    tau = RobotDynamics(rx130l, prior_parameters(rx130l)).inverse_dynamics(q, qd, qdd)
+    q_deg = q.copy()
+    q_deg[:, 1] = np.degrees(q[:, 1])
+    path = write_robot_csv(tmp_path / "deg.csv", rx130l, t, q_deg, tau, positions="joint", torques="joint")
+    res = CliRunner().invoke(
+        app,
+        ["identify", "--robot", str(SAMPLES / "rx130l"), "--log", str(path), "-o", str(tmp_path / "d.yaml")],
+    )
+    assert res.exit_code == 2, res.output
+    assert "q2_rad" in res.output and "degrees" in res.output
+    q_k = q.copy()
+    q_k[:, 0] *= 1000.0
+    with pytest.raises(InputError) as e:
+        read_robot_csv(
+            write_robot_csv(tmp_path / "k.csv", rx130l, t, q_k, tau, positions="joint", torques="joint"),
+            rx130l,
+        )
+    assert e.value.field == "q1_rad" and "×1000" in e.value.reason
+
+
+def test_a_massless_wrist_link_is_a_usable_prior(tmp_path, rx130l, truth_rx, random_traj, validation_traj):
+    d = _robot_copy(
+        tmp_path,
+        [
+            ("rx130l.urdf", '<mass value="0.04"/>', '<mass value="0"/>'),
+            (
+                "rx130l.urdf",
+                'ixx="1.2e-05" ixy="0" ixz="0" iyy="1.2e-05" iyz="0" izz="1.8e-05"',
+                'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"',
+            ),
+        ],
+    )
+    robot = load_robot(d)
+    truth = truth_parameters(rx130l, truth_rx)  # the real arm's torques; the prior only is massless
+    t, q, qd, qdd = sampled(rx130l, random_traj)
+    _, tau = measured(rx130l, truth, t, q, qd, qdd, truth_rx.noise.torque_noise_nm, seed=7)
+    tv, qv, qdv, qddv = sampled(rx130l, validation_traj)
+    _, tauv = measured(rx130l, truth, tv, qv, qdv, qddv, truth_rx.noise.torque_noise_nm, seed=8)
+    res = identify(robot, JointLog(t, q, tau), validation_log=JointLog(tv, qv, tauv))
+    assert np.all(res.validation.nrmse < 0.05), res.validation.nrmse
+    assert np.all(np.isfinite(res.estimate.p_b))
+
+
+def test_default_holdout_is_interleaved_and_a_still_tail_does_not_blind_it(rx130l, bset_rx, random_traj):
+    t, q, qd, qdd = sampled(rx130l, random_traj)  # one period, from rest to rest
+    assert np.abs(qd[-1]).max() < 1e-9
+    n_still = int(0.4 * len(t))  # then the robot stands still: 29 % of the log
+    t = np.concatenate([t, t[-1] + rx130l.drives.cycle_s * np.arange(1, n_still + 1)])
+    q = np.vstack([q, np.repeat(q[-1:], n_still, axis=0)])
+    qd, qdd = (np.vstack([a, np.zeros((n_still, 6))]) for a in (qd, qdd))
+    tau = RobotDynamics(rx130l, prior_parameters(rx130l)).inverse_dynamics(q, qd, qdd)
+    # joint friction: one period of a random trajectory does not separate motor 6's friction
+    settings = IdentifySettings(friction="joint")
+    res = identify(rx130l, JointLog(t, q, tau), settings)
+    assert "each of 5 blocks" in res.validation.source
+    assert res.validation.scored.all() and np.all(res.validation.nrmse < 1e-2)
+    held = holdout_mask(np.linspace(0, 10, 1001), 0.2, 5)
+    assert held.mean() == pytest.approx(0.2, abs=0.01)
+    assert held[160:200].all() and not held[:160].any() and held[960:].all() and not held[800:960].any()
+    last = identify(rx130l, JointLog(t, q, tau), settings.model_copy(update={"holdout_blocks": 1}))
+    assert not last.validation.scored.any()  # the last 20 %: nothing moved, nothing scored
+    assert all(v is None for v in last.summary()["validation_nrmse"])
+    # guidance: rows per base parameter stated, and a suggestion when they are few
+    assert res.summary()["rows_per_parameter"] == pytest.approx(res.estimate.n_rows / res.bset.n_base)
+    (few,) = [w for w in res.warnings(IdentifySettings(min_rows_per_parameter=1e4)) if "per parameter" in w]
+    assert "--cutoff-hz" in few and "--decimate-hz" in few
+
+
+def test_scoring_a_model_on_a_log_reproduces_its_validation(
+    tmp_path, rx130l, truth_rx, random_traj, validation_traj
+):
+    truth = truth_parameters(rx130l, truth_rx)
+    noise = truth_rx.noise.torque_noise_nm
+    t, q, qd, qdd = sampled(rx130l, random_traj)
+    q_m, tau_m = measured(rx130l, truth, t, q, qd, qdd, noise, 1e-6, seed=3)
+    log = write_run_log(tmp_path / "excite-log.mcap", t, q_m, tau_m)
+    tv, qv, qdv, qddv = sampled(rx130l, validation_traj)
+    qv_m, tauv_m = measured(rx130l, truth, tv, qv, qdv, qddv, noise, 1e-6, seed=4)
+    vlog = write_run_log(tmp_path / "iso-log.mcap", tv, qv_m, tauv_m)
+    out = tmp_path / "dynamics.yaml"
+    rx = str(SAMPLES / "rx130l")
+    res = CliRunner().invoke(
+        app,
+        [
+            "identify",
+            "--robot",
+            rx,
+            "--log",
+            str(log),
+            "--validate",
+            str(vlog),
+            "-o",
+            str(out),
+            "--cutoff-hz",
+            "12",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    made = read_yaml_artefact(out, Dynamics).summary
+    from rxcomm.stages.identify import score_run
+
+    csv = tmp_path / "torques.csv"
+    val = score_run(SAMPLES / "rx130l", out, vlog, torques_csv=csv)  # the model's own cut-off: 12 Hz
+    np.testing.assert_allclose(val.rms_nm, made["validation_rms_nm"], rtol=1e-9)
+    np.testing.assert_allclose(val.r2, made["validation_r2"], rtol=1e-9)
+    table = np.loadtxt(csv, delimiter=",", comments="#", skiprows=2)
+    assert table.shape == (len(val.t), 1 + 3 * 6)
+    np.testing.assert_allclose(table[:, 7:13], val.predicted, rtol=1e-8, atol=1e-8)
+    res = CliRunner().invoke(app, ["identify", "--robot", rx, "--model", str(out), "--validate", str(vlog)])
+    assert res.exit_code == 0 and "scored on iso-log.mcap" in res.output, res.output
+    res = CliRunner().invoke(app, ["identify", "--robot", rx, "--model", str(out), "--log", str(vlog)])
+    assert res.exit_code == 2 and "--validate" in res.output
 
 
 # --------------------------------------------------------------------------------------------- recovery

@@ -60,3 +60,23 @@ def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_meas
     text = rep.render("t", "p", [rep.calibration_section(s, [])])
     assert "| 0.15 / 0.32 mm, 0.0172 / 0.0344 ° |" in text
     assert "0.09 / 0.16 mm; p = 2.5e-07" in text and "×4.1" in text
+
+
+def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
+    s = {
+        "n_base_params": 61,
+        "friction": "both",
+        "validation_rms_nm": [0.64, 0.39, 0.13, None, 0.046, 0.076],
+        "validation_nrmse": [0.002, 0.001, 0.001, None, 0.004, 0.012],
+        "validation_r2": [0.99995, 0.99999, 0.99999, None, 0.99985, 0.99885],
+        "validation_standstill_in_band_fraction": [None, None, None, 1.0, None, None],
+        "validation": "log: validation-log.mcap",
+        "cutoff_hz": 10.0,
+        "rows_per_parameter": 12.4,
+        "seconds": 0.2,
+    }
+    text = rep.render("t", "p", [rep.dynamics_section(s, None)])
+    assert "[0.64, 0.39, 0.13, not scored, 0.046, 0.076] N·m" in text
+    assert "[0.2, 0.1, 0.1, not scored, 0.4, 1.2] %" in text
+    assert "0.9999, 0.9989]" in text and "no standstill" in text and "10 Hz; 12.4" in text
+    assert "0 %" not in text and "0.00 %" not in text

@@ -53,7 +53,8 @@ def _edit(path, old, new):
         ("drives.yaml", "name: joint_6", "name: joint_7", "joints[joint_7].name"),
         ("rx130l.urdf", 'velocity="4.450590"', "", "joint[joint_3].limit.velocity"),
         ("rx130l.urdf", 'ixx="0.42"', 'ixx="-0.42"', "link[link_3].inertial.inertia"),
-        ("rx130l.urdf", '<mass value="0.55"/>', '<mass value="0"/>', "link[link_5].inertial.mass"),
+        ("rx130l.urdf", '<mass value="0.55"/>', '<mass value="-0.55"/>', "link[link_5].inertial.mass"),
+        ("drives.yaml", "gear_ratio: 140,", "gear_ratio: -140,", "joints[joint_3].gear_ratio"),
     ],
 )
 def test_bad_robot_files_exit_2_naming_the_field(tmp_path, file, old, new, field):
@@ -66,6 +67,42 @@ def test_bad_robot_files_exit_2_naming_the_field(tmp_path, file, old, new, field
     result = CliRunner().invoke(app, ["robot-info", str(d)])
     assert result.exit_code == 2, result.output
     assert field in result.output and file in result.output
+
+
+def test_negative_gear_ratio_says_to_use_motor_sign(tmp_path):
+    d = _copy(tmp_path)
+    _edit(d / "drives.yaml", "gear_ratio: 140,", "gear_ratio: -140,")
+    with pytest.raises(InputError) as e:
+        load_robot(d)
+    assert "motor_sign: -1" in e.value.reason and "140" in e.value.reason
+
+
+def test_point_mass_and_massless_links_are_legitimate_priors(tmp_path):
+    """Positive semi-definite inertias load (a URDF's massless wrist link, a point mass); an
+    indefinite one is refused."""
+    d = _copy(tmp_path)
+    urdf = d / "rx130l.urdf"
+    _edit(urdf, '<mass value="0.55"/>', '<mass value="0"/>')
+    _edit(
+        urdf,
+        'ixx="0.00045" ixy="0" ixz="0" iyy="0.00042" iyz="0" izz="0.0003"',
+        'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"',
+    )
+    _edit(
+        urdf,
+        'ixx="1.2e-05" ixy="0" ixz="0" iyy="1.2e-05" iyz="0" izz="1.8e-05"',
+        'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"',
+    )
+    robot = load_robot(d)
+    assert robot.model.inertias[5].mass == 0.0 and robot.model.inertias[6].mass == 0.04
+    _edit(
+        urdf,
+        '<mass value="0.04"/>\n      <inertia ixx="0"',
+        '<mass value="0.04"/>\n      <inertia ixx="-1e-6"',
+    )
+    with pytest.raises(InputError) as e:
+        load_robot(d)
+    assert e.value.field == "link[link_6].inertial.inertia" and "not physical" in e.value.reason
 
 
 def test_joint_count_mismatch(tmp_path):

@@ -27,7 +27,7 @@ def perturbed(robot, seed=9):
     p0 = prior_parameters(robot)
     p = p0.vector() * rng.uniform(0.7, 1.3, p0.vector().shape)
     p[13 * robot.n : 14 * robot.n] = rng.normal(0, 5, robot.n)
-    return DynamicParameters.from_vector(robot.joint_names, p, p0.has_spring)
+    return DynamicParameters.from_vector(robot.joint_names, p, p0.has_spring, p0.has_motor_friction)
 
 
 def test_casadi_rnea_matches_pinocchio(robot):

@@ -22,6 +22,16 @@ Gauss–Seidel on the equivalent LCP in h·A⁻¹ is the fallback should the set
 break-away stays exactly still — no chattering, no creeping — and a joint reverses through rest
 without the sign flipping back and forth. A braked (disabled) joint is the same constraint with the
 brake's holding torque added to its friction capacity.
+
+Motor-side friction (truth `motor_*_friction_nm`): a motor's viscous friction adds Fv_m·R_iᵀR_i to
+F_v (implicit); its Coulomb friction acts on the motor velocity R_i·q̇, which no joint's box in the
+LCP can express, and is applied explicitly, regularised: Rᵀ·Fc_m·tanh(R·q̇ / (N·ε)), ε =
+`MOTOR_COULOMB_EPS_RAD_S` in the axis's joint units (stable: h·Fc_m·R_ii/ε is well below the axis
+inertia). A motor's Coulomb friction therefore has no stiction of its own; the joints' hold the arm.
+(Putting joint 6's Coulomb friction on motor 6 instead, as stiction, left joint 6's joint-side drive
+loop without friction: 31 mrad lag on the excitation, near the 35 mrad trip.) The plant needs
+positive-definite link inertias (M must be SPD): a massless link or a point mass is fine for
+identification priors, not here.
 """
 
 from __future__ import annotations
@@ -38,6 +48,7 @@ from rxcomm.model.dynamics import DynamicParameters, model_with_inertials
 from rxcomm.model.robot import Robot
 
 PGS_MAX_SWEEPS = 60
+MOTOR_COULOMB_EPS_RAD_S = 0.01  # regularisation of motor-side Coulomb friction (joint units)
 PGS_TOL_RAD_S = 1e-12
 
 
@@ -54,17 +65,33 @@ class Plant:
         substeps: int = 1,
         brake_torque_nm: np.ndarray | None = None,
     ):
-        params.check_robot(robot)
+        params.check_robot(robot, friction=False)
         if substeps < 1:
             raise ValueError("substeps must be >= 1")
         n = robot.n
         self.n = n
+        for name, pi in zip(robot.joint_names, params.inertial, strict=True):
+            # Identification accepts a massless link or a point mass as a prior; integrating needs
+            # M(q) positive definite, i.e. every link a body with mass.
+            if not pi[0] > 0:
+                raise InputError(
+                    f"the simulated plant needs a positive mass for every link; {name} has {pi[0]:g} kg",
+                    field="dynamics.links",
+                )
         self.model = model_with_inertials(robot.model, params.inertial)
         self.data = self.model.createData()
         r = robot.joint_to_motor
         self.rotor = r.T @ np.diag(params.rotor_inertia_kgm2) @ r
         self.fc = np.array(params.coulomb_nm, dtype=float)
-        self.fv = np.array(params.viscous_nm_s_per_rad, dtype=float)
+        fv = np.diag(np.array(params.viscous_nm_s_per_rad, dtype=float))
+        self._motor_coulomb: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        if params.has_motor_friction:
+            fv = fv + r.T @ np.diag(params.motor_viscous_nm_s_per_rad) @ r
+            mfc = np.array(params.motor_coulomb_nm, dtype=float)
+            if np.any(mfc):
+                scale = 1.0 / (np.abs(np.diag(r)) * MOTOR_COULOMB_EPS_RAD_S)
+                self._motor_coulomb = (r, mfc, scale)
+        self.fv_matrix = fv
         self.offset = np.array(params.offset_nm, dtype=float)
         self.h = (robot.drives.cycle_s if cycle_s is None else cycle_s) / substeps
         self.substeps = substeps
@@ -86,7 +113,7 @@ class Plant:
         self.v = np.zeros(n)
         self.friction = np.zeros(n)  # last friction torque f (N·m), warm start of the next solve
         self._static_q: np.ndarray | None = None  # static torque at q, valid while the arm rests
-        self._hfv = np.diag(self.h * self.fv)
+        self._hfv = self.h * self.fv_matrix
         m = pin.crba(self.model, self.data, np.linspace(0.3, 0.8, n))
         self._crba_full = bool(np.allclose(m, m.T))
 
@@ -127,6 +154,9 @@ class Plant:
             m = np.triu(m) + np.triu(m, 1).T
         m = m + self.rotor
         b = pin.nonLinearEffects(self.model, self.data, q, v) + self.offset + self.spring_torque(q)
+        if self._motor_coulomb is not None:  # explicit, regularised (module docstring)
+            rm, mfc, scale = self._motor_coulomb
+            b = b + rm.T @ (mfc * np.tanh((rm @ v) * scale))
         a = m + self._hfv
         r = m @ v + h * (tau - b)
         v_new, f = friction_step(a, r, h, cap, v)

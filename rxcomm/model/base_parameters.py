@@ -46,7 +46,16 @@ _ZERO_COLUMN = 1e-10  # a column whose norm is below this fraction of the larges
 _COEFF_CLEAN = 1e-10  # regrouping coefficients whose relative contribution is below this are zero
 
 # Floors of the typical magnitude of drive parameters whose prior may be zero (SI units).
-_SCALE_FLOOR = {"rotor_inertia": 1e-6, "fc": 0.1, "fv": 0.1, "offset": 1.0, "k": 100.0, "kL0": 10.0}
+_SCALE_FLOOR = {
+    "rotor_inertia": 1e-6,
+    "fc": 0.1,
+    "fv": 0.1,
+    "offset": 1.0,
+    "k": 100.0,
+    "kL0": 10.0,
+    "fc_motor": 1e-5,  # motor side; small: a regrouped value stays on the joint side
+    "fv_motor": 1e-7,
+}
 
 
 def _kind(name: str) -> str:
@@ -171,7 +180,7 @@ def base_parameters(
         raise ValueError(f"n_samples must be at least 50 for a reliable rank, got {n_samples}")
     q, qd, qdd = random_states(robot, n_samples, seed)
     w = joint_torque_regressor(robot, q, qd, qdd)
-    names = parameter_names(robot.joint_names, robot.drives.spring is not None)
+    names = parameter_names(robot.joint_names, robot.drives.spring is not None, robot.has_motor_friction)
     return base_parameters_from_regressor(w, names, robot.n, rank_tolerance, n_samples=n_samples, seed=seed)
 
 
@@ -259,9 +268,9 @@ def parameters_from_base(
 ) -> DynamicParameters:
     """A full parameter set reproducing the base values exactly (K·p = p_b): the prior with the minimum
     relative correction (see the module docstring)."""
-    prior = prior_parameters(robot) if prior is None else prior
+    prior = prior_parameters(robot) if prior is None else prior.conform(robot)
     prior.check_robot(robot)
-    names = parameter_names(robot.joint_names, prior.has_spring)
+    names = parameter_names(robot.joint_names, prior.has_spring, prior.has_motor_friction)
     if tuple(bset.full_names) != names:
         raise InputError(f"base parameters are defined over other parameters than robot {robot.name!r} has")
     p_b = np.asarray(p_b, dtype=float)
@@ -270,13 +279,13 @@ def parameters_from_base(
     p0 = prior.vector()
     s = parameter_scale(names, p0, robot.n)
     p = p0 + s * (np.linalg.pinv(bset.K * s[None, :], rcond=1e-12) @ (p_b - bset.K @ p0))
-    return DynamicParameters.from_vector(robot.joint_names, p, prior.has_spring)
+    return DynamicParameters.from_vector(robot.joint_names, p, prior.has_spring, prior.has_motor_friction)
 
 
 def dynamics_from_artefact(artefact: Dynamics, robot: Robot) -> DynamicParameters:
     """The parameters a `schemas.dynamics.Dynamics` artefact stands for, on `robot`: its full estimate
     when it carries one, else the prior corrected to its base parameter values."""
-    names = parameter_names(robot.joint_names, robot.drives.spring is not None)
+    names = parameter_names(robot.joint_names, robot.drives.spring is not None, robot.has_motor_friction)
     if tuple(artefact.robot_joints) != robot.joint_names:
         raise InputError(
             f"dynamics are for joints {artefact.robot_joints}, the robot has {list(robot.joint_names)}",
@@ -364,6 +373,12 @@ def dynamics_artefact_fields(
                 "coulomb_nm": float(params.coulomb_nm[i]),
                 "viscous_nm_s_per_rad": float(params.viscous_nm_s_per_rad[i]),
                 "offset_nm": float(params.offset_nm[i]),
+                "motor_coulomb_nm": (
+                    float(params.motor_coulomb_nm[i]) if params.has_motor_friction else None
+                ),
+                "motor_viscous_nm_s_per_rad": (
+                    float(params.motor_viscous_nm_s_per_rad[i]) if params.has_motor_friction else None
+                ),
             }
             for i, j in enumerate(robot.joint_names)
         ],

@@ -98,6 +98,37 @@ class Robot:
         return self._per_joint("motor_sign")
 
     @property
+    def encoder_offset(self) -> np.ndarray:
+        """Motor angle reported at the joint's calibrated zero, motor side, rad."""
+        return self._per_joint("encoder_offset_rad")
+
+    @property
+    def coupled_motors(self) -> tuple[int, ...]:
+        """Motors whose angle depends on more than one joint (a row of C with off-diagonal entries)."""
+        c = self.motor_coupling
+        return tuple(i for i in range(self.n) if np.count_nonzero(np.delete(c[i], i)) > 0)
+
+    @property
+    def friction_mode(self) -> str:
+        """Where the model puts friction: "joint", "motor" or "both" (drives.yaml `friction`; default
+        both when a motor is coupled to several joints, else joint)."""
+        mode = self.drives.friction
+        if mode is None:
+            mode = "both" if self.coupled_motors else "joint"
+        return mode
+
+    @property
+    def has_motor_friction(self) -> bool:
+        return self.friction_mode in ("motor", "both")
+
+    def with_friction(self, mode: str) -> Robot:
+        """The same robot with another friction model (e.g. to compare fits with and without motor
+        friction)."""
+        from dataclasses import replace
+
+        return replace(self, drives=self.drives.model_copy(update={"friction": mode}))
+
+    @property
     def coulomb_prior(self) -> np.ndarray:
         return self._per_joint("coulomb_friction_nm")
 
@@ -252,16 +283,19 @@ def _validate_urdf(path: Path, joint_names: list[str], drives_path: Path) -> lis
             i = {k: float(inertia_el.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
         except ValueError as e:
             raise InputError(f"not a number: {e}", file=path, field=where) from e
-        if not mass > 0:
-            raise InputError(f"mass must be positive, got {mass}", file=path, field=f"{where}.mass")
+        if not mass >= 0:
+            raise InputError(f"mass must not be negative, got {mass}", file=path, field=f"{where}.mass")
         tensor = np.array(
             [[i["ixx"], i["ixy"], i["ixz"]], [i["ixy"], i["iyy"], i["iyz"]], [i["ixz"], i["iyz"], i["izz"]]]
         )
+        # Positive semi-definite and the triangle inequality: a point mass (zero inertia) or a thin rod
+        # is a legitimate prior; an indefinite tensor is not a body.
         ev = np.linalg.eigvalsh(tensor)
-        if ev[0] <= 0 or ev[2] > ev[0] + ev[1] + 1e-12:
+        tol = 1e-9 * max(abs(ev).max(), 1e-12)
+        if ev[0] < -tol or ev[2] > ev[0] + ev[1] + tol:
             raise InputError(
-                f"inertia tensor is not physical (eigenvalues {np.round(ev, 6).tolist()}: must be positive "
-                "and satisfy the triangle inequality)",
+                f"inertia tensor is not physical (eigenvalues {np.round(ev, 6).tolist()}: must be "
+                "non-negative and satisfy the triangle inequality)",
                 file=path,
                 field=f"{where}.inertia",
             )

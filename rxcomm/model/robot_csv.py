@@ -8,14 +8,19 @@ Columns (i = 1..n, the axis number in drives.yaml order; other columns are ignor
 - torques, one kind: ``tau{i}_nm`` joint side, ``motor_tau{i}_nm`` motor side, or ``current{i}_a``
   motor current (A, torque-producing component).
 
-Motor-side values are as the drives report them: θ_raw,i = s_i·θ_m,i and τ_raw,i = s_i·τ_m,i with
-the motor signs s_i of drives.yaml, and currents I_i = τ_raw,i / k_t,i (torque constants). With
+Motor-side values are as the drives report them: θ_raw,i = s_i·θ_m,i + o_i and τ_raw,i = s_i·τ_m,i with
+the motor signs s_i and encoder offsets o_i (`encoder_offset_rad`, the reading at the joint's
+calibrated zero) of drives.yaml, and currents I_i = τ_raw,i / k_t,i (torque constants). With
 R = `robot.joint_to_motor` = diag(gear ratio)·C (C the coupling, e.g. the RX130L's J5→J6 wrist),
 θ_m = R·q and τ_joint = Rᵀ·τ_m (power balance τ_mᵀθ̇_m = τᵀq̇), so q = R⁻¹·θ_m.
+
+Unit sanity (`check_positions`): joint positions far outside the URDF limits are refused, naming the
+column and the unit they look like (degrees, ×1000) or the offsets that put them there.
 """
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +45,37 @@ class RobotCsv:
     tau: np.ndarray
     positions: str
     torques: str
+
+
+LIMIT_MARGIN_RAD = 0.2  # beyond the URDF limits by more than this is not a measurement error
+
+
+def check_positions(
+    q: np.ndarray,
+    robot: Robot,
+    columns: list[str] | tuple[str, ...],
+    file: Path | str | None,
+    hint: str = "",
+) -> None:
+    """InputError (exit 2) when a joint's positions lie far outside its limits: names the column and
+    the unit the values look like (degrees; ×1000 such as mrad), else `hint` (e.g. the offsets)."""
+    lo, hi = robot.q_min - LIMIT_MARGIN_RAD, robot.q_max + LIMIT_MARGIN_RAD
+    for j in range(robot.n):
+        c = q[:, j]
+        c = c[np.isfinite(c)]
+        if len(c) == 0 or (c.min() >= lo[j] and c.max() <= hi[j]):
+            continue
+        unit = ""
+        for name, scale in (("degrees", math.pi / 180.0), ("×1000 (mrad?)", 1e-3)):
+            if (c * scale).min() >= lo[j] and (c * scale).max() <= hi[j]:
+                unit = f"; the values fit the limits if they are in {name}: give radians"
+                break
+        raise InputError(
+            f"{robot.joint_names[j]} ranges over [{c.min():.4g}, {c.max():.4g}] rad, outside its limits "
+            f"[{robot.q_min[j]:.3f}, {robot.q_max[j]:.3f}] rad{unit or hint}",
+            file=file,
+            field=columns[j],
+        )
 
 
 def _header(path: Path) -> tuple[list[str], int]:
@@ -126,7 +162,12 @@ def read_robot_csv(path: str | Path, robot: Robot) -> RobotCsv:
     raw = data[:, tau_cols]
     r = robot.joint_to_motor
     sign = robot.motor_sign
-    q = np.linalg.solve(r, (pos * sign).T).T if pos_kind == "motor" else pos
+    offsets = robot.encoder_offset
+    q = np.linalg.solve(r, ((pos - offsets) * sign).T).T if pos_kind == "motor" else pos
+    hint = ""
+    if pos_kind == "motor" and np.any(offsets):
+        hint = f"; check encoder_offset_rad in drives.yaml ({np.round(offsets, 4).tolist()} rad, motor side)"
+    check_positions(q, robot, [columns[k] for k in pos_cols], path, hint)
     if tau_kind == "joint":
         tau = raw
     else:
@@ -151,7 +192,7 @@ def write_robot_csv(
     if positions not in POSITION_KINDS or torques not in TORQUE_KINDS:
         raise ValueError(f"positions in {list(POSITION_KINDS)}, torques in {list(TORQUE_KINDS)}")
     r, sign = robot.joint_to_motor, robot.motor_sign
-    pos = q @ r.T * sign if positions == "motor" else q
+    pos = q @ r.T * sign + robot.encoder_offset if positions == "motor" else q
     if torques == "joint":
         tq = tau
     else:

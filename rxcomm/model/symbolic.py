@@ -113,6 +113,7 @@ def inverse_dynamics_expr(robot: Robot, q, qd, qdd, p, coulomb_eps_rad_s: float 
     """τ(q, q̇, q̈; p), p the flat vector of `DynamicParameters.vector()` (numeric or symbolic)."""
     n = robot.n
     if isinstance(p, DynamicParameters):
+        p = p.conform(robot)
         p.check_robot(robot)
         p = p.vector()
     if p.shape[0] != n_parameters(robot):
@@ -133,6 +134,13 @@ def inverse_dynamics_expr(robot: Robot, q, qd, qdd, p, coulomb_eps_rad_s: float 
         ab_sin = a * b * ca.sin(theta)
         tau_s = ab_sin * p[14 * n] - ab_sin / length * p[14 * n + 1]
         tau = tau + ca.vertcat(*[tau_s if i == k else 0.0 for i in range(n)])
+    if robot.has_motor_friction:  # Rᵀ·(Fc_m·sgn(R·q̇) + Fv_m·R·q̇)
+        m0 = 14 * n + (2 if spring is not None else 0)
+        fc_m = ca.vertcat(*[p[m0 + i] for i in range(n)])
+        fv_m = ca.vertcat(*[p[m0 + n + i] for i in range(n)])
+        vm = ca.mtimes(r, qd)
+        scale = ca.DM(np.abs(np.diag(robot.joint_to_motor)))  # ε on the axis's joint scale
+        tau = tau + ca.mtimes(r.T, fc_m * _coulomb(vm / scale, coulomb_eps_rad_s) + fv_m * vm)
     return tau
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from rxcomm.schemas.strict import Strict
 
@@ -17,16 +17,35 @@ class JointDrive(Strict):
     """One axis: gearbox, motor and the limits the drive enforces."""
 
     name: str = Field(description="URDF joint name")
-    gear_ratio: float = Field(gt=0, description="motor turns per joint turn (dimensionless)")
+    gear_ratio: float = Field(
+        description="motor turns per joint turn (dimensionless, positive: a reversed axis is motor_sign -1)"
+    )
     rotor_inertia_kgm2: float = Field(ge=0, description="motor rotor inertia, motor side, kg·m²")
     torque_constant_nm_per_a: float = Field(gt=0, description="motor torque constant, N·m/A (motor side)")
     motor_sign: Literal[-1, 1] = Field(1, description="sign of motor position/torque w.r.t. the joint")
+    encoder_offset_rad: float = Field(
+        0.0,
+        description="motor angle the drive reports at the joint's calibrated zero, motor side, rad "
+        "(subtracted from a CSV's motor{i}_rad before conversion)",
+    )
     peak_torque_nm: float = Field(gt=0, description="peak joint torque, N·m")
     continuous_torque_nm: float = Field(gt=0, description="continuous (RMS) joint torque, N·m")
     torque_rate_max_nm_per_s: float = Field(gt=0, description="joint torque rate limit, N·m/s")
     acceleration_max_rad_per_s2: float = Field(gt=0, description="joint acceleration limit, rad/s²")
     coulomb_friction_nm: float = Field(ge=0, description="prior Coulomb friction, N·m")
     viscous_friction_nm_s_per_rad: float = Field(ge=0, description="prior viscous friction, N·m·s/rad")
+
+    @field_validator("gear_ratio")
+    @classmethod
+    def _positive_ratio(cls, v: float) -> float:
+        if v < 0:
+            raise ValueError(
+                f"gear_ratio {v} is negative: give its magnitude ({-v:g}) and motor_sign: -1 "
+                "for an axis whose motor turns the other way"
+            )
+        if not v > 0:
+            raise ValueError("gear_ratio must be positive")
+        return v
 
     @model_validator(mode="after")
     def _continuous_below_peak(self) -> JointDrive:
@@ -72,6 +91,12 @@ class Drives(Strict):
         None,
         description="dimensionless C with motor angle = diag(gear_ratio)·C·q (e.g. a J5–J6 wrist coupling); "
         "identity when absent",
+    )
+    friction: Literal["joint", "motor", "both"] | None = Field(
+        None,
+        description="where friction acts in the model: per joint (joint side), per motor (motor side, "
+        "mapped to the joints by Rᵀ: a coupled motor loads every joint it turns with), or both; "
+        "default both when motor_coupling couples axes, else joint",
     )
 
     @model_validator(mode="after")

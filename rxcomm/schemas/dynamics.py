@@ -58,6 +58,12 @@ class JointFriction(Strict):
     coulomb_nm: float
     viscous_nm_s_per_rad: float
     offset_nm: float = Field(description="constant torque offset (sensor bias), N·m")
+    motor_coulomb_nm: float | None = Field(
+        None, description="Coulomb friction of this axis's motor, motor side, N·m (motor friction models)"
+    )
+    motor_viscous_nm_s_per_rad: float | None = Field(
+        None, description="viscous friction of this axis's motor, motor side, N·m·s/rad"
+    )
 
 
 class SpringEstimate(Strict):

@@ -27,7 +27,7 @@ import rxcomm
 from rxcomm.schemas.plain import sha256_file, to_plain
 
 Sha256Hex = Annotated[str, StringConstraints(pattern=r"^[0-9a-f]{64}$")]
-SummaryValue = float | int | str | bool | list[float] | list[int] | None
+SummaryValue = float | int | str | bool | list[float] | list[int] | list[float | None] | None
 ENVELOPE_FIELDS = ("kind", "schema_version", "created", "rxcomm_version", "inputs", "settings", "summary")
 
 

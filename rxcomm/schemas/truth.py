@@ -52,6 +52,12 @@ class DynamicsTruth(Strict):
     torque_offset_nm: list[float] = Field(description="constant torque offset per joint (sensor bias)")
     spring_stiffness_n_per_m: float | None = None
     spring_free_length_m: float | None = None
+    motor_coulomb_friction_nm: list[float] | None = Field(
+        None, description="Coulomb friction of each motor, motor side, N·m (absent: none)"
+    )
+    motor_viscous_friction_nm_s_per_rad: list[float] | None = Field(
+        None, description="viscous friction of each motor, motor side, N·m·s/rad (absent: none)"
+    )
 
 
 class NoiseTruth(Strict):

@@ -2,9 +2,13 @@
 
 Reads the robot and a joint log (`run`'s MCAP, topic /run/joints, or a CSV: docs/identify-csv.md),
 identifies the base parameters (`rxcomm.identification.fit`), validates them on another log
-(``--validate``, e.g. an ISO 9283 path) or on the held-out last 20 % of the log, and writes
+(``--validate``, e.g. an ISO 9283 path) or on held-out parts of the log (the last 20 % of each of
+5 blocks), and writes
 ``dynamics.yaml`` (kind rxcomm/Dynamics), which plan-cp, plan-ptp and run load. ``--plot`` writes
 ``dynamics.png``: measured against predicted torques on the validation data (paper Fig. 5b).
+
+``--model dynamics.yaml --validate LOG`` scores an identified model on another log without refitting
+(the same figures; nothing is written but ``--torques-csv``, the measured and predicted torques per row).
 """
 
 from __future__ import annotations
@@ -18,11 +22,19 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.identification.fit import Identification, IdentifySettings, identify, load_joint_log
+from rxcomm.identification.fit import (
+    Identification,
+    IdentifySettings,
+    Validation,
+    identify,
+    load_joint_log,
+    score,
+    write_torques_csv,
+)
 from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
-from rxcomm.io.yaml_io import write_yaml_artefact
-from rxcomm.model.base_parameters import dynamics_artefact_fields
+from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
+from rxcomm.model.base_parameters import dynamics_artefact_fields, dynamics_from_artefact
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.schemas.dynamics import Dynamics
 
@@ -30,6 +42,22 @@ from rxcomm.schemas.dynamics import Dynamics
 class Method(StrEnum):
     wls = "wls"
     ols = "ols"
+
+
+class Friction(StrEnum):
+    joint = "joint"
+    motor = "motor"
+    both = "both"
+
+
+NOT_SCORED = "not scored"
+
+
+def per_joint(
+    values: list[float | None], scale: float = 1.0, unit: str = "", none: str = NOT_SCORED, fmt: str = ".3g"
+) -> str:
+    """Per-joint figures; a joint that did not move on the validation data reads "not scored"."""
+    return ", ".join(none if v is None else f"{v * scale:{fmt}}{unit}" for v in values)
 
 
 def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
@@ -43,7 +71,11 @@ def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
         ax.plot(val.t, val.measured[:, j], lw=1.0, label="measured")
         ax.plot(val.t, val.predicted[:, j], lw=1.0, ls="--", label="identified model")
         ax.set_ylabel(f"{robot.joint_names[j]} [N·m]")
-        ax.set_title(f"RMS {val.rms_nm[j]:.3g} N·m, NRMSE {100 * val.nrmse[j]:.2f} %", fontsize=9)
+        if val.scored[j]:
+            title = f"RMS {val.rms_nm[j]:.3g} N·m, NRMSE {100 * val.nrmse[j]:.2f} %, R² {val.r2[j]:.3f}"
+        else:
+            title = "not scored: the joint did not move"
+        ax.set_title(title, fontsize=9)
         ax.grid(alpha=0.3)
     axes.ravel()[0].legend(fontsize=8)
     for ax in axes.ravel()[-2:]:
@@ -58,12 +90,26 @@ def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
 def command(
     robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
     log: Annotated[
-        Path, typer.Option(help="Run log MCAP (rxcomm run) or a robot CSV (docs/identify-csv.md).")
-    ],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output dynamics.yaml.")],
+        Path | None, typer.Option(help="Run log MCAP (rxcomm run) or a robot CSV (docs/identify-csv.md).")
+    ] = None,
+    output: Annotated[Path | None, typer.Option("-o", "--output", help="Output dynamics.yaml.")] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option(help="Score this identified dynamics.yaml on --validate LOG instead of identifying."),
+    ] = None,
+    torques_csv: Annotated[
+        Path | None, typer.Option(help="Write the validation rows' measured and predicted torques as CSV.")
+    ] = None,
     validate: Annotated[
         Path | None,
-        typer.Option(help="Validation log (another trajectory, e.g. ISO 9283); default: last 20 % of LOG."),
+        typer.Option(
+            help="Validation log (another trajectory, e.g. ISO 9283); default: the last 20 % of each of "
+            "5 blocks of LOG."
+        ),
+    ] = None,
+    friction: Annotated[
+        Friction | None,
+        typer.Option(help="Friction model: joint, motor or both (default: drives.yaml's friction)."),
     ] = None,
     physical: Annotated[
         bool,
@@ -109,8 +155,79 @@ def command(
         "max_gap_s": max_gap,
         "torque_lag_s": torque_lag,
         "stick_guard_s": stick_guard,
+        "friction": None if friction is None else friction.value,
     }
-    run(robot_dir, log, output, validate=validate, settings=values, plot=plot)
+    _check_mode(model, log, output, validate)
+    if model is not None:
+        score_run(robot_dir, model, validate, settings=values, torques_csv=torques_csv)
+        return
+    run(robot_dir, log, output, validate=validate, settings=values, plot=plot, torques_csv=torques_csv)
+
+
+@console.stage_command
+def _check_mode(model: Path | None, log: Path | None, output: Path | None, validate: Path | None) -> None:
+    if model is not None:
+        if validate is None or log is not None or output is not None:
+            raise InputError(
+                "--model scores a model on --validate LOG: give --validate, not --log or -o", field="model"
+            )
+    elif log is None or output is None:
+        raise InputError("give --log and -o (or --model with --validate to score a model)", field="log")
+
+
+def _settings(settings: IdentifySettings | dict | None) -> IdentifySettings:
+    values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
+    return settings_from_options(IdentifySettings, values)
+
+
+def validation_rows(val: Validation) -> dict[str, object]:
+    """The console lines of a validation (per joint; "not scored" where the joint did not move)."""
+    nan = [None if not np.isfinite(v) else float(v) for v in val.standstill_in_band_fraction]
+    return {
+        "validation": val.source,
+        "validation_rms_nm (moving rows)": per_joint(
+            [None if not ok else float(v) for v, ok in zip(val.rms_nm, val.scored, strict=True)]
+        ),
+        "validation_nrmse": per_joint(
+            [None if not ok else float(v) for v, ok in zip(val.nrmse, val.scored, strict=True)], 100, " %"
+        ),
+        "validation_r2": per_joint([None if not np.isfinite(v) else float(v) for v in val.r2], fmt=".4f"),
+        "standstill_in_band_fraction": per_joint(nan, none="no standstill"),
+    }
+
+
+@console.stage_command
+def score_run(
+    robot_dir: Path,
+    model: Path,
+    log: Path,
+    *,
+    settings: IdentifySettings | dict | None = None,
+    torques_csv: Path | None = None,
+) -> Validation:
+    """Score an identified model (dynamics.yaml) on a log without refitting; returns the validation."""
+    check_outputs({"torques-csv": torques_csv}, {"log": log, "model": model, **robot_files(robot_dir)})
+    robot = load_robot(robot_dir)
+    art = read_yaml_artefact(model, Dynamics)
+    values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
+    # The model's own processing and friction model, unless given other than the defaults here.
+    fields = IdentifySettings.model_fields
+    for k in ("cutoff_hz", "decimate_hz", "min_speed_rad_s", "friction", "filter_order", "torque_lag_s"):
+        given = values.get(k, fields[k].default)
+        if given == fields[k].default and art.settings.get(k) is not None:
+            values[k] = art.settings[k]
+    opts = _settings(values)
+    if opts.friction is not None:
+        robot = robot.with_friction(opts.friction)
+    try:
+        params = dynamics_from_artefact(art, robot)
+    except InputError as e:
+        raise InputError(e.reason, file=model, field=e.field) from e
+    val = score(robot, params, load_joint_log(log, robot), opts)
+    if torques_csv is not None:
+        console.out.print(f"torques: {write_torques_csv(torques_csv, robot.joint_names, val)}")
+    console.summary_table(f"identify: {Path(model).name} scored on {Path(log).name}", validation_rows(val))
+    return val
 
 
 @console.stage_command
@@ -122,18 +239,22 @@ def run(
     validate: Path | None = None,
     settings: IdentifySettings | dict | None = None,
     plot: bool = False,
+    torques_csv: Path | None = None,
 ) -> Dynamics:
     """The stage as a function (tests call it): returns the artefact written."""
     output = Path(output)
     if output.suffix not in (".yaml", ".yml"):
         raise InputError("the output must be a .yaml file", field="output")
     check_outputs(
-        {"output": output, "plot": output.with_suffix(".png") if plot else None},
+        {
+            "output": output,
+            "plot": output.with_suffix(".png") if plot else None,
+            "torques-csv": torques_csv,
+        },
         {"log": log, "validate": validate, **robot_files(robot_dir)},
     )
     robot = load_robot(robot_dir)
-    values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
-    opts = settings_from_options(IdentifySettings, values)
+    opts = _settings(settings)
     joint_log = load_joint_log(log, robot)
     val_log = None if validate is None else load_joint_log(validate, robot)
     for lg in (joint_log, val_log):
@@ -172,21 +293,24 @@ def run(
     if plot:
         png = plot_validation(robot, result, output.with_suffix(".png"))
         console.out.print(f"plot: {png}")
-    shown = {
-        k: summary[k]
-        for k in (
-            "n_base_params",
-            "cond",
-            "validation",
-            "validation_nrmse",
-            "validation_rms_nm",
-            "fit_rms_nm",
-            "max_relative_std",
-            "n_inconsistent_links",
-            "consistency_distance_sigma",
-            "method",
-            "seconds",
+    if torques_csv is not None:
+        path = write_torques_csv(torques_csv, robot.joint_names, result.validation)
+        console.out.print(f"torques: {path}")
+    shown = {k: summary[k] for k in ("n_base_params", "friction", "cond", "cutoff_hz", "sample_hz")}
+    shown["rows_per_parameter"] = f"{summary['rows_per_parameter']:.1f} ({est.n_rows} rows)"
+    shown.update(validation_rows(result.validation))
+    for k in ("fit_rms_nm", "max_relative_std", "n_inconsistent_links"):
+        shown[k] = summary[k]
+    if summary["inconsistent_links"]:
+        dist = summary["consistency_distance_sigma"]
+        shown["inconsistent_links"] = (
+            f"{summary['inconsistent_links']}: pseudo-inertia not positive definite (no body has that mass "
+            f"distribution); the nearest consistent estimate is {dist:.3g} σ away (≲ √n_base: within "
+            "the noise; --physical writes it)"
         )
-    }
+    for k in ("consistency_distance_sigma", "method", "seconds"):
+        shown[k] = summary[k]
     console.summary_table(f"identify → {output}", shown)
+    for w in result.warnings(opts):
+        console.err.print(f"[yellow]warning:[/] {w}")
     return art
