@@ -33,7 +33,7 @@ from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.plan import StreamPlan, distance_to_start, prepare_plan
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import BlockReply, GatewayClient, RoundTripStats
-from rxcomm.gateway.registers import DriveState, ErrorCode, Status
+from rxcomm.gateway.registers import DriveState, ErrorCode, Status, StopCause
 from rxcomm.gateway.stream import STOP_BITS, stream
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.robot import Robot
@@ -276,6 +276,7 @@ class Session:
             )
         self.cycle_s = cycle_s
         self.capacity = ident.buffer_capacity
+        self.client.claim()  # one master at a time: refused here, before anything is written
 
     def check_faults(self, reset: bool) -> None:
         """Refuse (SafetyStop) drive faults or latched gateway stops, or clear them when ``reset``."""
@@ -303,6 +304,7 @@ class Session:
     def configure(self) -> int:
         """Measure the round trip with empty blocks, choose R, write watchdog/prefill/R/D."""
         s = self.settings
+        self.client.claim()  # again: planning may have outlasted the lease (the power-on watchdog)
         times = []
         for _ in range(s.round_trip_probes):
             t0 = time.perf_counter()
@@ -423,7 +425,7 @@ class Session:
         faulted = [(names[i], a.error_code) for i, a in enumerate(axes) if a.error_code]
         code = st.error or (faulted[0][1] if faulted else 0)
         t_s = st.execute_index * self.ratio * self.cycle_s
-        what = _code_name(code)
+        what = _cause_name(st.stop_cause) + ("" if not code else f", {_code_name(code)}")
         where = ", ".join(f"{n} {_code_name(c)}" for n, c in faulted)
         text = f"{what} at t = {t_s:.3f} s" + (f" ({where})" if where else "")
         if code in COMMUNICATION_ERRORS:
@@ -470,6 +472,27 @@ class StreamStopped(Exception):  # noqa: N818 - a carrier inside rxcomm.executio
         super().__init__(str(error))
         self.error = error
         self.log = log
+
+
+_CAUSES = {
+    StopCause.NONE: "no stop cause reported",
+    StopCause.UNDERRUN: "setpoint underrun",
+    StopCause.WATCHDOG: "watchdog expired (no write from the master in time)",
+    StopCause.CONNECTION_LOST: "the master's connection was lost",
+    StopCause.ESTOP: "emergency stop",
+    StopCause.AXIS_FAULT: "axis fault",
+    StopCause.QUICK_STOP_COMMAND: "quick stop commanded",
+    StopCause.STREAM_DISABLED: "stream enable withdrawn",
+    StopCause.AXIS_LEFT_OPERATION: "a controlword took an axis out of operation enabled",
+}
+
+
+def _cause_name(cause: int) -> str:
+    """Register 43 in words (with its number, for a PLC programmer's log)."""
+    try:
+        return f"{_CAUSES[StopCause(cause)]} (stop cause {cause})"
+    except ValueError:
+        return f"stop cause {cause}"
 
 
 def _code_name(code: int) -> str:

@@ -203,9 +203,9 @@ def decode_window(words: list[int]) -> tuple[StreamStatus, TraceRecords]:
     return StreamStatus(R.Status(h[0]), h[1], h[2], h[3], h[4]), TraceRecords(h[5], pos, tq)
 
 
-# --- status registers 30-42 --------------------------------------------------------------------
+# --- status registers 30-43 --------------------------------------------------------------------
 
-_STATUS = "H3I3HIH"
+_STATUS = "H3I3HI2H"
 
 
 @dataclass(frozen=True)
@@ -219,6 +219,7 @@ class GatewayStatus:
     error: int
     trace_count: int
     heartbeat_echo: int
+    stop_cause: int = 0  # registers.StopCause
 
 
 def encode_status(s: GatewayStatus) -> list[int]:
@@ -233,6 +234,7 @@ def encode_status(s: GatewayStatus) -> list[int]:
         s.error,
         s.trace_count & R.U32_MAX,
         s.heartbeat_echo & 0xFFFF,
+        int(s.stop_cause),
     )
 
 
