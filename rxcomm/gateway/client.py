@@ -8,6 +8,7 @@ any communication error the connection is closed and every later call raises Gat
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from collections import deque
@@ -131,10 +132,8 @@ class GatewayClient:
 
     def close(self) -> None:
         if self.claimed and self._open and self._mb.connected:
-            try:
+            with contextlib.suppress(GatewayError):  # closing the connection releases it too
                 self.release()
-            except GatewayError:
-                pass  # closing the connection releases the claim too
         self.claimed = False
         self._open = False
         self._mb.close()
