@@ -192,6 +192,8 @@ class GatewayCore:
         self.owner_token = 0
         self._conn: object | None = None  # the connection of the write being handled
         self.stop_cause = 0  # StopCause of the first stop since CLEAR / RESET (register 43)
+        self.overruns = 0  # realtime: cycles the clock started more than a cycle late (register 44)
+        self.clock = int(R.Clock.VIRTUAL)  # the server sets what paces it (register 45)
 
     # ---- derived state -------------------------------------------------------------------------
 
@@ -578,6 +580,8 @@ class GatewayCore:
             trace_count=self.trace.next,
             heartbeat_echo=self.heartbeat,
             stop_cause=self.stop_cause,
+            overruns=self.overruns,
+            clock=self.clock,
         )
 
     def _image_status(self, sample: bool) -> list[int]:

@@ -11,7 +11,9 @@ Time (``TimeMode``):
   a run's physics does not depend on how fast the master is. The watchdog still uses wall time.
 - ``realtime``: a cycle every 400 µs of wall time on a drift-free schedule (deadline += period; a
   late wake-up runs the overdue cycles at once; beyond ``max_lag_cycles`` the schedule resyncs and
-  counts it). An empty buffer while streaming is an underrun.
+  counts it). An empty buffer while streaming is an underrun. A cycle started more than one period
+  late is an overrun (register 44): the cell reports its own lateness, so a busy machine cannot pass
+  for a good run.
 """
 
 from __future__ import annotations
@@ -148,6 +150,8 @@ class CellServer:
             settle_max_cycles=self.config.settle_max_cycles,
         )
         self.core = GatewayCore(backend, limits)
+        realtime = self.config.time_mode is TimeMode.REALTIME
+        self.core.clock = int(R.Clock.REALTIME if realtime else R.Clock.VIRTUAL)
         self.lock = threading.Condition()  # serialises every core access; notified on writes
         self._stop = threading.Event()
         self._started = threading.Event()
@@ -318,8 +322,11 @@ class CellServer:
             if now < deadline:
                 time.sleep(min(deadline - now, 0.002))
                 continue
-            self.max_late_s = max(self.max_late_s, now - deadline)
+            late = now - deadline
+            self.max_late_s = max(self.max_late_s, late)
             with self.lock:
+                if late > period:  # this cycle's slot passed unserved: a real drive would fault
+                    self.core.overruns += 1
                 self.core.check_watchdog(time.monotonic())
                 self.core.run_cycle(allow_underrun=True)
             deadline += period

@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.plan import StreamPlan, prepare_plan
-from rxcomm.execution.session import RunResult, Session, StreamSettings, StreamStopped
+from rxcomm.execution.session import RunResult, Session, StreamSettings, StreamStopped, timing_figures
 from rxcomm.gateway.client import GatewayClient, TrackerSample
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.robot import Robot
@@ -213,7 +213,7 @@ def campaign_summary(result: CampaignResult) -> dict[str, object]:
         "n_poses": len(result.readings),
         "n_valid": result.n_valid,
         "n_planned": result.n_planned,
-        "underruns": int(sum(m.underruns for m in run.moves)),
+        **timing_figures(run.moves),
         "max_move_lag_rad": float(max(lags)) if lags else None,
         "max_tracker_attempts": max((r.attempts for r in result.readings), default=0),
         "interpolation_ratio": run.ratio,

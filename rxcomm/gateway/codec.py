@@ -203,9 +203,9 @@ def decode_window(words: list[int]) -> tuple[StreamStatus, TraceRecords]:
     return StreamStatus(R.Status(h[0]), h[1], h[2], h[3], h[4]), TraceRecords(h[5], pos, tq)
 
 
-# --- status registers 30-43 --------------------------------------------------------------------
+# --- status registers 30-45 --------------------------------------------------------------------
 
-_STATUS = "H3I3HI2H"
+_STATUS = "H3I3HI4H"
 
 
 @dataclass(frozen=True)
@@ -220,6 +220,8 @@ class GatewayStatus:
     trace_count: int
     heartbeat_echo: int
     stop_cause: int = 0  # registers.StopCause
+    overruns: int = 0  # drive cycles started more than one cycle late
+    clock: int = 0  # registers.Clock
 
 
 def encode_status(s: GatewayStatus) -> list[int]:
@@ -235,6 +237,8 @@ def encode_status(s: GatewayStatus) -> list[int]:
         s.trace_count & R.U32_MAX,
         s.heartbeat_echo & 0xFFFF,
         int(s.stop_cause),
+        min(s.overruns, R.U16_MAX),
+        int(s.clock),
     )
 
 

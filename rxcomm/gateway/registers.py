@@ -89,7 +89,16 @@ ST_ERROR = 39
 ST_TRACE_COUNT = 40  # u32, records produced since clear
 ST_HEARTBEAT_ECHO = 42
 ST_STOP_CAUSE = 43  # why the last stream or quick stop ended (StopCause), until CLEAR / RESET
-ST_COUNT = 14
+ST_OVERRUNS = 44  # drive cycles the gateway started more than one cycle late (since power-on, saturates)
+ST_CLOCK = 45  # Clock: what paces the drive cycles
+ST_COUNT = 16
+
+
+class Clock(IntEnum):
+    """Register 45."""
+
+    REALTIME = 0  # a drive cycle every cycle_us of wall time (a real gateway; the simulator --realtime)
+    VIRTUAL = 1  # simulator: cycles run only when setpoints are buffered, so underruns cannot happen
 
 
 class Status(IntFlag):

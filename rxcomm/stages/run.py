@@ -24,7 +24,7 @@ from rxcomm.execution.campaign import (
     measured_poses,
     run_campaign,
 )
-from rxcomm.execution.log import read_run_log, write_run_log
+from rxcomm.execution.log import RunLogWriter, read_run_log
 from rxcomm.execution.plan import prepare_plan
 from rxcomm.execution.session import RunSettings, StreamSettings, run_trajectory
 from rxcomm.gateway.client import GatewayClient
@@ -203,22 +203,27 @@ def execute(
                 limit_tolerance=settings.limit_tolerance,
             )
             with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, embedded):
-                result = run_trajectory(client, robot, prepared, params, settings, update)
+                # The log is written while the robot moves: a killed run leaves NAME.mcap.part.
+                sink = RunLogWriter(
+                    output,
+                    robot,
+                    inputs=inputs,
+                    settings={
+                        **settings.model_dump(mode="json"),
+                        "model": model_name,
+                        "embedded_cell": embedded,
+                        "realtime": realtime,
+                    },
+                    feedforward=ff_name,
+                    embedded_cell=embedded,
+                )
+                try:
+                    result = run_trajectory(client, robot, prepared, params, settings, update, sink)
+                except BaseException:
+                    sink.abandon()
+                    raise
             stop_bar()
-            written, summary = write_run_log(
-                output,
-                robot,
-                result,
-                inputs=inputs,
-                settings={
-                    **settings.model_dump(mode="json"),
-                    "model": model_name,
-                    "embedded_cell": embedded,
-                    "realtime": realtime,
-                },
-                feedforward=ff_name,
-                embedded_cell=embedded,
-            )
+            written, summary = sink.close(result)
             _print_run(summary, written, robot)
             if plot:
                 figure = plot_lags(written, compare, output.with_suffix(".png"), robot)
@@ -263,6 +268,7 @@ def _print_run(summary: dict[str, Any], written: Path, robot: Robot) -> None:
         "outcome",
         "duration_s",
         "underruns",
+        "cell_overruns",
         "max_lag_rad",
         "rms_lag_rad",
         "max_tcp_error_m",
