@@ -107,7 +107,7 @@ class _Connection(ServerRequestHandler):
         try:
             return super().callback_data(data, addr)
         except Exception as e:  # noqa: BLE001 - any undecodable frame: drop it, keep serving
-            _log.warning("dropped a malformed Modbus frame (%d bytes): %s", len(data), e)
+            _log.debug("dropped a malformed Modbus frame (%d bytes): %s", len(data), e)
             self.last_pdu = None
             return len(data)
 
@@ -125,6 +125,12 @@ class _Connection(ServerRequestHandler):
             await super().handle_request()
         finally:
             _CONNECTION.reset(token)
+
+
+def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, object]) -> None:
+    """A failure inside a connection's callbacks (e.g. a peer that vanished mid-answer) is one log
+    line, not asyncio's default traceback on the cell's stderr; the connection's loss is handled."""
+    _log.debug("gateway I/O: %s (%s)", context.get("message"), context.get("exception"))
 
 
 class _TcpServer(ModbusTcpServer):
@@ -215,6 +221,7 @@ class CellServer:
     def _io_main(self) -> None:
         loop = asyncio.new_event_loop()
         asyncio.set_event_loop(loop)
+        loop.set_exception_handler(_loop_exception)
         opened = False
         try:
             loop.run_until_complete(self._open())

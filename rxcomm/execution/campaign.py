@@ -119,9 +119,12 @@ def run_campaign(
     params: DynamicParameters,
     settings: CampaignSettings | None = None,
     progress: Callable[[str, float], None] | None = None,
+    on_pose: Callable[[CampaignResult], None] | None = None,
 ) -> CampaignResult:
     """Drive to every pose and read the tracker there. Refusals before motion raise; a stop during
-    the campaign is returned in ``result.run.error`` with the readings taken so far."""
+    the campaign is returned in ``result.run.error`` with the readings taken so far. ``on_pose`` gets
+    the result after every pose measured (the stage writes the measurements so far: a killed
+    campaign keeps them)."""
     settings = settings or CampaignSettings()
     t_start = time.perf_counter()
     q_poses = check_poses(robot, poses, settings.limit_tolerance)
@@ -144,6 +147,8 @@ def run_campaign(
             run.moves.append(ses.stream(move))
             sample, attempts = _settle_and_read(ses, settings)
             result.readings.append(PoseReading(i, q_poses[i], ses.positions(), sample, attempts))
+            if on_pose is not None:
+                on_pose(result)
         if progress is not None:
             progress("poses", 1.0)
         run.stop_note = ses.stop_drives(after_stop=False)

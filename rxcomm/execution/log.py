@@ -28,6 +28,7 @@ from rxcomm.io.mcap_io import (
     TopicData,
     number_field,
     read_mcap,
+    recover_mcap,
     vector_field,
 )
 from rxcomm.io.validate import check_kind, validate_model
@@ -367,3 +368,68 @@ def read_run_log(path: str | Path) -> RunLogData:
         if name not in joints.fields:
             raise InputError("field missing", file=path, field=f"{JOINTS_TOPIC}.{name}")
     return RunLogData(env, joints, contents.topics.get(GATEWAY_TOPIC))
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """What ``recover_run_log`` got back from a run log's ``.part``."""
+
+    source: Path
+    written: Path
+    n_records: int  # /run/joints rows recovered
+    recovered_s: float  # their span, s (0 with fewer than two rows)
+    planned_s: float | None  # the plan's duration as the log's first envelope said (None: unknown)
+    complete: bool  # the .part was a finished file (a stopped run), nothing was cut off
+    stopped_because: str | None
+
+    def warning(self) -> str:
+        """One line: what was recovered and what was lost."""
+        got = f"recovered {self.recovered_s:.3f} s of {JOINTS_TOPIC} ({self.n_records} records)"
+        if self.complete:
+            return f"{got} from {self.source}: the file was finished (a stopped run's log), nothing lost"
+        plan = f" of the {self.planned_s:.3f} s planned" if self.planned_s is not None else ""
+        lost = (
+            f"lost: everything after t = {self.recovered_s:.3f} s{plan} "
+            f"(the writer was killed; {self.stopped_because})"
+        )
+        return f"{got} from {self.source}; {lost}"
+
+
+def recovered_path(part: str | Path) -> Path:
+    """``run.mcap.part`` -> ``run.recovered.mcap``: never the completed log's name, so neither make nor
+    a later stage mistakes a cut-off log for a complete run."""
+    part = Path(part)
+    name = part.name.removesuffix(".part")
+    stem = name.removesuffix(".mcap")
+    return part.with_name(f"{stem}.recovered.mcap")
+
+
+def recover_run_log(part: str | Path, out: str | Path | None = None) -> Recovery:
+    """Turn the ``NAME.mcap.part`` of a killed (or stopped) run into a finished, readable run log at
+    ``out`` (default ``NAME.recovered.mcap``): everything up to the last chunk the writer flushed,
+    plus an ``rxcomm/recovered`` record saying from where and why reading stopped. InputError if the
+    file is not a run log."""
+    part = Path(part)
+    out = Path(out) if out is not None else recovered_path(part)
+    if out.resolve() == part.resolve():
+        raise InputError("the recovered log must not overwrite the file it is read from", file=out)
+    contents = recover_mcap(part)
+    env = contents.envelope
+    if not env:
+        raise InputError("no rxcomm envelope: not an rxcomm run log (or cut off before it)", file=part)
+    check_kind(env, RunLog, file=part, prefix="envelope")
+    if JOINTS_TOPIC not in contents.topics:
+        raise InputError(f"no {JOINTS_TOPIC} channel: cut off before the run began", file=part)
+    recover_mcap(part, out)
+    joints = contents.topics[JOINTS_TOPIC]
+    n = len(joints)
+    planned = env.get("summary", {}).get("planned_duration_s")
+    return Recovery(
+        source=part,
+        written=out,
+        n_records=n,
+        recovered_s=float(joints.t[-1] - joints.t[0]) if n > 1 else 0.0,
+        planned_s=float(planned) if isinstance(planned, int | float) else None,
+        complete=contents.complete,
+        stopped_because=contents.stopped_because,
+    )

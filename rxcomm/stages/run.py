@@ -18,6 +18,7 @@ import typer
 from rxcomm import console
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.campaign import (
+    CampaignResult,
     CampaignSettings,
     campaign_summary,
     check_poses,
@@ -236,23 +237,40 @@ def execute(
         settings_c = CampaignSettings(
             feedforward=feedforward, speed_fraction=speed, fault_reset=fault_reset, stream=stream_settings
         )
+        part = output.with_name(output.name + ".part")
+        roles = [p.role for p in cfg.poses]
         with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, embedded):
-            camp = run_campaign(client, robot, [p.q_rad for p in cfg.poses], params, settings_c, update)
+            env_settings = {
+                **settings_c.model_dump(mode="json"),
+                "model": model_name,
+                "embedded_cell": embedded,
+            }
+
+            def measurements(camp: CampaignResult, summary: dict[str, Any]) -> Measurements:
+                return Measurements(
+                    **Measurements.envelope(inputs, env_settings, summary),
+                    robot=robot.name,
+                    joint_names=list(robot.joint_names),
+                    poses=measured_poses(camp, roles),
+                )
+
+            def on_pose(camp: CampaignResult) -> None:  # each pose on disk as it is taken
+                running = {
+                    "outcome": "running",
+                    "stop_reason": "cut off (the run was killed) if still running",
+                }
+                write_yaml_artefact(part, measurements(camp, {**campaign_summary(camp), **running}))
+
+            camp = run_campaign(
+                client, robot, [p.q_rad for p in cfg.poses], params, settings_c, update, on_pose
+            )
         stop_bar()
         summary = campaign_summary(camp)
-        env = Measurements.envelope(
-            inputs,
-            {**settings_c.model_dump(mode="json"), "model": model_name, "embedded_cell": embedded},
-            summary,
-        )
-        meas = Measurements(
-            **env,
-            robot=robot.name,
-            joint_names=list(robot.joint_names),
-            poses=measured_poses(camp, [p.role for p in cfg.poses]),
-        )
-        written = output if camp.run.error is None else output.with_name(output.name + ".part")
+        meas = measurements(camp, summary)
+        written = output if camp.run.error is None else part
         write_yaml_artefact(written, meas)
+        if written == output:
+            part.unlink(missing_ok=True)
         console.summary_table(
             f"run: {summary['n_valid']}/{summary['n_poses']} poses measured → {written}", summary
         )
