@@ -474,8 +474,6 @@ class GatewayCore:
             blk = codec.decode_block(values)
         except GatewayError:
             return EXC_VALUE
-        if blk.flags & ~_EOS_FLAG:
-            return EXC_VALUE  # undefined flag bits
         if blk.count and blk.first_index + blk.count > self.ring.write_index:
             if self.phase not in _STREAM_OPEN or self.eos:  # new data for a closed stream
                 return EXC_VALUE

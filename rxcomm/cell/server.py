@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import contextvars
 import logging
+import struct
 import threading
 import time
 from enum import StrEnum
@@ -104,6 +105,13 @@ class _Connection(ServerRequestHandler):
         self._cell._on_connect(False, self)
 
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
+        if len(data) >= 8:  # MBAP header + function code: refuse an undocumented one before decoding
+            tid, protocol, length = struct.unpack(">HHH", data[:6])
+            fc = data[7] & 0x7F
+            if protocol == 0 and fc not in R.FUNCTION_CODES and len(data) >= 6 + length:
+                rsp = ExceptionResponse(fc, ExcCodes.ILLEGAL_FUNCTION, device_id=data[6], transaction=tid)
+                self.server_send(rsp, addr)
+                return 6 + length
         try:
             return super().callback_data(data, addr)
         except Exception as e:  # noqa: BLE001 - any undecodable frame: drop it, keep serving

@@ -9,6 +9,7 @@ any communication error the connection is closed and every later call raises Gat
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import time
 from collections import deque
@@ -95,6 +96,15 @@ class RoundTripStats:
         return float(np.percentile(self.seconds(), q)) if self._d else float("nan")
 
 
+_tokens = itertools.count(1)
+
+
+def _new_token() -> int:
+    """A non-zero 16-bit master token, different for each client of this process (and, through the
+    process id, likely different from other processes' clients): a label to tell masters apart."""
+    return ((os.getpid() << 4) + next(_tokens)) % 0xFFFF + 1
+
+
 def _empty_chunk(first: int) -> TraceChunk:
     z = np.zeros((0, R.N_AXES))
     return TraceChunk(first, z, z.copy(), 0)
@@ -119,7 +129,7 @@ class GatewayClient:
         self.prefill = 0
         self.ratio = 1
         self.decimation = 1
-        self.token = (os.getpid() & 0xFFFF) or 1  # register 28: who this master is (non-zero)
+        self.token = _new_token()  # register 28: who this master is (non-zero, one per client)
         self.claimed = False
 
     # ---- connection ----------------------------------------------------------------------------
@@ -184,7 +194,7 @@ class GatewayClient:
             owner = self.owner_token()
         except GatewayError:
             return ""
-        if owner and owner != self.token:
+        if owner and (not self.claimed or owner != self.token):
             return f" (the gateway is claimed by another master, token {owner:#06x})"
         return ""
 
@@ -198,7 +208,7 @@ class GatewayClient:
         if rsp.isError():
             code = getattr(rsp, "exception_code", "?")
             owner = self.owner_token() if code == Exc.ILLEGAL_VALUE else 0
-            if owner and owner != self.token:
+            if owner:  # the gateway refuses a claim only while another connection holds it
                 raise GatewayError(
                     f"gateway {self.host}:{self.port} is in use by another master (token {owner:#06x}): "
                     "one master at a time; it is free once that master releases it, disconnects or "

@@ -152,8 +152,10 @@ def decode_block(words: list[int]) -> SetpointBlock:
     if k > R.MAX_CYCLES_PER_BLOCK or len(words) != R.BLK_HEADER + k * R.CYCLE_WORDS:
         raise GatewayError(f"setpoint block: count {k} does not match {len(words)} words")
     v = from_words(_BLOCK_HEADER + _ROW * k, words)
+    if v[3] & ~int(R.BlockFlags.END_OF_STREAM):
+        raise GatewayError(f"setpoint block: undefined flag bits {v[3]:#06x}")
     pos, tq = _split_rows(v[4:], k)
-    return SetpointBlock(v[0], v[2], v[3] & int(R.BlockFlags.END_OF_STREAM), pos, tq)
+    return SetpointBlock(v[0], v[2], v[3], pos, tq)
 
 
 # --- status + trace window 2000- ---------------------------------------------------------------
