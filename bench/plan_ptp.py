@@ -9,10 +9,10 @@ import time
 
 from bench.table import Row
 from rxcomm.model.robot import load_robot
-from rxcomm.planning.cp import CpSettings, plan_cp
+from rxcomm.planning.cp import CpSettings, PlanDynamics, plan_cp
+from rxcomm.planning.paths import load_path
 from rxcomm.planning.ptp import PtpDynamics, PtpLimits, PtpOcp, PtpOptions, plan_ptp
 from rxcomm.planning.ptp_shooting import ShootingOcp
-from rxcomm.stages.plan_cp import plan_dynamics, read_path
 
 LINE = "samples/rx130l/paths/line-near-singularity.yaml"
 
@@ -21,9 +21,9 @@ def bench_plan_ptp(quick: bool = False, shooting_cap_s: float | None = None) -> 
     """One N = 100 solve (median over repeats; build and solve timed apart), L-BFGS and the
     forward-dynamics multiple shooting on the same end points, and PtP vs CP on the paper's line."""
     robot = load_robot("samples/rx130l")
-    _, path = read_path(LINE, robot)
+    _, path = load_path(LINE, robot)
     cp_settings = CpSettings()
-    cp = plan_cp(robot, path, plan_dynamics(robot, None, cp_settings.coulomb_eps_rad_s), cp_settings)
+    cp = plan_cp(robot, path, PlanDynamics.load(robot, None, cp_settings.coulomb_eps_rad_s), cp_settings)
     q0, q1 = cp.q[0], cp.q[-1]
     dyn = PtpDynamics.from_parameters(robot)
     limits = PtpLimits.from_robot(robot)

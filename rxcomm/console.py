@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import functools
 import sys
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable
 from typing import TypeVar
 
 import typer
@@ -65,14 +65,6 @@ def progress() -> Progress:
         transient=False,
         disable=not sys.stderr.isatty(),
     )
-
-
-def track(items: Iterable[T], description: str, total: int | None = None) -> Iterator[T]:
-    with progress() as p:
-        task = p.add_task(description, total=total)
-        for x in items:
-            yield x
-            p.advance(task)
 
 
 def summary_table(title: str, rows: dict[str, object]) -> None:

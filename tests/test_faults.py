@@ -29,12 +29,13 @@ from rxcomm.cell.backend import IdealBackend
 from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
 from rxcomm.cli import app
 from rxcomm.errors import GatewayError, SafetyStop
-from rxcomm.execution.log import read_run_log, recover_run_log, run_summary
+from rxcomm.execution.log import recover_run_log, run_summary
 from rxcomm.execution.plan import prepare_plan
 from rxcomm.execution.session import NOT_APPLICABLE_VIRTUAL, RunSettings, run_trajectory
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.registers import DriveState, ErrorCode, Status, StopCause
+from rxcomm.io.run_log import read_run_log
 from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.model.dynamics import prior_parameters
 from rxcomm.stages import run as run_stage

@@ -1,7 +1,12 @@
 """The architecture the layout promises: packages all installed, dependencies pointing one way."""
 
 import ast
+import os
+import shutil
+import subprocess
+import sys
 import tomllib
+from pathlib import Path
 
 from .conftest import ROOT
 
@@ -47,3 +52,75 @@ def test_stages_never_read_the_hidden_truth():
         if "schemas.truth" in text or "truth_parameters" in text:
             offenders.append(str(rel))
     assert not offenders, offenders
+
+
+def _lint_imports(tree: Path) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).with_name("lint-imports")
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    return subprocess.run(
+        [str(exe), "--no-cache", "--config", str(tree / "pyproject.toml")],
+        cwd=tree,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_layer_contract_holds_and_catches_a_violation(tmp_path):
+    """`make lint` runs this contract (pyproject [tool.importlinter]); a model module importing the
+    planner above it must break it, so the contract is not vacuous."""
+    for name in ("rxcomm", "bench"):
+        shutil.copytree(ROOT / name, tmp_path / name, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    kept = _lint_imports(tmp_path)
+    assert kept.returncode == 0, kept.stdout + kept.stderr
+    robot = tmp_path / "rxcomm" / "model" / "robot.py"
+    robot.write_text(robot.read_text() + "\nimport rxcomm.planning.paths  # noqa\n")
+    bench = tmp_path / "bench" / "table.py"
+    bench.write_text(bench.read_text() + "\nimport rxcomm.stages.run  # noqa\n")
+    broken = _lint_imports(tmp_path)
+    assert broken.returncode != 0
+    assert "rxcomm.model.robot -> rxcomm.planning.paths" in broken.stdout
+    assert "bench.table -> rxcomm.stages.run" in broken.stdout
+
+
+def _module_imports() -> dict[str, set[str]]:
+    """Every rxcomm module and the rxcomm modules it imports (lazy imports inside functions included)."""
+    modules = {}
+    for path in (ROOT / "rxcomm").rglob("*.py"):
+        parts = path.relative_to(ROOT).with_suffix("").parts
+        modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            targets = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                targets = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            deps |= {t for t in targets if t in modules and t != name and not name.startswith(t + ".")}
+        graph[name] = deps
+    return graph
+
+
+def test_no_import_cycle_between_modules():
+    graph = _module_imports()
+    state: dict[str, int] = {}
+    cycles = []
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = 1
+        for dep in sorted(graph[node]):
+            if state.get(dep) == 1:
+                cycles.append(" -> ".join([*stack[stack.index(dep) :], dep]))
+            elif dep not in state:
+                visit(dep, [*stack, dep])
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+    # a package's __init__ importing nothing keeps "package -> submodule -> package" out of this list
+    assert not cycles, cycles

@@ -12,8 +12,9 @@ from pydantic import ValidationError
 
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.yaml_io import load_yaml
+from rxcomm.planning.iso9283 import Iso9283Cube, _cube_geometry, iso9283_paths
 from rxcomm.planning.path_ik import solve_path_ik
-from rxcomm.planning.paths import BlendCurve, Iso9283Cube, _cube_geometry, build_path, iso9283_paths
+from rxcomm.planning.paths import BlendCurve, build_path
 from rxcomm.schemas.path import PathSpec
 
 SAMPLES = Path(__file__).resolve().parent.parent / "samples"

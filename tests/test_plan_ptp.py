@@ -21,9 +21,10 @@ from rxcomm.model.base_parameters import base_parameters, dynamics_artefact_fiel
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters, truth_parameters
 from rxcomm.model.geometric_errors import ErrorModel
 from rxcomm.model.geometric_errors import parameter_names as geometric_parameter_names
-from rxcomm.model.kinematics import cardan_xyz, tcp_pose
+from rxcomm.model.kinematics import cardan_xyz, solve_pose_ik, tcp_pose
 from rxcomm.model.symbolic import inverse_dynamics_function
-from rxcomm.planning.cp import CpSettings, plan_cp
+from rxcomm.planning.cp import CpSettings, PlanDynamics, plan_cp
+from rxcomm.planning.paths import load_path
 from rxcomm.planning.ptp import (
     PTP_COULOMB_EPS_RAD_S,
     NodeGuess,
@@ -48,8 +49,6 @@ from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.truth import CellTruth
-from rxcomm.stages.plan_cp import plan_dynamics, read_path
-from rxcomm.stages.plan_ptp import solve_pose_ik
 
 from .conftest import SAMPLES
 
@@ -286,9 +285,9 @@ def test_cli_no_convergence_is_exit_3_and_writes_fallback_only_when_asked(tmp_pa
 @pytest.mark.slow
 def test_ptp_near_singularity_beats_cp_within_limits(rx130l, rx_dyn, line_ends):
     """Paper §5.5: PtP between the CP line's end states takes 0.67 s against the line's 1.04 s."""
-    _, path = read_path(SAMPLES / "rx130l" / "paths" / "line-near-singularity.yaml", rx130l)
+    _, path = load_path(SAMPLES / "rx130l" / "paths" / "line-near-singularity.yaml", rx130l)
     settings = CpSettings()
-    cp = plan_cp(rx130l, path, plan_dynamics(rx130l, None, settings.coulomb_eps_rad_s), settings)
+    cp = plan_cp(rx130l, path, PlanDynamics.load(rx130l, None, settings.coulomb_eps_rad_s), settings)
     q0, q1 = cp.q[0], cp.q[-1]
     np.testing.assert_allclose(q0, line_ends[0], atol=1e-6)  # the same end states as our pose IK
     np.testing.assert_allclose(q1, line_ends[1], atol=1e-6)
@@ -423,11 +422,11 @@ def test_compiled_node_functions_match_and_are_cached(tmp_path, monkeypatch, m90
             np.testing.assert_allclose(
                 np.asarray(ca.densify(v)), np.asarray(ca.densify(u)), rtol=1e-9, atol=1e-9
             )
-    libs = sorted(p.name for p in tmp_path.glob("*.so"))
+    libs = sorted(p.name for p in tmp_path.glob("casadi/*.so"))
     assert len(libs) == 3  # Jacobian, gradient, Hessian of the node window
     again = PtpOcp(dyn, lim, opts)  # from the cache: no compiler run
     assert again.build_seconds < 5.0
-    assert sorted(p.name for p in tmp_path.glob("*.so")) == libs
+    assert sorted(p.name for p in tmp_path.glob("casadi/*.so")) == libs
     q0, q1 = np.array([0.0, 0.2, -0.2, 0.0, 0.5, 0.0]), np.array([0.4, 0.3, -0.1, 0.2, 0.6, 0.3])
     res = plan_ptp(m900, dyn, q0, q1, opts, ocp=again)
     assert res.solution.success and res.max_limit_ratio <= 1.01

@@ -21,12 +21,12 @@ from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
 from rxcomm.cli import app
 from rxcomm.errors import GatewayError, InputError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
-from rxcomm.execution.log import read_run_log
 from rxcomm.execution.plan import prepare_plan, resample
 from rxcomm.execution.session import choose_ratio
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.registers import DriveState
 from rxcomm.io.mcap_io import read_mcap
+from rxcomm.io.run_log import read_run_log
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
 from rxcomm.io.yaml_io import write_yaml_artefact
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters

@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 
 from rxcomm.calibration.pose_selection import feasibility
 from rxcomm.cli import app
-from rxcomm.execution.log import read_run_log
+from rxcomm.io.run_log import read_run_log
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.base_parameters import base_parameters, dynamics_artefact_fields
 from rxcomm.model.dynamics import truth_parameters

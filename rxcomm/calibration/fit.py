@@ -66,7 +66,7 @@ from rxcomm.model.geometric_errors import (
     random_poses,
     se3_to_xyz_rpy,
 )
-from rxcomm.model.kinematics import cardan_xyz, cardan_xyz_matrix
+from rxcomm.model.kinematics import cardan_xyz, cardan_xyz_matrix, rotation_from_wxyz
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.measurements import Measurements
@@ -113,17 +113,6 @@ class MeasurementSet:
         )
 
 
-def _rot_from_wxyz(qt: np.ndarray) -> np.ndarray:
-    w, x, y, z = qt
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def measurements_from_artefact(art: Measurements, file: str | None = None) -> MeasurementSet:
     """Arrays from a `rxcomm/Measurements` artefact (NaNs kept: `check_measurements` reports them)."""
     poses = art.poses
@@ -142,7 +131,7 @@ def measurements_from_artefact(art: Measurements, file: str | None = None) -> Me
         )
     rot = None
     if all(has_rot):
-        rot = np.array([_rot_from_wxyz(np.array(p.quaternion_wxyz, dtype=float)) for p in poses])
+        rot = np.array([rotation_from_wxyz(np.array(p.quaternion_wxyz, dtype=float)) for p in poses])
     t2b = None
     if art.tracker_to_base is not None:
         t2b = placement_to_se3(art.tracker_to_base.xyz_m, art.tracker_to_base.rpy_rad)
@@ -295,7 +284,7 @@ def check_measurements(ms: MeasurementSet, robot: Robot) -> None:
     p = ms.position_m[ms.valid]
     if p.shape[0] >= 2:
         spread = float(np.max(np.ptp(p, axis=0)))
-        reach = _reach_m(robot)
+        reach = robot.reach_m
         if spread > 2.5 * reach:
             hint = " (millimetres given as metres?)" if spread / 1000 < 2.5 * reach else ""
             raise InputError(
@@ -303,12 +292,6 @@ def check_measurements(ms: MeasurementSet, robot: Robot) -> None:
                 file=file,
                 field="position_m",
             )
-
-
-def _reach_m(robot: Robot) -> float:
-    model = robot.model
-    total = sum(np.linalg.norm(model.jointPlacements[j].translation) for j in range(1, model.njoints))
-    return float(total + np.linalg.norm(model.frames[robot.tcp_frame_id].placement.translation))
 
 
 def register_base(robot: Robot, q: np.ndarray, positions_m: np.ndarray) -> pin.SE3:

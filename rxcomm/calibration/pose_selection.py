@@ -195,7 +195,10 @@ def feasibility(robot: Robot, cell: Cell, qs: np.ndarray) -> np.ndarray:
     ch = _chain(robot, qs, None, None)
     origin = ch.joint_frames[..., :3, 3]  # joint j's origin (its rotation does not move it)
     probe = ch.tcp[:, :3, :3] @ geo.probe_axis
-    code = geo.check(ch.tcp[:, :3, 3], probe, origin[:, 4], origin[:, 2], origin[:, 1])
+    wrist, elbow, shoulder = (
+        origin[:, j - 1] for j in (robot.wrist_joint_id, robot.elbow_joint_id, robot.shoulder_joint_id)
+    )
+    code = geo.check(ch.tcp[:, :3, 3], probe, wrist, elbow, shoulder)
     outside = np.any((qs < robot.q_min - 1e-12) | (qs > robot.q_max + 1e-12), axis=1)
     code[outside] = REASONS.index("joint_limits")
     return code

@@ -20,24 +20,10 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.model.geometric_errors import ErrorModel, measured_pose, placement_to_se3
+from rxcomm.model.kinematics import quaternion_wxyz
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.cell import TrackerSpec
 from rxcomm.schemas.truth import CellTruth
-
-
-def quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix."""
-    q = pin.Quaternion(np.asarray(rotation, dtype=float))
-    q.normalize()
-    out = np.array([q.w, q.x, q.y, q.z])
-    return out if out[0] >= 0 else -out
-
-
-def rotation_from_wxyz(qt: np.ndarray) -> np.ndarray:
-    w, x, y, z = (float(v) for v in qt)
-    q = pin.Quaternion(w, x, y, z)
-    q.normalize()
-    return q.toRotationMatrix()
 
 
 @dataclass(frozen=True)

@@ -23,45 +23,22 @@ from rxcomm.errors import InputError
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.session import NOT_APPLICABLE_VIRTUAL, RunResult, StreamLog, timing_figures
 from rxcomm.io.files import part_path
-from rxcomm.io.mcap_io import (
-    McapWriter,
-    TopicData,
-    number_field,
-    read_mcap,
-    recover_mcap,
-    vector_field,
-)
-from rxcomm.io.validate import check_kind, validate_model
+from rxcomm.io.mcap_io import McapWriter, number_field, recover_mcap, vector_field
+from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
 from rxcomm.model.kinematics import frame_placement
 from rxcomm.model.robot import Robot
-from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.plain import sha256_file
-from rxcomm.schemas.run_log import RunLog, RunLogTopic
+from rxcomm.schemas.run_log import (
+    GATEWAY_FIELDS,
+    GATEWAY_TOPIC,
+    JOINT_FIELDS,
+    JOINTS_TOPIC,
+    RunLog,
+    RunLogTopic,
+)
 
-JOINTS_TOPIC = "/run/joints"
 FLUSH_PERIOD_S = 0.5  # wall time between chunks handed to the OS: what a killed run can lose
-GATEWAY_TOPIC = "/run/gateway"
-JOINT_FIELDS = {
-    "q_demand": "rad, position setpoint reached in this cycle",
-    "qd_demand": "rad/s, planned joint velocity at that setpoint",
-    "qdd_demand": "rad/s², planned joint acceleration at that setpoint",
-    "q_actual": "rad, position actual (encoders, joint side)",
-    "tau_actual": "N·m, torque actual as reported by the drives (joint side)",
-    "tau_ff": "N·m, feed-forward torque sent with the setpoint",
-    "following_error": "rad, q_demand − q_actual",
-    "tcp_error_m": "m, |FK(q_demand) − FK(q_actual)| of the TCP position, nominal kinematics",
-}
-GATEWAY_FIELDS = {
-    "status": "register 30 status bits (docs/gateway.md §2.3)",
-    "error": "register 39 error code",
-    "execute_index": "setpoints completed",
-    "write_index": "setpoints accepted",
-    "buffer_level": "setpoints buffered",
-    "lead_s": "s, buffered lead = buffer_level · R · cycle",
-    "round_trip_s": "s, round trip of the request that brought this reply",
-    "wall_s": "s, master wall clock since the stream start",
-}
 
 
 def tcp_errors(robot: Robot, q_demand: np.ndarray, q_actual: np.ndarray) -> np.ndarray:
@@ -337,37 +314,6 @@ def _gateway_schema() -> dict[str, dict[str, Any]]:
         k: number_field(d) if k in floats else {"type": "integer", "description": d}
         for k, d in GATEWAY_FIELDS.items()
     }
-
-
-@dataclass(frozen=True)
-class RunLogData:
-    """A run log read back: its envelope and the two topics as arrays (``joints.q_actual`` etc.)."""
-
-    envelope: dict[str, Any]
-    joints: TopicData
-    gateway: TopicData | None
-
-    @property
-    def summary(self) -> dict[str, Any]:
-        return dict(self.envelope.get("summary", {}))
-
-
-def read_run_log(path: str | Path) -> RunLogData:
-    """Read a finished run log MCAP (also a stopped run's ``.mcap.part``); InputError names file, field."""
-    path = Path(path)
-    contents = read_mcap(path)
-    env = contents.envelope
-    check_kind(env, RunLog, file=path, prefix="envelope")
-    validate_model(Artefact, env, file=path, prefix="envelope")
-    if JOINTS_TOPIC not in contents.topics:
-        raise InputError(
-            f"no {JOINTS_TOPIC} topic (has {sorted(contents.topics)})", file=path, field=JOINTS_TOPIC
-        )
-    joints = contents.topics[JOINTS_TOPIC]
-    for name in JOINT_FIELDS if len(joints) else ():
-        if name not in joints.fields:
-            raise InputError("field missing", file=path, field=f"{JOINTS_TOPIC}.{name}")
-    return RunLogData(env, joints, contents.topics.get(GATEWAY_TOPIC))
 
 
 @dataclass(frozen=True)

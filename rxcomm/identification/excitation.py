@@ -36,16 +36,10 @@ result wins. The same random feasible trajectories give the baseline figure the 
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import shutil
-import subprocess
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -53,6 +47,7 @@ import pinocchio as pin
 import scipy.linalg as sla
 from scipy.optimize import minimize
 
+from rxcomm import casadi_build
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import Trajectory
 from rxcomm.model.base_parameters import BaseParameterSet, base_parameters
@@ -71,68 +66,9 @@ from rxcomm.schemas.cell import AllowedRegion, Box
 from rxcomm.schemas.excitation import ExcitationSettings
 
 REGION_POINTS = ("tool", "wrist_centre", "elbow")
-ELBOW_JOINT = 3  # Pinocchio joint index whose origin is the elbow (1-based: joint 3)
-WRIST_JOINT = 5  # ... and the wrist centre (joint 5)
 _TIGHTEN = 3e-4  # NLP limits are this fraction inside the design limits: room for dense-grid curvature
 
 Progress = Callable[[str, int, int], None]
-
-
-# ------------------------------------------------------------------------------------------------
-# Compiled CasADi functions
-
-
-def _cache_dir() -> Path:
-    return Path(os.environ.get("RXCOMM_CACHE_DIR") or Path.home() / ".cache" / "rxcomm") / "casadi"
-
-
-def compiled(functions: list[ca.Function]) -> list[ca.Function]:
-    """The functions compiled to C (gcc -O1), loaded back with `casadi.external`: 3–10× faster than
-    CasADi's SX virtual machine here. Shared objects are cached by the hash of their code in
-    `$RXCOMM_CACHE_DIR/casadi` (default ~/.cache/rxcomm/casadi), so a robot compiles once (≈ 2 s).
-    Without a C compiler, a writable cache, or with RXCOMM_NO_COMPILE=1, the functions are returned
-    as they are (same results, slower)."""
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None or os.environ.get("RXCOMM_NO_COMPILE"):
-        return functions
-    cache = _cache_dir()
-    try:
-        cache.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return functions
-    jobs = []
-    for f in functions:
-        cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
-        cg.add(f)
-        code = cg.dump()
-        so = cache / f"{f.name()}_{hashlib.sha256(code.encode()).hexdigest()[:20]}.so"
-        if so.exists():
-            jobs.append((f, so, None, None))
-            continue
-        fd, c_path = tempfile.mkstemp(suffix=".c", dir=cache)
-        with os.fdopen(fd, "w") as fh:
-            fh.write(code)
-        part = so.with_name(f"{so.name}.{os.getpid()}.part")
-        proc = subprocess.Popen(
-            [cc, "-O1", "-shared", "-fPIC", "-o", str(part), c_path],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        jobs.append((f, so, proc, (c_path, part)))
-    out = []
-    for f, so, proc, paths in jobs:
-        if proc is not None:
-            ok = proc.wait(timeout=300) == 0
-            c_path, part = paths
-            Path(c_path).unlink(missing_ok=True)
-            if ok:
-                os.replace(part, so)  # atomic: a concurrent reader sees the whole file or none
-            else:
-                part.unlink(missing_ok=True)
-                out.append(f)
-                continue
-        out.append(ca.external(f.name(), str(so)))
-    return out
 
 
 class Mapped:
@@ -321,16 +257,16 @@ def base_regressor(robot: Robot, bset: BaseParameterSet, q, qd, qdd) -> np.ndarr
 
 
 def region_points(robot: Robot, q: np.ndarray) -> dict[str, np.ndarray]:
-    """Tool (TCP), wrist centre (joint 5 origin) and elbow (joint 3 origin) positions [N, 3], base
-    frame, by Pinocchio."""
+    """Tool (TCP), wrist centre and elbow (origins of `Robot.wrist_joint_id`, `elbow_joint_id`)
+    positions [N, 3], base frame, by Pinocchio."""
     q = np.atleast_2d(q)
     model, data = robot.model, robot.create_data()
     out = {k: np.empty((len(q), 3)) for k in REGION_POINTS}
     for i, qi in enumerate(q):
         pin.forwardKinematics(model, data, qi)
         out["tool"][i] = pin.updateFramePlacement(model, data, robot.tcp_frame_id).translation
-        out["wrist_centre"][i] = data.oMi[WRIST_JOINT].translation
-        out["elbow"][i] = data.oMi[ELBOW_JOINT].translation
+        out["wrist_centre"][i] = data.oMi[robot.wrist_joint_id].translation
+        out["elbow"][i] = data.oMi[robot.elbow_joint_id].translation
     return out
 
 
@@ -482,8 +418,8 @@ class ExcitationProblem:
         tau_p = inverse_dynamics_expr(robot, q, qd, qdd, self.prior, COULOMB_EPS_NLP_RAD_S)
         outs = [tau_p]
         if self.region is not None:
-            elbow = robot.model.getFrameId(robot.model.names[ELBOW_JOINT], pin.FrameType.JOINT)
-            wrist = robot.model.getFrameId(robot.model.names[WRIST_JOINT], pin.FrameType.JOINT)
+            elbow = robot.model.getFrameId(robot.model.names[robot.elbow_joint_id], pin.FrameType.JOINT)
+            wrist = robot.model.getFrameId(robot.model.names[robot.wrist_joint_id], pin.FrameType.JOINT)
             for fid in (robot.tcp_frame_id, wrist, elbow):
                 outs.append(frame_placement_expr(robot, q, fid)[0])
         h = ca.vertcat(*outs)
@@ -496,7 +432,7 @@ class ExcitationProblem:
             ["h", "dh_dq", "dh_dqd", "dh_dqdd"],
         )
         self.n_nl = int(h.shape[0])
-        self._f_yb, self._f_adj, self._f_h, self._f_hj = compiled(
+        self._f_yb, self._f_adj, self._f_h, self._f_hj = casadi_build.compiled(
             [self._f_yb, self._f_adj, self._f_h, self._f_hj]
         )
 

@@ -69,7 +69,7 @@ from scipy.optimize import least_squares
 from scipy.signal import butter, sosfiltfilt
 
 from rxcomm.errors import InputError
-from rxcomm.io.mcap_io import read_mcap
+from rxcomm.io.run_log import read_run_log
 from rxcomm.model.base_parameters import (
     BaseParameterSet,
     base_parameters,
@@ -84,9 +84,8 @@ from rxcomm.model.dynamics import (
 )
 from rxcomm.model.robot import Robot
 from rxcomm.model.robot_csv import read_robot_csv
+from rxcomm.schemas.run_log import JOINTS_TOPIC
 
-RUN_LOG_KIND = "rxcomm/RunLog"
-RUN_LOG_TOPIC = "/run/joints"
 NRMSE_NORMALISATION = "range"  # RMS error / (max − min) of the measured torque, per joint
 
 
@@ -184,27 +183,18 @@ def load_joint_log(path: str | Path, robot: Robot | None = None) -> JointLog:
         return JointLog(csv.t, csv.q, csv.tau, str(path))
     if not path.name.endswith((".mcap", ".mcap.part")):
         raise InputError("expected a run log (.mcap) or a robot CSV (.csv)", file=path)
-    contents = read_mcap(path)
-    kind = contents.envelope.get("kind")
-    if kind != RUN_LOG_KIND:
-        raise InputError(f"kind {kind!r} is not a run log ({RUN_LOG_KIND})", file=path, field="envelope.kind")
-    if RUN_LOG_TOPIC not in contents.topics:
-        raise InputError(
-            f"no {RUN_LOG_TOPIC} topic (has {sorted(contents.topics)})", file=path, field=RUN_LOG_TOPIC
-        )
-    td = contents.topics[RUN_LOG_TOPIC]
+    run_log = read_run_log(path, fields=("q_actual", "tau_actual"))
+    td = run_log.joints
     for name in ("q_actual", "tau_actual"):
-        if name not in td.fields:
-            raise InputError("field missing", file=path, field=f"{RUN_LOG_TOPIC}.{name}")
         if td[name].ndim != 2:
-            raise InputError("expected a vector per message", file=path, field=f"{RUN_LOG_TOPIC}.{name}")
+            raise InputError("expected a vector per message", file=path, field=f"{JOINTS_TOPIC}.{name}")
     if td["q_actual"].shape != td["tau_actual"].shape:
         raise InputError(
             f"q_actual has {td['q_actual'].shape[1]} joints, tau_actual {td['tau_actual'].shape[1]}",
             file=path,
-            field=f"{RUN_LOG_TOPIC}.tau_actual",
+            field=f"{JOINTS_TOPIC}.tau_actual",
         )
-    summary = contents.envelope.get("summary") or {}
+    summary = run_log.summary
     try:  # the drive cycle: records are R drive cycles apart
         ratio = int(summary["interpolation_ratio"])
         cycle_s = float(summary["sample_s"]) / ratio

@@ -57,3 +57,15 @@ def check_kind(data: Any, cls: type, *, file: str | Path | None, prefix: str = "
             file=file,
             field=dotted(("schema_version",), prefix),
         )
+
+
+def settings_from_options(cls: type[M], values: dict[str, Any], options: dict[str, str] | None = None) -> M:
+    """A stage's settings model from its command-line values; a ValidationError becomes InputError naming
+    the option (``options`` maps a settings field to its option name; default: the field itself)."""
+    try:
+        return cls(**values)
+    except ValidationError as e:
+        err = e.errors()[0]
+        loc = dotted(err["loc"]) or "options"
+        field = (options or {}).get(str(err["loc"][0]) if err["loc"] else loc, loc)
+        raise InputError(err["msg"].removeprefix("Value error, "), field=field) from e

@@ -69,10 +69,6 @@ def parameter_names(robot: Robot) -> tuple[str, ...]:
     return tuple(f"{g}.{c}" for g in groups for c in COMPONENTS)
 
 
-def _groups(robot: Robot) -> tuple[str, ...]:
-    return (BASE, *robot.joint_names, TOOL)
-
-
 def characteristic_length_m(robot: Robot) -> float:
     """Sum of the link lengths from joint 2 to the TCP (m): converts rad to m in scalings.
 

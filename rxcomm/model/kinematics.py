@@ -32,8 +32,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pinocchio as pin
 
-from rxcomm.errors import InfeasibleError
+from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.model.robot import Robot
+from rxcomm.schemas.path import Branch
+
+ORIENTATION_LENGTH_M = 1.0  # weight of angular Jacobian rows in σ_min (1 rad ~ 1 m)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -101,6 +104,22 @@ def cardan_xyz_matrix(angles: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------------------
 # Inverse kinematics
+
+
+def quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix."""
+    q = pin.Quaternion(np.asarray(rotation, dtype=float))
+    q.normalize()
+    out = np.array([q.w, q.x, q.y, q.z])
+    return out if out[0] >= 0 else -out
+
+
+def rotation_from_wxyz(qt: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a quaternion (w, x, y, z), normalised first."""
+    w, x, y, z = (float(v) for v in qt)
+    q = pin.Quaternion(w, x, y, z)
+    q.normalize()
+    return q.toRotationMatrix()
 
 
 class IkStatus(StrEnum):
@@ -311,7 +330,10 @@ def tcp_jacobian(robot: Robot, q: np.ndarray, data: pin.Data | None = None) -> n
 
 
 def tcp_sigma_min(
-    robot: Robot, q: np.ndarray, data: pin.Data | None = None, orientation_length_m: float = 1.0
+    robot: Robot,
+    q: np.ndarray,
+    data: pin.Data | None = None,
+    orientation_length_m: float = ORIENTATION_LENGTH_M,
 ) -> float:
     """Smallest singular value of the TCP Jacobian (angular rows × `orientation_length_m`), m/rad.
 
@@ -320,6 +342,152 @@ def tcp_sigma_min(
     jac = tcp_jacobian(robot, q, data).copy()
     jac[3:] *= orientation_length_m
     return float(np.linalg.svd(jac, compute_uv=False)[-1])
+
+
+NEWTON_TOL = 1e-11  # ‖log6 error‖ (m, rad) accepted as a solution
+
+
+class BranchSelector:
+    """Tests a configuration against a `Branch` and measures its distance to singularities.
+
+    Shoulder/elbow/wrist are read geometrically so any 6R arm works, at the origins of the robot's
+    `shoulder_joint_id`, `elbow_joint_id` and `wrist_joint_id` (the wrist's middle joint).
+    """
+
+    def __init__(self, robot: Robot, branch: Branch | None):
+        self.robot = robot
+        self.branch = branch or Branch(shoulder=None, elbow=None, wrist=None)
+
+    def labels(self, data: pin.Data, q: np.ndarray) -> dict[str, str]:
+        """Shoulder/elbow/wrist labels of q (forward kinematics is run here)."""
+        pin.forwardKinematics(self.robot.model, data, q)
+        r = self.robot
+        j1, s, e, w = (data.oMi[i] for i in (1, r.shoulder_joint_id, r.elbow_joint_id, r.wrist_joint_id))
+        front = (w.translation - j1.translation) @ j1.rotation[:, 0] >= 0
+        u = w.translation - s.translation
+        u = u / max(np.linalg.norm(u), 1e-12)
+        de = e.translation - s.translation
+        up = (de - (de @ u) * u)[2] >= 0
+        return {
+            "shoulder": "front" if front else "back",
+            "elbow": "up" if up else "down",
+            "wrist": "positive" if q[r.wrist_joint_id - 1] >= 0 else "negative",
+        }
+
+    def matches(self, data: pin.Data, q: np.ndarray) -> bool:
+        lab = self.labels(data, q)
+        return all(getattr(self.branch, k) in (None, v) for k, v in lab.items())
+
+    def jacobian(self, data: pin.Data, q: np.ndarray) -> np.ndarray:
+        return tcp_jacobian(self.robot, q, data)
+
+    def sigma_min(self, data: pin.Data, q: np.ndarray) -> float:
+        return tcp_sigma_min(self.robot, q, data)
+
+
+def newton_pose(robot: Robot, data: pin.Data, target: pin.SE3, q: np.ndarray, iters: int = 12):
+    """Newton on the SE(3) error in the TCP frame from `q`, in the caller's scratch `data`; returns
+    (q, error norm). Fast and branch-keeping (steps ≤ 0.5 rad), for continuation and multi-start."""
+    m, fid = robot.model, robot.tcp_frame_id
+    err = np.inf
+    for _ in range(iters):
+        pin.framesForwardKinematics(m, data, q)
+        e = pin.log6(data.oMf[fid].actInv(target)).vector
+        err = float(np.linalg.norm(e))
+        if err < NEWTON_TOL:
+            break
+        jac = pin.computeFrameJacobian(m, data, q, fid, pin.LOCAL)
+        try:
+            dq = np.linalg.solve(jac, e)
+        except np.linalg.LinAlgError:
+            return q, np.inf
+        step = np.max(np.abs(dq))
+        if step > 0.5:  # keep the iterate near its seed (and on its branch)
+            dq *= 0.5 / step
+        q = q + dq
+    return q, err
+
+
+def within_limits(robot: Robot, q: np.ndarray) -> bool:
+    return bool(np.all(q >= robot.q_min - 1e-9) and np.all(q <= robot.q_max + 1e-9))
+
+
+def wrap_redundant(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """Shift joints with more than ±180° of travel by 2π towards 0 where the limits allow."""
+    q = q.copy()
+    for j in range(robot.n):
+        for shift in (-2 * np.pi, 2 * np.pi):
+            cand = q[j] + shift
+            if abs(cand) < abs(q[j]) and robot.q_min[j] <= cand <= robot.q_max[j]:
+                q[j] = cand
+    return q
+
+
+def solve_branch_ik(
+    robot: Robot,
+    data: pin.Data,
+    target: pin.SE3,
+    selector: BranchSelector,
+    seed: np.ndarray | None = None,
+    near: np.ndarray | None = None,
+    n_starts: int = 64,
+) -> np.ndarray | None:
+    """The IK: a solution of `target` (TCP, base frame) on the selector's branch within the joint
+    limits, or None. Scratch `data` is the caller's, reused across calls.
+
+    With `seed`: Newton from it only (fast, for neighbouring poses). Otherwise deterministic
+    multi-start; among the solutions found, the one nearest `near` (default: smallest |q|).
+    """
+    if seed is not None:
+        q, err = newton_pose(robot, data, target, np.asarray(seed, dtype=float))
+        if err < NEWTON_TOL * 100 and within_limits(robot, q) and selector.matches(data, q):
+            return q
+        return None
+    rng = np.random.default_rng(0)
+    lo, hi = robot.q_min, robot.q_max
+    p = target.translation
+    q1 = np.arctan2(p[1], p[0])
+    found: list[np.ndarray] = []
+    for k in range(n_starts):
+        q0 = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi))
+        if k % 2 == 0:  # half the starts face the target
+            q0[0] = q1 if k % 4 == 0 else q1 + np.pi
+            q0[0] = (q0[0] + np.pi) % (2 * np.pi) - np.pi
+        q, err = newton_pose(robot, data, target, q0, iters=40)
+        if err > NEWTON_TOL * 100:
+            continue
+        q = wrap_redundant(robot, q)
+        if within_limits(robot, q) and selector.matches(data, q):
+            found.append(q)
+    if not found:
+        return None
+    ref = np.zeros(robot.n) if near is None else np.asarray(near, dtype=float)
+    return min(found, key=lambda q: float(np.sum((q - ref) ** 2)))
+
+
+def solve_pose_ik(
+    robot: Robot,
+    pose: np.ndarray,
+    branch: Branch,
+    field: str,
+    near: np.ndarray | None = None,
+    n_starts: int = 96,
+) -> np.ndarray:
+    """Joint angles putting the TCP at `pose` = (x, y, z, α, β, γ) (m; Cardan x-y-z rad, base frame) on
+    `branch`, nearest `near` (default: the smallest |q|): `solve_branch_ik` from `n_starts` starts.
+    An unreachable pose is an InputError naming `field` (exit 2)."""
+    pose = np.asarray(pose, dtype=float)
+    target = pin.SE3(cardan_xyz_matrix(pose[3:]), pose[:3])
+    q = solve_branch_ik(
+        robot, robot.create_data(), target, BranchSelector(robot, branch), near=near, n_starts=n_starts
+    )
+    if q is None:
+        raise InputError(
+            f"TCP pose {np.round(pose, 4).tolist()} is unreachable on branch "
+            f"{branch.model_dump(exclude_none=True)} within the joint limits",
+            field=field,
+        )
+    return q
 
 
 def wrist_singularity(q: np.ndarray, wrist_joint: int = 4) -> np.ndarray:

@@ -9,10 +9,20 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from rxcomm.model.robot import Robot
+
+
+class WorstLimit(NamedTuple):
+    """The largest limit ratio of a trajectory: limit name, joint name, time (s), ratio (1 = at the bound)."""
+
+    limit: str
+    joint: str
+    t_s: float
+    ratio: float
 
 
 @dataclass(frozen=True)
@@ -96,11 +106,11 @@ class LimitReport:
     def max_by_limit(self) -> dict[str, float]:
         return {k: float(r.max()) for k, r in self.ratios.items()}
 
-    def worst(self) -> tuple[str, str, float, float]:
-        """(limit, joint, t_s, ratio) of the largest ratio."""
+    def worst(self) -> WorstLimit:
+        """Where the largest ratio is: which limit, which joint, when."""
         name = max(self.ratios, key=lambda k: self.ratios[k].max())
         i, j = np.unravel_index(np.argmax(self.ratios[name]), self.ratios[name].shape)
-        return name, self.joint_names[j], float(self.t[i]), float(self.ratios[name][i, j])
+        return WorstLimit(name, self.joint_names[j], float(self.t[i]), float(self.ratios[name][i, j]))
 
     def active_fraction(self, threshold: float = 0.98, exclude: Sequence[str] = ("position",)) -> float:
         """Fraction of samples where at least one limit is at ≥ `threshold` of its bound.

@@ -10,6 +10,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -30,7 +31,15 @@ def _readonly(a) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Robot:
-    """A fixed-base serial arm. Never mutated: a calibrated robot is a new `Robot` (see `with_model`)."""
+    """A fixed-base serial arm. Never mutated: a calibrated robot is a new `Robot` (see `with_model`).
+
+    A 6R industrial arm: joint 2 is the shoulder, joint 3 the elbow, joint 5 the middle of the wrist,
+    whose origin is the wrist centre (the ``*_joint_id`` attributes, Pinocchio's 1-based joint ids).
+    """
+
+    shoulder_joint_id: ClassVar[int] = 2
+    elbow_joint_id: ClassVar[int] = 3
+    wrist_joint_id: ClassVar[int] = 5
 
     name: str
     model: pin.Model
@@ -117,6 +126,14 @@ class Robot:
     def spring_joint_index(self) -> int | None:
         s = self.drives.spring
         return None if s is None else self.joint_names.index(s.joint)
+
+    @property
+    def reach_m(self) -> float:
+        """Largest possible distance shoulder → TCP (m): the link offsets after the shoulder plus the
+        TCP's, as if stretched in a line; an upper bound for any pose."""
+        m = self.model
+        links = sum(np.linalg.norm(m.jointPlacements[j].translation) for j in range(3, m.njoints))
+        return float(links + np.linalg.norm(m.frames[self.tcp_frame_id].placement.translation))
 
     def create_data(self) -> pin.Data:
         return self.model.createData()

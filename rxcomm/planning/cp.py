@@ -33,6 +33,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -114,6 +115,15 @@ class PlanDynamics:
             RobotDynamics(robot, params, eps).inverse_dynamics,
             eps,
         )
+
+    @classmethod
+    def load(cls, robot: Robot, dynamics_path: Path | None, eps: float) -> PlanDynamics:
+        """From an identified `dynamics.yaml`, or from the robot's prior (URDF + drives) when None."""
+        from rxcomm.model.base_parameters import load_dynamics
+        from rxcomm.model.dynamics import prior_parameters
+
+        params = prior_parameters(robot) if dynamics_path is None else load_dynamics(dynamics_path, robot)
+        return cls.from_parameters(robot, params, eps)
 
 
 # ---------------------------------------------------------------------------------------------------

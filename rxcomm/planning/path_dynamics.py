@@ -56,12 +56,3 @@ def path_dynamics(inv_dyn: InverseDynamics, sigma, q, qs, qss) -> PathDynamics:
     v = h2 - h1 - 3 * c
     f = h1 - c - v
     return PathDynamics(np.asarray(sigma, dtype=float), m, c, v, f, g)
-
-
-def batched(inv_dyn: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]) -> InverseDynamics:
-    """Wrap a one-sample toppra-style `inv_dyn(q, qd, qdd) -> tau` ([n] each) to take [N, n] arrays."""
-
-    def f(q, qd, qdd):
-        return np.array([inv_dyn(a, b, c) for a, b, c in zip(q, qd, qdd, strict=True)])
-
-    return f

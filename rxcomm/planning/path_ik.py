@@ -24,132 +24,17 @@ import pinocchio as pin
 from scipy.interpolate import CubicSpline
 
 from rxcomm.errors import InfeasibleError
+from rxcomm.model.kinematics import (
+    NEWTON_TOL,
+    ORIENTATION_LENGTH_M,
+    BranchSelector,
+    newton_pose,
+    solve_branch_ik,
+    within_limits,
+)
 from rxcomm.model.robot import Robot
 from rxcomm.planning.paths import CartesianPath
 from rxcomm.schemas.path import Branch
-
-NEWTON_TOL = 1e-11  # ‖log6 error‖ (m, rad) accepted as a solution
-ORIENTATION_LENGTH_M = 1.0  # weight of angular Jacobian rows in σ_min (1 rad ~ 1 m)
-
-
-class BranchSelector:
-    """Tests a configuration against a `Branch` and measures its distance to singularities.
-
-    Shoulder/elbow/wrist are read geometrically so any 6R arm works: shoulder = origin of joint 2,
-    elbow = origin of joint 3, wrist centre = origin of joint 5, J5 the wrist's middle joint.
-    """
-
-    def __init__(self, robot: Robot, branch: Branch | None):
-        self.robot = robot
-        self.branch = branch or Branch(shoulder=None, elbow=None, wrist=None)
-
-    def labels(self, data: pin.Data, q: np.ndarray) -> dict[str, str]:
-        """Shoulder/elbow/wrist labels of q (forward kinematics is run here)."""
-        pin.forwardKinematics(self.robot.model, data, q)
-        j1, s, e, w = (data.oMi[i] for i in (1, 2, 3, 5))
-        front = (w.translation - j1.translation) @ j1.rotation[:, 0] >= 0
-        u = w.translation - s.translation
-        u = u / max(np.linalg.norm(u), 1e-12)
-        de = e.translation - s.translation
-        up = (de - (de @ u) * u)[2] >= 0
-        return {
-            "shoulder": "front" if front else "back",
-            "elbow": "up" if up else "down",
-            "wrist": "positive" if q[4] >= 0 else "negative",
-        }
-
-    def matches(self, data: pin.Data, q: np.ndarray) -> bool:
-        lab = self.labels(data, q)
-        return all(getattr(self.branch, k) in (None, v) for k, v in lab.items())
-
-    def jacobian(self, data: pin.Data, q: np.ndarray) -> np.ndarray:
-        jac = pin.computeFrameJacobian(
-            self.robot.model, data, q, self.robot.tcp_frame_id, pin.LOCAL_WORLD_ALIGNED
-        )
-        return jac
-
-    def sigma_min(self, data: pin.Data, q: np.ndarray) -> float:
-        jac = self.jacobian(data, q).copy()
-        jac[3:] *= ORIENTATION_LENGTH_M
-        return float(np.linalg.svd(jac, compute_uv=False)[-1])
-
-
-def _newton(robot: Robot, data: pin.Data, target: pin.SE3, q: np.ndarray, iters: int = 12):
-    """Newton on the SE(3) error in the TCP frame; returns (q, error norm)."""
-    m, fid = robot.model, robot.tcp_frame_id
-    err = np.inf
-    for _ in range(iters):
-        pin.framesForwardKinematics(m, data, q)
-        e = pin.log6(data.oMf[fid].actInv(target)).vector
-        err = float(np.linalg.norm(e))
-        if err < NEWTON_TOL:
-            break
-        jac = pin.computeFrameJacobian(m, data, q, fid, pin.LOCAL)
-        try:
-            dq = np.linalg.solve(jac, e)
-        except np.linalg.LinAlgError:
-            return q, np.inf
-        step = np.max(np.abs(dq))
-        if step > 0.5:  # keep the iterate near its seed (and on its branch)
-            dq *= 0.5 / step
-        q = q + dq
-    return q, err
-
-
-def _within_limits(robot: Robot, q: np.ndarray) -> bool:
-    return bool(np.all(q >= robot.q_min - 1e-9) and np.all(q <= robot.q_max + 1e-9))
-
-
-def _wrap_redundant(robot: Robot, q: np.ndarray) -> np.ndarray:
-    """Shift joints with more than ±180° of travel by 2π towards 0 where the limits allow."""
-    q = q.copy()
-    for j in range(robot.n):
-        for shift in (-2 * np.pi, 2 * np.pi):
-            cand = q[j] + shift
-            if abs(cand) < abs(q[j]) and robot.q_min[j] <= cand <= robot.q_max[j]:
-                q[j] = cand
-    return q
-
-
-def solve_pose(
-    robot: Robot,
-    data: pin.Data,
-    target: pin.SE3,
-    selector: BranchSelector,
-    seed: np.ndarray | None = None,
-    near: np.ndarray | None = None,
-    n_starts: int = 64,
-) -> np.ndarray | None:
-    """An IK solution of `target` on the selector's branch, within the joint limits, or None.
-
-    With `seed`: Newton from it only (fast, for neighbouring poses). Otherwise deterministic
-    multi-start; among the solutions found, the one nearest `near` (default: smallest |q|).
-    """
-    if seed is not None:
-        q, err = _newton(robot, data, target, np.asarray(seed, dtype=float))
-        if err < NEWTON_TOL * 100 and _within_limits(robot, q) and selector.matches(data, q):
-            return q
-        return None
-    rng = np.random.default_rng(0)
-    lo, hi = robot.q_min, robot.q_max
-    p = target.translation
-    q1 = np.arctan2(p[1], p[0])
-    found: list[np.ndarray] = []
-    for k in range(n_starts):
-        q0 = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi))
-        if k % 2 == 0:  # half the starts face the target
-            q0[0] = q1 if k % 4 == 0 else q1 + np.pi
-            q0[0] = (q0[0] + np.pi) % (2 * np.pi) - np.pi
-        q, err = _newton(robot, data, target, q0, iters=40)
-        if err > NEWTON_TOL * 100:
-            continue
-        q = _wrap_redundant(robot, q)
-        if _within_limits(robot, q) and selector.matches(data, q):
-            found.append(q)
-    if not found:
-        return None
-    ref = np.zeros(robot.n) if near is None else np.asarray(near, dtype=float)
-    return min(found, key=lambda q: float(np.sum((q - ref) ** 2)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,9 +99,9 @@ def reachability_scan(
     bad = np.zeros(n, dtype=bool)
     prev = None
     for i, pose in enumerate(path.poses(s)):
-        q = solve_pose(robot, data, pose, selector, seed=prev) if prev is not None else None
+        q = solve_branch_ik(robot, data, pose, selector, seed=prev) if prev is not None else None
         if q is None:
-            q = solve_pose(robot, data, pose, selector, n_starts=12)
+            q = solve_branch_ik(robot, data, pose, selector, n_starts=12)
         bad[i] = q is None
         prev = q
     return _ranges(s, bad)
@@ -246,7 +131,7 @@ def solve_path_ik(
     data = robot.create_data()
     length = path.length_m
     pose0 = path.poses([0.0])[0]
-    q = solve_pose(robot, data, pose0, selector, near=q_near)
+    q = solve_branch_ik(robot, data, pose0, selector, near=q_near)
     if q is None:
         what = (
             f"near q = {np.round(q_near, 3).tolist()}"
@@ -270,14 +155,14 @@ def solve_path_ik(
         except np.linalg.LinAlgError:
             qd = np.zeros(robot.n)
         target = path.poses([s + h])[0]
-        q_new, err = _newton(robot, data, target, q + qd * h)
+        q_new, err = newton_pose(robot, data, target, q + qd * h)
         jump = float(np.max(np.abs(q_new - q)))
         if err > NEWTON_TOL * 100 or jump > max_step_rad:
             if h > 1e-6:
                 h /= 2
                 continue
             _raise_stuck(robot, path, follow, data, s, q, q_new, err)
-        if not _within_limits(robot, q_new):
+        if not within_limits(robot, q_new):
             j = int(np.argmax(np.maximum(robot.q_min - q_new, q_new - robot.q_max)))
             raise InfeasibleError(
                 f"path {path.name!r}: {robot.joint_names[j]} reaches its limit "

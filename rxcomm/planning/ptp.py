@@ -47,14 +47,9 @@ L-BFGS, whose low-rank updates also cost extra back-solves every iteration.
 from __future__ import annotations
 
 import hashlib
-import os
-import shutil
-import subprocess
-import tempfile
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Literal
 
 import casadi as ca
@@ -62,6 +57,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from rxcomm import casadi_build
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import Trajectory
 from rxcomm.model.dynamics import DynamicParameters, prior_parameters
@@ -108,8 +104,8 @@ class PtpOptions(BaseModel):
     tol: float = Field(1e-6, gt=0, description="IPOPT relative tolerance")
     compile: bool = Field(
         False,
-        description="compile the node functions to C (needs a C compiler; cached per content in "
-        "$RXCOMM_CACHE_DIR or ~/.cache/rxcomm): ~8× faster derivatives after a one-off ~1 min compile",
+        description="compile the node functions to C (rxcomm.casadi_build: cached per content; without a "
+        "C compiler it falls back and warns): ~8× faster derivatives after a one-off ~1 min compile",
     )
     hessian: Literal["exact", "limited-memory"] = Field(
         "exact", description="IPOPT's Hessian: exact (assembled from the nodes) or its L-BFGS approximation"
@@ -285,37 +281,6 @@ def _csc(nrow: int, ncol: int, rows: np.ndarray, cols: np.ndarray) -> tuple[ca.S
     perm = np.lexsort((rows, cols))
     colind = np.searchsorted(cols[perm], np.arange(ncol + 1))
     return ca.Sparsity(nrow, ncol, colind.tolist(), rows[perm].tolist()), perm
-
-
-def cache_dir() -> Path:
-    """Where compiled node functions are kept: $RXCOMM_CACHE_DIR, else ~/.cache/rxcomm/ptp."""
-    env = os.environ.get("RXCOMM_CACHE_DIR")
-    return Path(env) if env else Path.home() / ".cache" / "rxcomm" / "ptp"
-
-
-def compiled_function(fn: ca.Function, flags: tuple[str, ...] = ("-O1",)) -> ca.Function:
-    """`fn` generated as C, compiled into a shared library named by the hash of its content and
-    loaded as a CasADi external; an existing library is reused. Raises InputError without a compiler."""
-    key = hashlib.sha256((fn.serialize() + " ".join(flags)).encode()).hexdigest()[:24]
-    folder = cache_dir()
-    lib = folder / f"{fn.name()}_{key}.so"
-    if not lib.exists():
-        cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
-        if cc is None:
-            raise InputError("compiling the PtP NLP needs a C compiler (gcc or cc) on PATH", field="compile")
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=folder) as tmp:
-            src = Path(tmp) / f"{fn.name()}.c"
-            gen = ca.CodeGenerator(src.name, {"with_header": False})
-            gen.add(fn)
-            gen.generate(tmp + os.sep)
-            part = Path(tmp) / lib.name
-            cmd = [cc, *flags, "-fPIC", "-shared", str(src), "-o", str(part)]
-            done = subprocess.run(cmd, capture_output=True, text=True, check=False)
-            if done.returncode != 0:
-                raise InputError(f"the C compiler failed: {done.stderr.strip()[-300:]}", field="compile")
-            os.replace(part, lib)  # atomic: a concurrent run sees the whole library or none
-    return ca.external(fn.name(), str(lib))
 
 
 def _nonzeros(m: ca.SX) -> ca.SX:
@@ -554,7 +519,7 @@ class PtpOcp:
     @staticmethod
     def _compiled(fn: ca.Function) -> ca.Function:
         """`fn` as C compiled once per content (robot, limits, N, options) into the cache directory."""
-        return compiled_function(fn)
+        return casadi_build.compiled([fn])[0]
 
     # --- bounds and guesses -------------------------------------------------------------------------
     def margins(self, **override: float) -> dict[str, float]:

@@ -19,29 +19,26 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class ParameterEstimate(_Strict):
+class ParameterEstimate(Strict):
     name: str
     value: float = Field(description="m for t*, rad for r*")
     std: float | None = Field(None, description="standard deviation from the covariance; None if fixed")
     estimated: bool
 
 
-class DroppedParameter(_Strict):
+class DroppedParameter(Strict):
     name: str
     reason: str
 
 
-class ErrorRow(_Strict):
+class ErrorRow(Strict):
     quantity: Literal["x", "y", "z", "alpha", "beta", "gamma"]
     unit: Literal["m", "rad"]
     max_abs: float
@@ -49,7 +46,7 @@ class ErrorRow(_Strict):
     rms: float
 
 
-class ErrorTable(_Strict):
+class ErrorTable(Strict):
     pose_set: Literal["fit", "heldout"]
     model: Literal["nominal", "calibrated", "frames_only", "baseline_poses"]
     n_poses: int
@@ -59,7 +56,7 @@ class ErrorTable(_Strict):
     rows: list[ErrorRow]
 
 
-class BaselineFit(_Strict):
+class BaselineFit(Strict):
     n_poses: int = Field(description="valid baseline poses measured")
     parameters: list[ParameterEstimate] = Field(description="empty when the poses cannot identify them")
     fit_poses: list[int] = Field(description="indices into the measurement file's poses")

@@ -13,23 +13,21 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
+
+from rxcomm.schemas.strict import Strict
 
 Vec3 = tuple[float, float, float]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class Placement(_Strict):
+class Placement(Strict):
     """A rigid placement: translation (m) then URDF-style rpy (rad; R = Rz(yaw)·Ry(pitch)·Rx(roll))."""
 
     xyz_m: Vec3 = (0.0, 0.0, 0.0)
     rpy_rad: Vec3 = (0.0, 0.0, 0.0)
 
 
-class Box(_Strict):
+class Box(Strict):
     """An axis-aligned box in the base frame."""
 
     min_m: Vec3
@@ -42,7 +40,7 @@ class Box(_Strict):
         return self
 
 
-class Workspace(_Strict):
+class Workspace(Strict):
     """Where the arm may be: TCP, wrist centre and elbow inside `box` and above the floor."""
 
     box: Box
@@ -52,7 +50,7 @@ class Workspace(_Strict):
     )
 
 
-class SelfCollision(_Strict):
+class SelfCollision(Strict):
     """A simple self-collision check with two capsules (segments with a radius) of the arm.
 
     - base capsule: from the base origin to the shoulder (origin of joint 2);
@@ -67,7 +65,7 @@ class SelfCollision(_Strict):
     upper_arm_radius_m: float = Field(gt=0)
 
 
-class TrackerSpec(_Strict):
+class TrackerSpec(Strict):
     """The measuring device (laser tracker / stereo camera) and its probe on the TCP.
 
     `tracker_to_base` is the *nominal* pose of the robot base in the tracker frame (from the cell
@@ -104,7 +102,7 @@ class TrackerSpec(_Strict):
         return self
 
 
-class GatewayDefaults(_Strict):
+class GatewayDefaults(Strict):
     """Where `run` finds the drive gateway when `--gateway` is not given (DESIGN §6)."""
 
     host: str = "127.0.0.1"
@@ -112,7 +110,7 @@ class GatewayDefaults(_Strict):
     timeout_s: float = Field(1.0, gt=0)
 
 
-class AllowedRegion(_Strict):
+class AllowedRegion(Strict):
     """Where excitation trajectories may take the arm (paper eq. 30: r_E ⊂ R³_allowed), base frame."""
 
     tool: Box
@@ -120,7 +118,7 @@ class AllowedRegion(_Strict):
     elbow: Box
 
 
-class Cell(_Strict):
+class Cell(Strict):
     kind: Literal["rxcomm/Cell"]
     schema_version: Literal[1]
     robot: str | None = Field(None, description="robot directory this cell was laid out for (informative)")

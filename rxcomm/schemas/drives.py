@@ -8,14 +8,12 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
+
+from rxcomm.schemas.strict import Strict
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class JointDrive(_Strict):
+class JointDrive(Strict):
     """One axis: gearbox, motor and the limits the drive enforces."""
 
     name: str = Field(description="URDF joint name")
@@ -37,7 +35,7 @@ class JointDrive(_Strict):
         return self
 
 
-class BalancerSpring(_Strict):
+class BalancerSpring(Strict):
     """A gravity balancer stretched between a pivot fixed to the parent link and one on the child link.
 
     Both pivots lie on the spring joint's plane at distances `fixed_pivot_m` and `moving_pivot_m` from
@@ -54,7 +52,7 @@ class BalancerSpring(_Strict):
     free_length_m: float = Field(ge=0, description="prior free length L0, m")
 
 
-class ToolFrame(_Strict):
+class ToolFrame(Strict):
     """The tool centre point, fixed to `parent_frame`."""
 
     parent_frame: str = "tool0"
@@ -62,7 +60,7 @@ class ToolFrame(_Strict):
     rpy_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
-class Drives(_Strict):
+class Drives(Strict):
     kind: Literal["rxcomm/Drives"]
     schema_version: Literal[1]
     urdf: str = Field(description="URDF file name, relative to drives.yaml")

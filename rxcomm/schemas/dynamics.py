@@ -15,16 +15,13 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class BaseParameterEstimate(_Strict):
+class BaseParameterEstimate(Strict):
     name: str = Field(description="e.g. joint_2.mcz_R (suffix _R: other parameters are regrouped onto it)")
     label: str = Field(description="human-readable definition, e.g. 'joint_2.mcz + 0.625·joint_3.m + …'")
     independent: str = Field(description="the full parameter kept for it (coefficient 1 in `combination`)")
@@ -42,7 +39,7 @@ class BaseParameterEstimate(_Strict):
         return self
 
 
-class BaseSetInfo(_Strict):
+class BaseSetInfo(Strict):
     """How the base set was found (numerical QR on random states, `rxcomm.model.base_parameters`)."""
 
     n_full: int = Field(description="number of full parameters (regressor columns)")
@@ -56,14 +53,14 @@ class BaseSetInfo(_Strict):
     unidentifiable: list[str] = Field(description="parameters with no effect on the joint torques")
 
 
-class JointFriction(_Strict):
+class JointFriction(Strict):
     joint: str
     coulomb_nm: float
     viscous_nm_s_per_rad: float
     offset_nm: float = Field(description="constant torque offset (sensor bias), N·m")
 
 
-class SpringEstimate(_Strict):
+class SpringEstimate(Strict):
     """The balancer: τ_s = k·ab·sinθ − k·L0·ab·sinθ/L. The first term has the shape of link gravity and
     regroups with the spring link's first moment, so only k·L0 is identifiable on its own."""
 

@@ -29,22 +29,20 @@ from __future__ import annotations
 import math
 from typing import Annotated, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
+
+from rxcomm.schemas.strict import Strict
 
 Vec3 = tuple[float, float, float]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class Line(_Strict):
+class Line(Strict):
     type: Literal["line"]
     start_m: Vec3
     end_m: Vec3
 
 
-class Circle(_Strict):
+class Circle(Strict):
     """A circular arc or full circle: three points, or centre + normal + radius."""
 
     type: Literal["circle"]
@@ -77,7 +75,7 @@ class Circle(_Strict):
         return self
 
 
-class Polyline(_Strict):
+class Polyline(Strict):
     type: Literal["polyline"]
     points_m: list[Vec3] = Field(min_length=2)
     blend_radius_m: float = Field(
@@ -87,7 +85,7 @@ class Polyline(_Strict):
     )
 
 
-class Spline(_Strict):
+class Spline(Strict):
     type: Literal["spline"]
     points_m: list[Vec3] = Field(min_length=2)
 
@@ -95,7 +93,7 @@ class Spline(_Strict):
 Geometry = Annotated[Line | Circle | Polyline | Spline, Field(discriminator="type")]
 
 
-class Orientation(_Strict):
+class Orientation(Strict):
     """TCP orientation along the path (URDF rpy, base frame)."""
 
     mode: Literal["hold", "slerp"] = "hold"
@@ -130,7 +128,7 @@ class Orientation(_Strict):
         return tuple(math.radians(a) for a in self.end_rpy_deg)
 
 
-class Branch(_Strict):
+class Branch(Strict):
     """Which IK solution to start from (each None: either)."""
 
     shoulder: Literal["front", "back"] | None = "front"
@@ -138,14 +136,14 @@ class Branch(_Strict):
     wrist: Literal["positive", "negative"] | None = "positive"
 
 
-class PathLimits(_Strict):
+class PathLimits(Strict):
     """Optional Cartesian limits that belong to the path (e.g. ISO 9283 tests at 1 m/s, 5 m/s²)."""
 
     tcp_speed_max_m_s: float | None = Field(None, gt=0)
     tcp_acceleration_max_m_s2: float | None = Field(None, gt=0)
 
 
-class PathSpec(_Strict):
+class PathSpec(Strict):
     """One TCP path in the robot base frame."""
 
     KIND: ClassVar[str] = "rxcomm/Path"

@@ -25,6 +25,30 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from rxcomm.schemas.envelope import Artefact, Sha256Hex
 
+# The MCAP side of the contract: topics and their fields (unit, meaning).
+JOINTS_TOPIC = "/run/joints"
+GATEWAY_TOPIC = "/run/gateway"
+JOINT_FIELDS = {
+    "q_demand": "rad, position setpoint reached in this cycle",
+    "qd_demand": "rad/s, planned joint velocity at that setpoint",
+    "qdd_demand": "rad/s², planned joint acceleration at that setpoint",
+    "q_actual": "rad, position actual (encoders, joint side)",
+    "tau_actual": "N·m, torque actual as reported by the drives (joint side)",
+    "tau_ff": "N·m, feed-forward torque sent with the setpoint",
+    "following_error": "rad, q_demand − q_actual",
+    "tcp_error_m": "m, |FK(q_demand) − FK(q_actual)| of the TCP position, nominal kinematics",
+}
+GATEWAY_FIELDS = {
+    "status": "register 30 status bits (docs/gateway.md §2.3)",
+    "error": "register 39 error code",
+    "execute_index": "setpoints completed",
+    "write_index": "setpoints accepted",
+    "buffer_level": "setpoints buffered",
+    "lead_s": "s, buffered lead = buffer_level · R · cycle",
+    "round_trip_s": "s, round trip of the request that brought this reply",
+    "wall_s": "s, master wall clock since the stream start",
+}
+
 
 class RunLogTopic(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)

@@ -7,19 +7,17 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from rxcomm.schemas.strict import Strict
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class Placement(_Strict):
+class Placement(Strict):
     xyz_m: tuple[float, float, float]
     rpy_rad: tuple[float, float, float]
 
 
-class GeometryTruth(_Strict):
+class GeometryTruth(Strict):
     """Real kinematics: error parameters of `rxcomm.model.geometric_errors` (name → value, SI), tracker.
 
     Joint/base/tool errors are small twists applied on the right of the nominal placements:
@@ -31,7 +29,7 @@ class GeometryTruth(_Strict):
     error_parameters: dict[str, float]
 
 
-class LinkInertial(_Strict):
+class LinkInertial(Strict):
     """Pinocchio order: m, m·c (3), inertia about the link frame origin Ixx Ixy Iyy Ixz Iyz Izz."""
 
     link: str = Field(description="the body moved by this joint, named by its joint")
@@ -40,7 +38,7 @@ class LinkInertial(_Strict):
     inertia_origin_kgm2: tuple[float, float, float, float, float, float]
 
 
-class DynamicsTruth(_Strict):
+class DynamicsTruth(Strict):
     links: list[LinkInertial]
     rotor_inertia_kgm2: list[float] = Field(description="motor side, per axis")
     coulomb_friction_nm: list[float]
@@ -50,14 +48,14 @@ class DynamicsTruth(_Strict):
     spring_free_length_m: float | None = None
 
 
-class NoiseTruth(_Strict):
+class NoiseTruth(Strict):
     encoder_lsb_rad: float = Field(gt=0, description="encoder quantisation, joint side, rad")
     torque_noise_nm: list[float] = Field(description="std of motor torque measurement, joint side, N·m")
     tracker_position_sigma_m: float = Field(ge=0)
     tracker_orientation_sigma_rad: float = Field(ge=0)
 
 
-class CellTruth(_Strict):
+class CellTruth(Strict):
     kind: Literal["rxcomm/CellTruth"]
     schema_version: Literal[1]
     robot: str = Field(description="robot directory, relative to this file")

@@ -16,7 +16,6 @@ from typing import Annotated
 
 import numpy as np
 import typer
-from pydantic import ValidationError
 
 from rxcomm import console
 from rxcomm.calibration.fit import (
@@ -27,7 +26,7 @@ from rxcomm.calibration.fit import (
     read_measurements,
     write_calibrated_urdf,
 )
-from rxcomm.errors import InputError
+from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.geometric_errors import parameter_names, placement_to_se3, se3_to_xyz_rpy
 from rxcomm.model.robot import Robot, load_robot
@@ -265,20 +264,18 @@ def run(
             "orientation_sigma_rad": tr.orientation_sigma_rad,
         }
         inputs["cell"] = Path(cell)
-    try:
-        settings = CalibrateSettings(
+    settings = settings_from_options(
+        CalibrateSettings,
+        dict(
             holdout_fraction=holdout,
             seed=seed,
             loss=loss,
             outlier_sigma=outlier_sigma,
             drop_outliers=not keep_outliers,
             **overrides,
-        )
-    except ValidationError as e:
-        err = e.errors()[0]
-        names = {"holdout_fraction": "holdout", "outlier_sigma": "outlier-sigma"}
-        loc = str(err["loc"][0]) if err["loc"] else "options"
-        raise InputError(err["msg"], field=names.get(loc, loc)) from e
+        ),
+        {"holdout_fraction": "holdout", "outlier_sigma": "outlier-sigma"},
+    )
     with console.err.status(f"calibrate: fitting {robot.name} to {ms.n} poses"):
         res = calibrate(robot, ms, settings, tracker_to_base=t2b)
     art = calibration_artefact(robot, res, inputs, urdf_out)

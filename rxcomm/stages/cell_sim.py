@@ -23,20 +23,7 @@ from rxcomm.cell.sim import SimSettings, SimulatedCell
 from rxcomm.cell.truth import load_truth
 from rxcomm.errors import InputError
 from rxcomm.gateway.net import is_loopback
-
-
-def parse_q0(text: str | None, n: int) -> tuple[float, ...] | None:
-    """'q1,…,qn' in radians."""
-    if text is None:
-        return None
-    parts = [p.strip() for p in text.split(",")]
-    try:
-        values = tuple(float(p) for p in parts)
-    except ValueError as e:
-        raise InputError(f"expected {n} comma-separated numbers (rad), got {text!r}", field="--q0") from e
-    if len(values) != n or not all(np.isfinite(values)):
-        raise InputError(f"expected {n} finite comma-separated numbers (rad), got {text!r}", field="--q0")
-    return values
+from rxcomm.options import parse_numbers
 
 
 def command(
@@ -106,7 +93,9 @@ def run(
     if duration_s is not None and not duration_s > 0:
         raise InputError("must be positive", field="--duration-s")
     sim_truth = load_truth(truth, cell)
-    settings = SimSettings(q0_rad=parse_q0(q0, sim_truth.robot.n), seed=seed)
+    settings = SimSettings(
+        q0_rad=None if q0 is None else tuple(parse_numbers(q0, sim_truth.robot.n, "--q0", "rad")), seed=seed
+    )
     backend = SimulatedCell(sim_truth, settings)
     config = ServerConfig(
         host=host,

@@ -17,17 +17,17 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
-from pydantic import ValidationError
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.identification.excitation import ExcitationDesign, design_excitation, region_points
 from rxcomm.io.trajectory import save_trajectory_mcap
+from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.limits import check_limits
 from rxcomm.model.robot import Robot, load_robot
+from rxcomm.options import parse_numbers
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
 from rxcomm.schemas.plain import sha256_file
@@ -44,25 +44,10 @@ def trajectory_path(output: Path) -> Path:
     return output.with_name(output.stem + "-trajectory.mcap")
 
 
-def parse_start(text: str | None, n: int) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError as e:
-        raise InputError(f"expected {n} comma-separated radians, got {text!r}", field="start") from e
-    if len(values) != n or not all(np.isfinite(values)):
-        raise InputError(f"expected {n} finite comma-separated radians, got {text!r}", field="start")
-    return values
-
-
 def plot_excitation(robot: Robot, design: ExcitationDesign, path: Path) -> Path:
     """PNG: joint positions, velocities and feed-forward torques (normalised by their limits) over time,
     and the tool path (paper Fig. 5a)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = plotting.pyplot()
 
     s = design.samples
     k = max(1, len(s.t) // 4000)
@@ -171,12 +156,8 @@ def run(
     cell_model = read_yaml_model(cell, Cell)
     values = settings.model_dump() if isinstance(settings, ExcitationSettings) else dict(settings or {})
     if start is not None:
-        values["start_rad"] = parse_start(start, robot.n)
-    try:
-        opts = ExcitationSettings(**values)
-    except ValidationError as e:
-        err = e.errors()[0]
-        raise InputError(err["msg"], field=".".join(str(p) for p in err["loc"]) or None) from e
+        values["start_rad"] = parse_numbers(start, robot.n, "start", "rad").tolist()
+    opts = settings_from_options(ExcitationSettings, values)
 
     with console.progress() as bar:
         tasks: dict[str, int] = {}

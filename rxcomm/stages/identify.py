@@ -15,11 +15,11 @@ from typing import Annotated
 
 import numpy as np
 import typer
-from pydantic import ValidationError
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.identification.fit import Identification, IdentifySettings, identify, load_joint_log
+from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import write_yaml_artefact
 from rxcomm.model.base_parameters import dynamics_artefact_fields
 from rxcomm.model.robot import Robot, load_robot
@@ -33,10 +33,7 @@ class Method(StrEnum):
 
 def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
     """PNG: measured and predicted joint torques on the validation data, one panel per joint."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = plotting.pyplot()
 
     val = result.validation
     n = robot.n
@@ -131,11 +128,7 @@ def run(
         raise InputError("the output must be a .yaml file", field="output")
     robot = load_robot(robot_dir)
     values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
-    try:
-        opts = IdentifySettings(**values)
-    except ValidationError as e:
-        err = e.errors()[0]
-        raise InputError(err["msg"], field=".".join(str(p) for p in err["loc"]) or None) from e
+    opts = settings_from_options(IdentifySettings, values)
     joint_log = load_joint_log(log, robot)
     val_log = None if validate is None else load_joint_log(validate, robot)
     for lg in (joint_log, val_log):

@@ -16,21 +16,21 @@ from typing import Annotated
 
 import numpy as np
 import typer
-from pydantic import ValidationError
 from rich.markup import escape
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
-from rxcomm.io.validate import check_kind, validate_model
-from rxcomm.io.yaml_io import dump_yaml, load_yaml, read_yaml_model
+from rxcomm.io.validate import settings_from_options
+from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
 from rxcomm.model.robot import Robot, load_robot
+from rxcomm.options import parse_numbers
 from rxcomm.planning.cp import CpPlan, CpSettings, PlanDynamics, path_deviation_m, plan_cp
-from rxcomm.planning.paths import CartesianPath, build_path, iso9283_cube, iso9283_paths
+from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
+from rxcomm.planning.paths import load_path
 from rxcomm.schemas.cell import Box, Cell
-from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.trajectory import TrajectorySummary
 
 
@@ -40,34 +40,6 @@ class Method(StrEnum):
 
 
 # --- inputs -----------------------------------------------------------------------------------------
-def read_path(path: Path, robot: Robot) -> tuple[PathSpec, CartesianPath]:
-    """The path file as spec and `CartesianPath`; InputError names the file and the field."""
-    data = load_yaml(path)
-    check_kind(data, PathSpec, file=path)
-    spec = validate_model(PathSpec, data, file=path)
-    if spec.tcp_xyz_m is not None and not np.allclose(spec.tcp_xyz_m, robot.drives.tcp.xyz_m, atol=1e-6):
-        raise InputError(
-            f"the path was written for a TCP at {list(spec.tcp_xyz_m)} m from "
-            f"{robot.drives.tcp.parent_frame}; the robot's TCP is at {list(robot.drives.tcp.xyz_m)} m",
-            file=path,
-            field="tcp_xyz_m",
-        )
-    if spec.q_start_rad is not None and len(spec.q_start_rad) != robot.n:
-        raise InputError(f"expected {robot.n} joint angles", file=path, field="q_start_rad")
-    try:
-        return spec, build_path(spec)
-    except InputError as e:
-        raise InputError(e.reason, file=path, field=e.field) from e
-
-
-def plan_dynamics(robot: Robot, dynamics: Path | None, eps: float) -> PlanDynamics:
-    from rxcomm.model.base_parameters import load_dynamics
-    from rxcomm.model.dynamics import prior_parameters
-
-    params = prior_parameters(robot) if dynamics is None else load_dynamics(dynamics, robot)
-    return PlanDynamics.from_parameters(robot, params, eps)
-
-
 # --- outputs ----------------------------------------------------------------------------------------
 def summary_of(plan: CpPlan, robot: Robot) -> dict[str, object]:
     rep = plan.report
@@ -116,10 +88,7 @@ def trajectory_of(plan: CpPlan) -> Trajectory:
 def plot_cp(plan: CpPlan, robot: Robot, path: Path, title: str) -> Path:
     """PNG: TCP speed over time and σ (the paper's Fig. 7) and the binding limits normalised to
     their bounds over time (Fig. 8), with the stretches where no limit is active shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = plotting.pyplot()
 
     rep = plan.report
     fig, axes = plt.subplots(3, 1, figsize=(8, 8))
@@ -166,14 +135,7 @@ def _print_active(plan: CpPlan) -> None:
 # --- ISO 9283 -----------------------------------------------------------------------------------------
 def write_iso9283(robot: Robot, out_dir: Path, cell: Path | None, rpy_deg: str) -> dict[str, object]:
     """Find the robot's ISO 9283 test cube and write its test-plane paths to `out_dir`."""
-    try:
-        rpy = np.radians([float(v) for v in rpy_deg.split(",")])
-    except ValueError as e:
-        raise InputError(
-            f"expected three comma-separated angles in degrees, got {rpy_deg!r}", field="iso-rpy"
-        ) from e
-    if rpy.shape != (3,):
-        raise InputError(f"expected three angles, got {rpy_deg!r}", field="iso-rpy")
+    rpy = np.radians(parse_numbers(rpy_deg, 3, "iso-rpy", "degrees"))
     box = None
     if cell is not None:
         ws = read_yaml_model(cell, Cell).workspace
@@ -304,9 +266,10 @@ def run(
     if calibration is not None:
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
-    spec, cpath = read_path(path, robot)
-    try:
-        settings = CpSettings(
+    spec, cpath = load_path(path, robot)
+    settings = settings_from_options(
+        CpSettings,
+        dict(
             k1=k1,
             k2=k2,
             torque_rate=torque_rate,
@@ -316,14 +279,12 @@ def run(
             tcp_acceleration_max_m_s2=tcp_acceleration_max
             if tcp_acceleration_max is not None
             else spec.limits.tcp_acceleration_max_m_s2,
-        )
-    except ValidationError as e:
-        err = e.errors()[0]
-        loc = str(err["loc"][0]) if err["loc"] else "options"
-        raise InputError(err["msg"].removeprefix("Value error, "), field=loc.replace("_", "-")) from e
+        ),
+        {name: name.replace("_", "-") for name in CpSettings.model_fields},
+    )
     if dynamics is not None:
         inputs["dynamics"] = Path(dynamics)
-    dyn = plan_dynamics(robot, dynamics, settings.coulomb_eps_rad_s)
+    dyn = PlanDynamics.load(robot, dynamics, settings.coulomb_eps_rad_s)
     with console.err.status(
         f"plan-cp: {spec.name or path.name} ({settings.method}, N = {intervals})"
     ) as status:

@@ -13,18 +13,17 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
-import pinocchio as pin
 import typer
-from pydantic import ValidationError
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
+from rxcomm.io.validate import settings_from_options
 from rxcomm.model.base_parameters import load_dynamics
-from rxcomm.model.kinematics import cardan_xyz_matrix, inverse_kinematics
+from rxcomm.model.kinematics import solve_pose_ik
 from rxcomm.model.robot import Robot, load_robot
-from rxcomm.planning.path_ik import BranchSelector
+from rxcomm.options import parse_numbers
 from rxcomm.planning.ptp import (
     PtpDynamics,
     PtpLimits,
@@ -56,56 +55,6 @@ class Wrist(StrEnum):
 
 
 # --- inputs -----------------------------------------------------------------------------------------
-def parse_numbers(text: str, count: int, field: str) -> np.ndarray:
-    """`count` comma-separated finite numbers, else InputError naming `field`."""
-    parts = [p.strip() for p in text.split(",")]
-    try:
-        values = np.array([float(p) for p in parts])
-    except ValueError as e:
-        raise InputError(f"expected {count} comma-separated numbers, got {text!r}", field=field) from e
-    if values.shape != (count,) or not np.all(np.isfinite(values)):
-        raise InputError(f"expected {count} finite comma-separated numbers, got {text!r}", field=field)
-    return values
-
-
-def solve_pose_ik(
-    robot: Robot,
-    pose: np.ndarray,
-    branch: Branch,
-    field: str,
-    near: np.ndarray | None = None,
-    n_seeds: int = 96,
-) -> np.ndarray:
-    """Joint angles putting the TCP at `pose` = (x, y, z, α, β, γ) (m; Cardan x-y-z rad, base frame).
-
-    Deterministic multi-start of `kinematics.inverse_kinematics`; among the converged solutions on
-    `branch` within the joint limits, the one nearest `near` (default: the smallest |q|). An
-    unreachable pose is an InputError naming `field` (exit 2).
-    """
-    target = pin.SE3(cardan_xyz_matrix(pose[3:]), pose[:3])
-    selector = BranchSelector(robot, branch)
-    data = robot.create_data()
-    rng = np.random.default_rng(0)
-    lo, hi = np.maximum(robot.q_min, -np.pi), np.minimum(robot.q_max, np.pi)
-    facing, facing_back = np.arctan2(pose[1], pose[0]), np.arctan2(-pose[1], -pose[0])
-    found = []
-    for k in range(n_seeds):
-        seed = rng.uniform(lo, hi)
-        if k % 2 == 0:  # half the seeds face the target, as an arm usually does
-            seed[0] = np.clip(facing if k % 4 == 0 else facing_back, lo[0], hi[0])
-        res = inverse_kinematics(robot, target, seed, max_iterations=100, max_step_rad=0.5)
-        if res.converged and selector.matches(data, res.q):
-            found.append(res.q)
-    if not found:
-        raise InputError(
-            f"TCP pose {np.round(pose, 4).tolist()} is unreachable on branch "
-            f"{branch.model_dump(exclude_none=True)} within the joint limits",
-            field=field,
-        )
-    ref = np.zeros(robot.n) if near is None else near
-    return min(found, key=lambda q: float(np.sum((q - ref) ** 2)))
-
-
 def parse_state(
     robot: Robot, text: str, field: str, branch: Branch, near: np.ndarray | None = None
 ) -> tuple[np.ndarray, str]:
@@ -159,10 +108,7 @@ def summary_of(result: PtpResult, q_start, q_goal, margin: float) -> dict[str, o
 
 def plot_ptp(traj: Trajectory, limits: PtpLimits, joint_names, path: Path, title: str) -> Path:
     """PNG of the torques and velocities normalised by their limits (the paper's Fig. 9)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = plotting.pyplot()
 
     fig, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 6))
     for j, name in enumerate(joint_names):
@@ -293,8 +239,9 @@ def run(
     if dynamics is not None:
         params = load_dynamics(dynamics, robot)
         inputs["dynamics"] = Path(dynamics)
-    try:
-        options = PtpOptions(
+    options = settings_from_options(
+        PtpOptions,
+        dict(
             n_intervals=intervals,
             k1=k1,
             k2_per_nm2=k2,
@@ -303,17 +250,9 @@ def run(
             tcp_box_m=parse_box(tcp_box),
             max_wall_s=max_wall,
             compile=compile_,
-        )
-    except ValidationError as e:
-        err = e.errors()[0]
-        names = {
-            "n_intervals": "intervals",
-            "k2_per_nm2": "k2",
-            "tcp_box_m": "tcp-box",
-            "max_wall_s": "max-wall",
-        }
-        loc = str(err["loc"][0]) if err["loc"] else "options"
-        raise InputError(err["msg"], field=names.get(loc, loc)) from e
+        ),
+        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"},
+    )
     branch = branch or Branch()
     q_start, start_kind = parse_state(robot, start, "start", branch)
     q_goal, goal_kind = parse_state(robot, goal, "goal", branch, near=q_start)

@@ -15,7 +15,7 @@ from typing import Annotated, Any
 
 import typer
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.campaign import (
     CampaignResult,
@@ -25,11 +25,12 @@ from rxcomm.execution.campaign import (
     measured_poses,
     run_campaign,
 )
-from rxcomm.execution.log import RunLogWriter, read_run_log
+from rxcomm.execution.log import RunLogWriter
 from rxcomm.execution.plan import prepare_plan
 from rxcomm.execution.session import RunSettings, StreamSettings, run_trajectory
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.net import is_loopback
+from rxcomm.io.run_log import read_run_log
 from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
 from rxcomm.model.base_parameters import load_dynamics
@@ -304,10 +305,7 @@ def _print_run(summary: dict[str, Any], written: Path, robot: Robot) -> None:
 def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> Path:
     """PNG: lag (following) error per joint over time, and the TCP error; with ``compare``, both runs
     (the paper's Fig. 2: with and without feed-forward)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = plotting.pyplot()
 
     logs = [read_run_log(log_path)]
     if compare is not None:

@@ -19,7 +19,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.calibration.pose_selection import Criterion, PoseSelection, select_measurement_poses
 from rxcomm.errors import InputError
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
@@ -102,10 +102,7 @@ def configs_artefact(
 def plot_configs(robot: Robot, sel: PoseSelection, path: Path, title: str) -> Path:
     """PNG: the selected poses as stick figures (base frame) over the candidates' TCP cloud, the
     linear scan's TCPs beside them, and each joint's coverage by both sets."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = plotting.pyplot()
 
     from rxcomm.model.geometric_errors import _chain
 

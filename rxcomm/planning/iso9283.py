@@ -1,0 +1,221 @@
+"""The ISO 9283 test cube and its test-plane paths (paper §4; ISO 9283:1998 §6.8, §7, §8).
+
+`iso9283_cube` finds the largest cube (edges parallel to the base axes) the TCP reaches on one IK branch
+away from singularities; `iso9283_paths` lays the standard's line, rectangle and circles in the cube's
+inclined test plane as path specs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from rxcomm.errors import InputError
+from rxcomm.model.kinematics import BranchSelector, solve_branch_ik
+from rxcomm.model.robot import Robot
+from rxcomm.planning.paths import rpy_matrix, unit_vector
+from rxcomm.schemas.cell import Box
+from rxcomm.schemas.path import Branch, Orientation, PathLimits, PathSpec
+
+
+@dataclass(frozen=True)
+class Iso9283Cube:
+    """The test cube (base frame) and the points of its inclined test plane."""
+
+    centre_m: np.ndarray
+    side_m: float
+    rpy_rad: tuple[float, float, float]
+    plane_corners_m: np.ndarray  # [4, 3]: near-bottom left/right, far-top right/left
+    points_m: dict[str, np.ndarray]  # P1..P5
+
+    @property
+    def corners_m(self) -> np.ndarray:
+        h = self.side_m / 2
+        signs = np.array([[sx, sy, sz] for sz in (-1, 1) for sy in (-1, 1) for sx in (-1, 1)])
+        return self.centre_m + h * signs
+
+
+def _cube_geometry(centre: np.ndarray, side: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Inclined plane through the bottom edge nearest the robot (−x) and the top edge farthest (+x).
+
+    The direction "away from the robot" is the cube centre's direction from the J1 axis (x when on it).
+    """
+    h = side / 2
+    radial = np.array([centre[0], centre[1], 0.0])
+    ex = unit_vector(radial) if np.linalg.norm(radial) > 1e-9 else np.array([1.0, 0, 0])
+    # Cube edges stay parallel to the base axes (ISO); pick the axis closest to the radial direction.
+    ax = int(np.argmax(np.abs(ex[:2])))
+    fwd = np.zeros(3)
+    fwd[ax] = np.sign(ex[ax])
+    side_dir = np.cross([0, 0, 1.0], fwd)
+    up = np.array([0, 0, 1.0])
+    a = centre - h * fwd - h * side_dir - h * up
+    b = centre - h * fwd + h * side_dir - h * up
+    c = centre + h * fwd + h * side_dir + h * up
+    d = centre + h * fwd - h * side_dir + h * up
+    corners = np.array([a, b, c, d])
+    pts = {
+        "P1": centre.copy(),
+        "P2": a + 0.1 * (c - a),
+        "P3": b + 0.1 * (d - b),
+        "P4": c + 0.1 * (a - c),
+        "P5": d + 0.1 * (b - d),
+    }
+    return corners, pts
+
+
+def iso9283_cube(
+    robot: Robot,
+    rpy_rad: Sequence[float] = (np.pi, 0.0, 0.0),
+    branch: Branch | None = None,
+    workspace: Box | None = None,
+    *,
+    sigma_min_margin: float = 0.02,
+    radii_m: Sequence[float] | None = None,
+    heights_m: Sequence[float] | None = None,
+) -> Iso9283Cube:
+    """The largest test cube (edges parallel to the base axes, centred on the base x axis) whose 27
+    lattice points (corners, edge midpoints, face centres, centre) the TCP reaches with orientation
+    `rpy_rad` on the IK `branch`, with the TCP Jacobian's smallest singular value ≥ `sigma_min_margin`
+    and inside `workspace` when given. Grid over centre radius and height, bisection on the side.
+    """
+
+    branch = branch or Branch()
+    rot = rpy_matrix(rpy_rad)
+    selector = BranchSelector(robot, branch)
+    data = robot.create_data()
+    reach = robot.reach_m
+    radii = np.linspace(0.35, 0.75, 7) * reach if radii_m is None else np.asarray(radii_m)
+    shoulder = robot_shoulder_height(robot)
+    heights = shoulder + np.linspace(-0.5, 0.3, 7) * reach if heights_m is None else np.asarray(heights_m)
+    lattice = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], float)
+
+    def reach_point(p: np.ndarray, q_from: np.ndarray, p_from: np.ndarray) -> np.ndarray | None:
+        """IK of p on the branch by continuation from a solved point, in steps of ≤ 5 cm."""
+        n = max(1, int(np.ceil(np.linalg.norm(p - p_from) / 0.05)))
+        q = q_from
+        for k in range(1, n + 1):
+            q = solve_branch_ik(robot, data, pin.SE3(rot, p_from + (p - p_from) * k / n), selector, seed=q)
+            if q is None:
+                return None
+        return q
+
+    def feasible(centre: np.ndarray, side: float, q_centre: np.ndarray) -> bool:
+        pts = centre + side / 2 * lattice
+        if workspace is not None and (
+            np.any(pts < np.asarray(workspace.min_m)) or np.any(pts > np.asarray(workspace.max_m))
+        ):
+            return False
+        for p in pts:
+            q = reach_point(p, q_centre, centre)
+            if q is None or selector.sigma_min(data, q) < sigma_min_margin:
+                return False
+        return True
+
+    best: tuple[float, np.ndarray] | None = None
+    for r in radii:
+        for z in heights:
+            centre = np.array([r, 0.0, z])
+            q_c = solve_branch_ik(robot, data, pin.SE3(rot, centre), selector, n_starts=32)
+            if q_c is None or selector.sigma_min(data, q_c) < sigma_min_margin:
+                continue
+            lo = 0.0 if best is None else best[0]
+            if lo > 0 and not feasible(centre, lo, q_c):
+                continue
+            hi = 2 * reach
+            for _ in range(14):
+                mid = (lo + hi) / 2
+                if feasible(centre, mid, q_c):
+                    lo = mid
+                else:
+                    hi = mid
+                if hi - lo < 5e-3:
+                    break
+            if best is None or lo > best[0]:
+                best = (lo, centre)
+    if best is None or best[0] < 0.05:
+        raise InputError(
+            f"no test cube found with rpy {list(np.round(rpy_rad, 4))} on branch {branch.model_dump()}: "
+            "the TCP cannot reach the search region with this orientation",
+            field="rpy_rad",
+        )
+    side = float(np.floor(best[0] * 100) / 100)  # whole centimetres, a little inside the limit
+    corners, pts = _cube_geometry(best[1], side)
+    return Iso9283Cube(best[1], side, tuple(float(a) for a in rpy_rad), corners, pts)
+
+
+def robot_shoulder_height(robot: Robot) -> float:
+    data = robot.create_data()
+    pin.forwardKinematics(robot.model, data, np.zeros(robot.n))
+    return float(data.oMi[robot.shoulder_joint_id].translation[2])
+
+
+def iso9283_paths(
+    cube: Iso9283Cube,
+    branch: Branch | None = None,
+    limits: PathLimits | None = None,
+    large_circle_diameter_ratio: float = 0.8,
+    small_circle_diameter_ratio: float = 0.1,
+    corner_blend_m: float = 0.05,
+) -> dict[str, PathSpec]:
+    """The ISO 9283 test-plane paths of a cube as path specs, by file stem:
+    `iso9283-line` (P2→P4), `iso9283-rectangle` (P2-P3-P4-P5-P2, corners blended), `iso9283-circle-large`
+    and `iso9283-circle-small` (about P1 in the test plane, starting towards P3−P2)."""
+    branch = branch or Branch()
+    limits = limits or PathLimits()
+    p = {k: [round(float(x), 6) for x in v] for k, v in cube.points_m.items()}
+    c = cube.plane_corners_m
+    normal = unit_vector(np.cross(c[1] - c[0], c[3] - c[0]))
+    along = unit_vector(c[1] - c[0])
+    orient = Orientation(mode="hold", rpy_rad=tuple(round(a, 12) for a in cube.rpy_rad))
+    where = (
+        f"ISO 9283 test plane of a {cube.side_m:.2f} m cube centred at "
+        f"{[round(float(x), 3) for x in cube.centre_m]} m (base frame)"
+    )
+    common = dict(kind="rxcomm/Path", schema_version=1, orientation=orient, branch=branch, limits=limits)
+
+    def circle(ratio: float) -> dict:
+        return dict(
+            type="circle",
+            centre_m=p["P1"],
+            normal=[round(float(x), 9) for x in normal],
+            radius_m=round(ratio * cube.side_m / 2, 6),
+            start_direction=[round(float(x), 9) for x in along],
+            sweep_rad=2 * np.pi,
+        )
+
+    return {
+        "iso9283-line": PathSpec(
+            name="iso9283-line",
+            description=f"Diagonal line P2→P4 of the {where}.",
+            geometry={"type": "line", "start_m": p["P2"], "end_m": p["P4"]},
+            **common,
+        ),
+        "iso9283-rectangle": PathSpec(
+            name="iso9283-rectangle",
+            description=f"Rectangle P2-P3-P4-P5-P2 of the {where}; corners blended ({corner_blend_m} m).",
+            geometry={
+                "type": "polyline",
+                "points_m": [p["P2"], p["P3"], p["P4"], p["P5"], p["P2"]],
+                "blend_radius_m": corner_blend_m,
+            },
+            **common,
+        ),
+        "iso9283-circle-large": PathSpec(
+            name="iso9283-circle-large",
+            description=f"Large circle (diameter {large_circle_diameter_ratio:.0%} of the edge) about P1, "
+            f"{where}.",
+            geometry=circle(large_circle_diameter_ratio),
+            **common,
+        ),
+        "iso9283-circle-small": PathSpec(
+            name="iso9283-circle-small",
+            description=f"Small circle (diameter {small_circle_diameter_ratio:.0%} of the edge) about P1, "
+            f"{where}.",
+            geometry=circle(small_circle_diameter_ratio),
+            **common,
+        ),
+    }
