@@ -43,80 +43,130 @@ bench: $(STAMP)
 $(BUILD):
 	mkdir -p $@
 
-# ---- the commissioning chain (DESIGN §1): every step a rule on files -------------------------------
-# Each `run` without --gateway starts the embedded simulated cell (ROBOT/truth.yaml) on a loopback port.
+# ---- the commissioning chain (architecture §1): every step a rule on the files it reads -----------------------------
+# Honest make: each rule lists every file its command reads (robot = drives.yaml + the URDF it names,
+# cell.yaml, path files, earlier artefacts; `run` also the simulated cell's truth) and one parameter
+# stamp holding its command's option text, so an edited robot, cell, truth, path or option rebuilds
+# exactly the rules that use it and what depends on their outputs. A target NAME.mcap also stands
+# for the NAME.yaml / NAME.png its command writes beside it.
 N_POSES   ?= 32
 CP_PATH   ?= $(ROBOT)/paths/line-near-singularity.yaml
 VAL_PATH  ?= $(ROBOT)/paths/iso9283-circle-large.yaml
-RUN_SIM   := --robot $(ROBOT) --approach --interpolation-ratio 1
+# The embedded simulated cell each `run` starts on a loopback port; stages never read this file.
+TRUTH     ?= $(ROBOT)/truth.yaml
 SELECT_OPTS ?=
 EXCITE_OPTS ?=
 B         := $(BUILD)
-# Reads a trajectory summary's joint state for plan-ptp (the CP plan's end states).
-QOF        = $$($(PY) -c "import sys, yaml; print(','.join(repr(v) for v in yaml.safe_load(open('$(1)'))['summary']['$(2)']))")
 
-$(B)/robot-info.txt: $(STAMP) $(ROBOT)/drives.yaml | $(B)
+# A robot directory's files: drives.yaml and the URDF its `urdf:` field names.
+robot_files = $(1)/drives.yaml $(addprefix $(1)/,$(subst ",,$(subst ',,$(firstword \
+	$(shell sed -n 's/^urdf:[[:space:]]*//p' $(1)/drives.yaml 2>/dev/null)))))
+ROBOT_FILES := $(call robot_files,$(ROBOT))
+# What the simulated cell reads (rxcomm/cell/truth.py): the truth, the robot it names (relative to
+# the truth file) and the cell.yaml beside it. Only the rules that run on the cell list these.
+truth_robot := $(patsubst %/.,%,$(dir $(TRUTH))$(firstword \
+	$(shell sed -n 's/^robot:[[:space:]]*//p' $(TRUTH))))
+SIM_FILES := $(TRUTH) $(sort $(ROBOT_FILES) $(call robot_files,$(truth_robot))) \
+	$(wildcard $(dir $(TRUTH))cell.yaml)
+
+# $(call params,NAME,TEXT) -> the stamp $(B)/.params/NAME holding TEXT (as DVC tracks params). The
+# stamp is compared with TEXT when the Makefile is read and remade (FORCE) only if they differ, so a
+# rule listing it rebuilds exactly when its options changed; `make -n` / `-q` say so without writing
+# it, and `make -t` writes it (the `+`), so a touched build is one with the current options.
+same   = $(and $(findstring [$(1)],[$(2)]),$(findstring [$(2)],[$(1)]))
+params = $(eval $(call params_rule,$(1),$(strip $(2))))$(B)/.params/$(1)
+define params_rule
+$(B)/.params/$(1): $(if $(call same,$(2),$(file <$(B)/.params/$(1))),,FORCE)
+	$(if $(findstring t,$(firstword -$(MAKEFLAGS))),+)@mkdir -p $$(@D) && \
+		printf '%s\n' '$(subst ','\'',$(2))' > $$@
+endef
+.PHONY: FORCE
+FORCE:
+
+# Reads a trajectory summary's joint state for plan-ptp (the CP plan's end states).
+QOF        = $$($(PY) -c "import yaml; s = yaml.safe_load(open('$(1)'))['summary']; \
+	print(','.join(repr(v) for v in s['$(2)']))")
+RUN_SIM   := --robot $(ROBOT) --truth $(TRUTH) --approach --interpolation-ratio 1
+
+$(B)/robot-info.txt: $(STAMP) $(ROBOT_FILES) $(call params,robot-info,$(ROBOT)) | $(B)
 	$(RX) robot-info $(ROBOT) > $@.part && mv $@.part $@ && cat $@
 
 # --measure-baseline: the campaign also measures the naive set (the paper's linear scan), so the
 # report shows the held-out error each pose set leaves.
-$(B)/configs.yaml: $(STAMP) $(ROBOT)/drives.yaml $(CELL) | $(B)
-	$(RX) select-configs --robot $(ROBOT) --cell $(CELL) -n $(N_POSES) --measure-baseline $(SELECT_OPTS) \
-		--plot -o $@
+SELECT_ARGS = --robot $(ROBOT) --cell $(CELL) -n $(N_POSES) --measure-baseline $(SELECT_OPTS) --plot
+$(B)/configs.yaml: $(STAMP) $(ROBOT_FILES) $(CELL) $(call params,select-configs,$(SELECT_ARGS)) | $(B)
+	$(RX) select-configs $(SELECT_ARGS) -o $@
 
 # The measurement campaign: point-to-point moves need no path accuracy, so a coarse setpoint ratio.
-$(B)/calib-meas.yaml: $(B)/configs.yaml
-	$(RX) run $< --robot $(ROBOT) --speed 0.5 --interpolation-ratio 8 -o $@
+MEAS_ARGS = --robot $(ROBOT) --truth $(TRUTH) --speed 0.5 --interpolation-ratio 8
+$(B)/calib-meas.yaml: $(B)/configs.yaml $(SIM_FILES) $(call params,measure,$(MEAS_ARGS))
+	$(RX) run $< $(MEAS_ARGS) -o $@
 
-$(B)/calibration.yaml: $(B)/calib-meas.yaml $(CELL)
-	$(RX) calibrate --robot $(ROBOT) --measurements $< --cell $(CELL) --urdf-out $(B)/calibrated.urdf -o $@
+CAL_ARGS = --robot $(ROBOT) --cell $(CELL) --urdf-out $(B)/calibrated.urdf
+$(B)/calibration.yaml: $(B)/calib-meas.yaml $(ROBOT_FILES) $(CELL) $(call params,calibrate,$(CAL_ARGS))
+	$(RX) calibrate --measurements $< $(CAL_ARGS) -o $@
 
-$(B)/excitation.yaml: $(STAMP) $(ROBOT)/drives.yaml $(CELL) | $(B)
-	$(RX) excite --robot $(ROBOT) --cell $(CELL) $(EXCITE_OPTS) --plot -o $@
+EXCITE_ARGS = --robot $(ROBOT) --cell $(CELL) $(EXCITE_OPTS) --plot
+$(B)/excitation.yaml: $(STAMP) $(ROBOT_FILES) $(CELL) $(call params,excite,$(EXCITE_ARGS)) | $(B)
+	$(RX) excite $(EXCITE_ARGS) -o $@
 
-$(B)/excite-log.mcap: $(B)/excitation.yaml
+$(B)/excite-log.mcap: $(B)/excitation.yaml $(SIM_FILES) $(call params,excite-run,$(RUN_SIM))
 	$(RX) run $(B)/excitation-trajectory.mcap $(RUN_SIM) -o $@
 
 # Validation on a different motion: an ISO 9283 path timed on the prior model.
-$(B)/validation-plan.mcap: $(STAMP) $(VAL_PATH) | $(B)
-	$(RX) plan-cp --robot $(ROBOT) --path $(VAL_PATH) -o $@
+VAL_ARGS = --robot $(ROBOT) --path $(VAL_PATH)
+$(B)/validation-plan.mcap: $(STAMP) $(ROBOT_FILES) $(VAL_PATH) \
+		$(call params,validation-plan,$(VAL_ARGS)) | $(B)
+	$(RX) plan-cp $(VAL_ARGS) -o $@
 
-$(B)/validation-log.mcap: $(B)/validation-plan.mcap
+$(B)/validation-log.mcap: $(B)/validation-plan.mcap $(SIM_FILES) $(call params,validation-run,$(RUN_SIM))
 	$(RX) run $< $(RUN_SIM) -o $@
 
-$(B)/dynamics.yaml: $(B)/excite-log.mcap $(B)/validation-log.mcap
-	$(RX) identify --robot $(ROBOT) --log $< --validate $(B)/validation-log.mcap --plot -o $@
+ID_ARGS = --robot $(ROBOT) --validate $(B)/validation-log.mcap --plot
+$(B)/dynamics.yaml: $(B)/excite-log.mcap $(B)/validation-log.mcap $(ROBOT_FILES) \
+		$(call params,identify,$(ID_ARGS))
+	$(RX) identify --log $< $(ID_ARGS) -o $@
 
-$(B)/cp.mcap: $(CP_PATH) $(B)/dynamics.yaml $(B)/calibration.yaml
-	$(RX) plan-cp --robot $(ROBOT) --path $(CP_PATH) --dynamics $(B)/dynamics.yaml \
-		--calibration $(B)/calibration.yaml --plot -o $@
+# The planners' model: the identified dynamics on the calibrated robot.
+MODEL     := $(B)/dynamics.yaml $(B)/calibration.yaml
+MODEL_ARGS = --dynamics $(B)/dynamics.yaml --calibration $(B)/calibration.yaml
+CP_ARGS = --robot $(ROBOT) --path $(CP_PATH) $(MODEL_ARGS) --plot
+$(B)/cp.mcap: $(CP_PATH) $(MODEL) $(ROBOT_FILES) $(call params,plan-cp,$(CP_ARGS))
+	$(RX) plan-cp $(CP_ARGS) -o $@
 
-$(B)/ptp.mcap: $(B)/cp.mcap
-	$(RX) plan-ptp --robot $(ROBOT) --start=$(call QOF,$(B)/cp.yaml,q_start) --goal=$(call QOF,$(B)/cp.yaml,q_goal) \
-		--dynamics $(B)/dynamics.yaml --calibration $(B)/calibration.yaml --plot -o $@
+# The CP plan's end states come from cp.yaml (written beside cp.mcap).
+PTP_ARGS = --robot $(ROBOT) $(MODEL_ARGS) --plot
+$(B)/ptp.mcap: $(B)/cp.mcap $(MODEL) $(ROBOT_FILES) $(call params,plan-ptp,$(PTP_ARGS))
+	$(RX) plan-ptp --start=$(call QOF,$(B)/cp.yaml,q_start) --goal=$(call QOF,$(B)/cp.yaml,q_goal) \
+		$(PTP_ARGS) -o $@
 
 # The paper's Fig. 2: the same CP plan with and without model-based feed-forward.
-$(B)/run-noff.mcap: $(B)/cp.mcap
-	$(RX) run $< $(RUN_SIM) --dynamics $(B)/dynamics.yaml --no-feedforward -o $@
+NOFF_ARGS = $(RUN_SIM) --dynamics $(B)/dynamics.yaml --no-feedforward
+$(B)/run-noff.mcap: $(B)/cp.mcap $(B)/dynamics.yaml $(SIM_FILES) $(call params,run-noff,$(NOFF_ARGS))
+	$(RX) run $< $(NOFF_ARGS) -o $@
 
-$(B)/run-ff.mcap: $(B)/cp.mcap $(B)/run-noff.mcap
-	$(RX) run $< $(RUN_SIM) --dynamics $(B)/dynamics.yaml --plot --compare $(B)/run-noff.mcap -o $@
+FF_ARGS = $(RUN_SIM) --dynamics $(B)/dynamics.yaml --plot --compare $(B)/run-noff.mcap
+$(B)/run-ff.mcap: $(B)/cp.mcap $(B)/run-noff.mcap $(B)/dynamics.yaml $(SIM_FILES) \
+		$(call params,run-ff,$(FF_ARGS))
+	$(RX) run $< $(FF_ARGS) -o $@
 
-$(B)/run-ptp.mcap: $(B)/ptp.mcap
-	$(RX) run $< $(RUN_SIM) --dynamics $(B)/dynamics.yaml -o $@
+PTPRUN_ARGS = $(RUN_SIM) --dynamics $(B)/dynamics.yaml
+$(B)/run-ptp.mcap: $(B)/ptp.mcap $(B)/dynamics.yaml $(SIM_FILES) $(call params,run-ptp,$(PTPRUN_ARGS))
+	$(RX) run $< $(PTPRUN_ARGS) -o $@
 
-$(B)/report.md: $(B)/robot-info.txt $(B)/configs.yaml $(B)/calibration.yaml $(B)/excitation.yaml \
-		$(B)/dynamics.yaml $(B)/cp.mcap $(B)/ptp.mcap $(B)/run-ff.mcap $(B)/run-ptp.mcap
+# The artefacts `report` reads (rxcomm/stages/report.py); it reads no robot file and has no options.
+$(B)/report.md: $(B)/configs.yaml $(B)/calibration.yaml $(B)/excitation.yaml $(B)/dynamics.yaml \
+		$(B)/cp.mcap $(B)/ptp.mcap $(B)/run-noff.mcap $(B)/run-ff.mcap
 	$(RX) report $(B) -o $@
 
-# The main job.
-commission: $(B)/report.md
+# The main job: the report plus the chain's products it does not read.
+commission: $(B)/robot-info.txt $(B)/report.md $(B)/run-ptp.mcap
 	@echo "commissioning report: $(B)/report.md"
 
-# CI: the same chain, reduced (fewer poses and candidates, fewer excitation starts), in its own dir.
+# CI: the same rules, reduced (fewer poses and candidates, fewer excitation starts), in its own dir.
 commission-ci:
-	$(MAKE) commission BUILD=build-ci N_POSES=16 SELECT_OPTS="--max-candidates 1500 --restarts 2 --n-validation 16" \
-		EXCITE_OPTS="--starts 2"
+	$(MAKE) commission BUILD=build-ci N_POSES=16 \
+		SELECT_OPTS="--max-candidates 1500 --restarts 2 --n-validation 16" EXCITE_OPTS="--starts 2"
 
 clean:
 	rm -rf $(BUILD) build-ci

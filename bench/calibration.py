@@ -11,12 +11,8 @@ import yaml
 
 from bench.table import Row, median_seconds
 from rxcomm.calibration.fit import MeasurementSet, calibrate
-from rxcomm.calibration.pose_selection import (
-    select_measurement_poses,
-    select_poses,
-    selection_blocks,
-    stream_candidates,
-)
+from rxcomm.calibration.pose_selection import select_measurement_poses, select_poses, selection_blocks
+from rxcomm.calibration.workspace import stream_candidates
 from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.model.geometric_errors import placement_to_se3, predict_poses, random_poses
 from rxcomm.model.robot import load_robot

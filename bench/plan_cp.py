@@ -138,7 +138,7 @@ def bench_plan_cp(quick: bool = False) -> list[Row]:
         Row("plan-cp", f"NLP iterations ({res.status})", "", float(res.iterations), "", "", None, ""),
         Row("plan-cp", "whole plan-cp (IK → checked samples)", "s", t_plan, "≈ 1 s", "", None, ""),
         Row("plan-cp", "singular line duration (torque rate)", "s", plan.duration_s, "1.04 s (their line)",
-            "toppra alone", fast.duration_s, "DESIGN ≈ 1.47 s"),
+            "toppra alone", fast.duration_s, "architecture §9 ≈ 1.47 s"),
         Row("plan-cp", "active fraction (≥ 98 % of a limit)", "", plan.active_fraction, "one always active",
             "toppra alone", fast.active_fraction, "≥ 0.95"),
         Row("plan-cp", "max limit ratio on the drive-cycle samples", "", plan.report.max_ratio, "",

@@ -1,4 +1,4 @@
-"""The `rxcomm` command: one subcommand per stage (DESIGN §9).
+"""The `rxcomm` command: one subcommand per stage (architecture §9).
 
 This is the composition root: the only library module that imports `rxcomm.stages`. Each stage
 module exposes a typer command function; registering it here is all a new stage needs.

@@ -5,6 +5,7 @@ Library code never prints; stages call these helpers.
 
 from __future__ import annotations
 
+import errno
 import functools
 import sys
 from collections.abc import Callable
@@ -22,7 +23,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from rxcomm.errors import RxcommError
+from rxcomm.errors import GatewayError, InputError, RxcommError
 
 # soft_wrap: never hard-wrap at 80 columns when output goes to a file or a pipe (make, CI logs).
 out = Console(highlight=False, soft_wrap=True)
@@ -37,8 +38,27 @@ def fail(e: RxcommError) -> typer.Exit:
     return typer.Exit(code=e.exit_code)
 
 
+def os_error(e: OSError) -> RxcommError:
+    """An OS error (full disk, permissions, a vanished directory) as bad input (exit 2), a lost
+    connection as a communication fault (exit 4): one line naming the file and the reason, the
+    OSError kept as the cause."""
+    reason = e.strerror or str(e) or type(e).__name__
+    if e.errno is not None and e.errno in errno.errorcode:
+        reason += f" ({errno.errorcode[e.errno]})"
+    files = [f for f in (e.filename, e.filename2) if f is not None]
+    if len(files) == 2:
+        reason += f" (renaming to {files[1]})"
+    if isinstance(e, ConnectionError | TimeoutError):
+        err: RxcommError = GatewayError(f"connection: {reason}")
+    else:
+        err = InputError(reason, file=files[0] if files else None)
+    err.__cause__ = e
+    return err
+
+
 def stage_command(fn: Callable[..., T]) -> Callable[..., T]:
-    """Wrap a typer command so RxcommError becomes a one-line message and its exit code."""
+    """Wrap a typer command so RxcommError (and OSError, as bad input) becomes a one-line message
+    and its exit code."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -46,6 +66,8 @@ def stage_command(fn: Callable[..., T]) -> Callable[..., T]:
             return fn(*args, **kwargs)
         except RxcommError as e:
             raise fail(e) from e
+        except OSError as e:
+            raise fail(os_error(e)) from e
         except KeyboardInterrupt:
             err.print("interrupted")
             raise typer.Exit(code=5) from None

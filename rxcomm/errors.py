@@ -1,6 +1,6 @@
 """One root exception; a subclass per failure class, each mapped to a CLI exit code.
 
-Exit codes (DESIGN §7): 0 ok, 2 bad input, 3 infeasible / not converged, 4 gateway or
+Exit codes (architecture §7): 0 ok, 2 bad input, 3 infeasible / not converged, 4 gateway or
 communication fault, 5 safety stop.
 """
 
@@ -29,9 +29,19 @@ class InputError(RxcommError):
 
 
 class InfeasibleError(RxcommError):
-    """A problem with no solution under the given limits, or a solver that did not converge."""
+    """A problem with no solution under the given limits, or a solver that did not converge.
+
+    ``file``/``field`` name the limit that makes it so when it is one (e.g. drives.yaml's peak torque).
+    """
 
     exit_code = 3
+
+    def __init__(self, reason: str, *, file: str | Path | None = None, field: str | None = None):
+        self.file = str(file) if file is not None else None
+        self.field = field
+        self.reason = reason
+        where = ": ".join(p for p in (self.file, self.field) if p)
+        super().__init__(f"{where}: {reason}" if where else reason)
 
 
 class GatewayError(RxcommError):

@@ -138,7 +138,7 @@ def test_gravity_matches_potential_energy_and_spring_balances_j2(rx130l):
     g_arm = gravity_torque(rx130l, params, stretched, include_spring=False)[1]
     g_sprung = gravity_torque(rx130l, params, stretched)[1]
     print(f"\nRX130L J2 stretched horizontally: gravity {g_arm:.1f} N·m, with spring {g_sprung:.1f} N·m")
-    assert abs(g_arm) == pytest.approx(527, abs=3)  # DESIGN §4
+    assert abs(g_arm) == pytest.approx(527, abs=3)  # architecture §4
     assert abs(g_sprung) < abs(g_arm) - 300 and abs(g_sprung) < rx130l.tau_max[1]
     assert abs(g_arm) < rx130l.tau_max[1] < abs(g_arm) + 10 * 9.81 * 1.66  # 10 kg payload would exceed
 

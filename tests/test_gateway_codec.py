@@ -11,7 +11,7 @@ from rxcomm.gateway import registers as R
 
 
 def test_map_sizes_match_design_table():
-    # DESIGN §6: block 1000-1112, window 2000-2116, both inside one FC23 (write ≤ 121, read ≤ 125).
+    # docs/gateway.md: block 1000-1112, window 2000-2116, both inside one FC23 (write ≤ 121, read ≤ 125).
     assert R.BLOCK_BASE + R.BLOCK_MAX_WORDS - 1 == 1112
     assert R.WINDOW_BASE + R.WINDOW_WORDS - 1 == 2116
     assert R.BLOCK_MAX_WORDS <= 121 and R.WINDOW_WORDS <= 125

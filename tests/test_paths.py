@@ -213,7 +213,7 @@ def test_ik_along_the_line_near_the_wrist_singularity(rx130l, singular_line):
     jp = solve_path_ik(rx130l, singular_line, singular_line.spec.branch)
     assert jp.labels == {"shoulder": "front", "elbow": "up", "wrist": "positive"}
     assert np.all(jp.q[:, 4] > 0)
-    assert np.degrees(np.abs(jp.q[:, 4]).min()) == pytest.approx(3.26, abs=0.05)  # DESIGN §9: ≈ 3.3°
+    assert np.degrees(np.abs(jp.q[:, 4]).min()) == pytest.approx(3.26, abs=0.05)  # architecture §9: ≈ 3.3°
     margin, at = jp.min_sigma_min
     assert at == pytest.approx(0.6, abs=0.01) and 0.005 < margin < 0.05
     assert np.max(np.abs(np.diff(jp.q, axis=0))) <= 0.02 + 1e-12  # continuous branch, small steps

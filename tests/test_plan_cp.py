@@ -219,7 +219,7 @@ def test_singular_line_drops_speed_where_joint_4_binds(tmp_path, rx130l):
     plan = plan_cp(rx130l, p, dyn)
     v, s = plan.tcp_speed, plan.sigma
     plateau, dip = v.max(), v[np.abs(s - 0.6) < 0.05].min()
-    print(f"\nTCP speed: plateau {plateau:.3f} m/s, mid-line minimum {dip:.3f} m/s (DESIGN §9: 1.7 → 0.35)")
+    print(f"\nTCP speed: plateau {plateau:.3f} m/s, mid-line minimum {dip:.3f} m/s (architecture §9: → 0.35)")
     assert plateau > 1.5 and dip < 0.4 and dip < 0.3 * plateau
     mid = [seg for seg in plan.active_segments if seg.sigma_start_m < 0.6 < seg.sigma_end_m]
     assert mid and mid[0].joint == "joint_4"

@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.cli import app
-from rxcomm.errors import InputError
+from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.base_parameters import base_parameters, dynamics_artefact_fields
@@ -53,7 +53,7 @@ from rxcomm.schemas.truth import CellTruth
 from .conftest import SAMPLES
 
 RUNNER = CliRunner()
-# DESIGN §9: the line near the wrist singularity, TCP orientation rpy (180°, 45°, 180°)
+# architecture §9: the line near the wrist singularity, TCP orientation rpy (180°, 45°, 180°)
 LINE_START_M = (1.05, -0.60, 0.35)
 LINE_END_M = (1.05, 0.60, 0.35)
 
@@ -173,9 +173,9 @@ def test_boundary_state_checks(rx130l, rx_dyn):
     assert e.value.field == "start[joint_2]"
     weak = dataclasses.replace(lim, tau_max=np.full(6, 10.0))
     q[1] = -1.5  # arm stretched: J2 holds ~180 N·m even with the spring
-    with pytest.raises(InputError, match="holding torque") as e:
-        check_boundary_state(rx_dyn, weak, q, "goal", rx130l.joint_names)
-    assert e.value.field == "goal[joint_2]"
+    with pytest.raises(InfeasibleError, match=r"goal \[joint_2\]: holding torque") as e:
+        check_boundary_state(rx_dyn, weak, q, "goal", rx130l.joint_names, rx130l.drives_path)
+    assert e.value.file == str(rx130l.drives_path) and e.value.field == "joints[1].peak_torque_nm"
 
 
 # --- small solves (fast) ----------------------------------------------------------------------------
@@ -292,7 +292,7 @@ def test_ptp_near_singularity_beats_cp_within_limits(rx130l, rx_dyn, line_ends):
     np.testing.assert_allclose(q0, line_ends[0], atol=1e-6)  # the same end states as our pose IK
     np.testing.assert_allclose(q1, line_ends[1], atol=1e-6)
     res = plan_ptp(rx130l, rx_dyn, q0, q1, PtpOptions(n_intervals=50))
-    assert cp.duration_s > 1.3  # DESIGN §9: ≈ 1.47 s, the speed dips near the wrist singularity
+    assert cp.duration_s > 1.3  # architecture §9: ≈ 1.47 s, the speed dips near the wrist singularity
     assert res.duration_s <= 0.7 * cp.duration_s
     assert res.max_limit_ratio <= 1.01
 

@@ -15,7 +15,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rxcomm.calibration.pose_selection import feasibility
+from rxcomm.calibration.workspace import feasibility
 from rxcomm.cli import app
 from rxcomm.io.run_log import read_run_log
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact

@@ -14,16 +14,14 @@ from rxcomm.calibration.pose_selection import (
     _Search,
     evenly_spaced,
     expected_errors,
-    feasibility,
-    grid_axes,
     information_blocks,
     linear_scan,
     normalise_to_candidates,
     observation_index,
     select_measurement_poses,
     select_poses,
-    stream_candidates,
 )
+from rxcomm.calibration.workspace import feasibility, grid_axes, stream_candidates
 from rxcomm.cli import app
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.yaml_io import read_yaml_artefact

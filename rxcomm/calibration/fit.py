@@ -1,4 +1,4 @@
-"""Geometric calibration from tracker measurements (paper §3.2; DESIGN §7 calibrate).
+"""Geometric calibration from tracker measurements (paper §3.2; architecture §7 calibrate).
 
 Model and parameters: `rxcomm.model.geometric_errors` (48 error twists; the identifiable subset by QR).
 Problem: minimise Σᵢ ‖rᵢ‖² over the identifiable parameters p₁ (the others fixed at 0), with the

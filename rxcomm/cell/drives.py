@@ -1,4 +1,4 @@
-"""The simulated cell's servo drives: per-axis cascaded loops in cyclic synchronous position (DESIGN §6).
+"""The simulated cell's servo drives: per-axis cascaded loops, cyclic synchronous position (architecture §6).
 
 Everything is joint side, one loop per axis. Timing convention (one drive cycle T, the
 robot's `drives.yaml` cycle): the demand d_k the gateway hands over in cycle k is the position the

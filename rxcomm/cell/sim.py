@@ -1,4 +1,4 @@
-"""The simulated cell behind the gateway: drives + true plant + tracker from a truth file (DESIGN §6).
+"""The simulated cell behind the gateway: drives + true plant + tracker from a truth file (architecture §6).
 
 `SimulatedCell` implements `rxcomm.cell.backend.CellBackend`: each `cycle` quantises the encoders,
 runs the drives' cascaded loops (`rxcomm.cell.drives`, tuned on the NOMINAL robot), integrates the

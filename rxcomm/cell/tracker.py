@@ -1,4 +1,4 @@
-"""The simulated tracker: the TCP pose of the *true* robot in the tracker frame, with noise (DESIGN §6).
+"""The simulated tracker: the TCP pose of the *true* robot in the tracker frame, with noise (architecture §6).
 
 This is the only place in the library that applies the truth's geometric errors: the real robot is
 the nominal one with `truth.geometry.error_parameters` (an `ErrorModel`) mounted at

@@ -1,4 +1,4 @@
-"""Loading the simulated cell's hidden truth (`truth.yaml`, DESIGN §6) into what the simulator needs.
+"""Loading the simulated cell's hidden truth (`truth.yaml`, architecture §6) into what the simulator needs.
 
 The only reader of truth files in the library (stages never read them; recovery-scoring tests may).
 `truth.robot` names the robot directory relative to the truth file; the nominal robot is loaded from

@@ -1,4 +1,4 @@
-"""`rxcomm run`'s library: plans on a drive gateway, measured and logged (paper §2.3, DESIGN §7 run).
+"""`rxcomm run`'s library: plans on a drive gateway, measured and logged (paper §2.3, architecture §7 run).
 
 - ``plan``: resample a trajectory on the drive-cycle grid, feed-forward torque, dense limit check;
 - ``approach``: jerk-limited moves (to a plan's start, between campaign poses);

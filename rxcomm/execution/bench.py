@@ -1,4 +1,4 @@
-"""Streaming figures in realtime mode: underruns, round trips, the master's CPU share (DESIGN §8).
+"""Streaming figures in realtime mode: underruns, round trips, the master's CPU share (architecture §8).
 
 ``bench_streaming`` serves a gateway in a **separate process** (so the process CPU time measured here is
 the master's alone: encode, FC23 round trips, trace decode, recording), wall-clock paced at 400 µs,

@@ -210,7 +210,7 @@ def measured_poses(result: CampaignResult, roles: Sequence[str]) -> list[Measure
 
 
 def campaign_summary(result: CampaignResult) -> dict[str, object]:
-    """Measurements summary (DESIGN §9: n_poses, n_valid) plus how the campaign went."""
+    """Measurements summary (architecture §9: n_poses, n_valid) plus how the campaign went."""
     run = result.run
     lags = [np.nanmax(np.abs(m.following_error)) for m in run.moves if m.n_records]
     err: RxcommError | None = run.error

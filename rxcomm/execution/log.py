@@ -64,7 +64,7 @@ def _percentile(a: np.ndarray, q: float) -> float | None:
 
 
 def run_summary(robot: Robot, result: RunResult, tcp_error: np.ndarray | None = None) -> dict[str, Any]:
-    """DESIGN §9 run-log summary (underruns, max/rms lag per joint, max TCP error, duration) and more."""
+    """The run-log summary of architecture §9 (underruns, max/rms lag per joint, max TCP error, duration)."""
     log = result.log
     approach = result.approach
     streams = [s for s in (approach, log) if s is not None]

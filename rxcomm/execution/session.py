@@ -1,6 +1,6 @@
 """A streaming session on a drive gateway: checks, interpolation ratio, enable, stream + record, stop.
 
-The order of a run (DESIGN §7 run):
+The order of a run (architecture §7 run):
 
 1. identity and map version (``GatewayClient.identity``), the drive cycle against drives.yaml;
 2. drive and gateway faults: refused unless ``fault_reset``;

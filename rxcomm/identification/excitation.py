@@ -1,4 +1,4 @@
-"""Optimal exciting trajectories for dynamic identification (paper §4.2, DESIGN §7 excite).
+"""Optimal exciting trajectories for dynamic identification (paper §4.2, architecture §7 excite).
 
 **Trajectory.** Per joint a finite Fourier series with the common base frequency ω_f (paper eq. 29):
 q̇_j(t) = Σ_l a_jl·cos(lω_f t) + b_jl·sin(lω_f t), q_j = q0_j + ∫q̇_j. It is periodic, so q(0) = q(T)

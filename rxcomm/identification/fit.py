@@ -1,4 +1,4 @@
-"""Dynamic parameter identification from joint logs (paper §4.1, §4.3; DESIGN §7 identify).
+"""Dynamic parameter identification from joint logs (paper §4.1, §4.3; architecture §7 identify).
 
 **Input.** A `JointLog` (t, q, τ at the joint side) from a run log MCAP (topic ``/run/joints``:
 ``q_actual`` rad, ``tau_actual`` N·m as the drives report it) or from a real robot's CSV
@@ -742,7 +742,7 @@ class Identification:
     timings: dict[str, float] = field(default_factory=dict)
 
     def summary(self) -> dict[str, object]:
-        """The flat summary of dynamics.yaml (DESIGN §9 keys first)."""
+        """The flat summary of dynamics.yaml (architecture §9 keys first)."""
         est, val = self.estimate, self.validation
         return {
             "n_base_params": self.bset.n_base,

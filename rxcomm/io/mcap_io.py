@@ -1,4 +1,4 @@
-"""MCAP time series that Foxglove plots, with the artefact envelope inside (DESIGN §3).
+"""MCAP time series that Foxglove plots, with the artefact envelope inside (architecture §3).
 
 Layout of a file written here:
 
@@ -507,6 +507,29 @@ def _decode(raw: _Raw, path: Path, *, need_envelope: bool) -> McapContents:
         }
         topics[ch.topic] = TopicData(ch.topic, schema.name if schema else "", log_ns / _NS, fields)
     return McapContents(envelope, topics, metadata, raw.complete, raw.stopped_because)
+
+
+def read_mcap_envelope(path: str | Path) -> dict[str, Any]:
+    """The envelope alone, from the metadata record written right after the header: what the file
+    is (its ``kind``), without reading its data. InputError if it is no rxcomm MCAP."""
+    path = Path(path)
+    try:
+        f = open(path, "rb")  # noqa: SIM115 - closed below
+    except FileNotFoundError as e:
+        raise InputError("file not found", file=path) from e
+    except OSError as e:
+        raise InputError(f"cannot read: {e}", file=path) from e
+    with f:
+        try:
+            for rec in StreamReader(_ExactReader(f), validate_crcs=True).records:
+                if isinstance(rec, Metadata) and rec.name == ENVELOPE_RECORD:
+                    try:
+                        return {k: json.loads(v) for k, v in rec.metadata.items()}
+                    except json.JSONDecodeError as e:
+                        raise InputError(f"not JSON: {e}", file=path, field=ENVELOPE_RECORD) from e
+        except (EndOfFile, McapError, ValueError, struct.error) as e:
+            raise InputError(f"not a readable MCAP file: {e or type(e).__name__}", file=path) from e
+    raise InputError("no rxcomm envelope metadata record; not an rxcomm artefact", file=path)
 
 
 def read_mcap(path: str | Path) -> McapContents:

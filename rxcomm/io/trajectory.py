@@ -111,7 +111,7 @@ def save_trajectory_mcap(
     """Write ``traj`` to ``NAME.mcap`` and its summary to ``NAME.yaml``; return the summary.
 
     ``envelope`` comes from ``TrajectorySummary.envelope(inputs, settings, summary)`` and must carry
-    the summary keys DESIGN §9 requires. Order: finished ``NAME.mcap.part`` -> hash -> ``NAME.yaml``
+    the summary keys architecture §9 requires. Order: finished ``NAME.mcap.part`` -> hash -> ``NAME.yaml``
     -> rename, so a visible ``NAME.mcap`` always has its YAML beside it.
     """
     path = Path(path)

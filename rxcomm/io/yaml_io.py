@@ -14,7 +14,7 @@ import yaml
 from pydantic import BaseModel
 
 from rxcomm.errors import InputError
-from rxcomm.io.files import atomic_write_text
+from rxcomm.io.files import atomic_write_text, mcap_summary_path
 from rxcomm.io.validate import check_kind, validate_model
 from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.plain import to_plain
@@ -109,7 +109,7 @@ def summary_yaml_path(mcap_path: str | Path) -> Path:
     mcap_path = Path(mcap_path)
     if mcap_path.suffix != ".mcap":
         raise InputError("an MCAP output must end in .mcap (its summary goes to NAME.yaml)", file=mcap_path)
-    return mcap_path.with_suffix(".yaml")
+    return mcap_summary_path(mcap_path)
 
 
 def write_summary_yaml(mcap_path: str | Path, artefact: Artefact) -> Path:

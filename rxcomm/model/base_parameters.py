@@ -1,4 +1,4 @@
-"""Base (identifiable) dynamic parameters by numerical QR (paper §4.1, DESIGN §7 identify).
+"""Base (identifiable) dynamic parameters by numerical QR (paper §4.1, architecture §7 identify).
 
 The stacked regressor W of random states within the joint limits has rank r < P: some columns are
 zero (parameters without effect) and some are linear combinations of others. We find

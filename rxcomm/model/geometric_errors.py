@@ -1,6 +1,6 @@
 """Geometric error model of a 6R arm, its identification Jacobian and identifiable subset (paper §3.1).
 
-The model (DESIGN §7 calibrate): 48 parameters, each group a small twist δ = [tx, ty, tz, rx, ry, rz]
+The model (architecture §7 calibrate): 48 parameters, each group a small twist δ = [tx, ty, tz, rx, ry, rz]
 (m, m, m, rad, rad, rad; Pinocchio's order: linear then angular) applied **on the right** of a nominal
 placement, placement' = placement · exp6(δ):
 

@@ -1,4 +1,4 @@
-"""The robot: an immutable Pinocchio model of a 6R arm plus its drives data (DESIGN §4).
+"""The robot: an immutable Pinocchio model of a 6R arm plus its drives data (architecture §4).
 
 `Robot` describes; scratch data comes from `robot.create_data()` (Pinocchio's Model/Data split).
 A robot is loaded from a directory holding one URDF and `drives.yaml`; loading validates both and
@@ -153,6 +153,17 @@ class Robot:
             q_max=self.q_max,
             v_max=self.v_max,
         )
+
+
+def robot_files(robot_dir: str | Path) -> dict[str, Path]:
+    """The files a robot is loaded from, by name, without loading it (for `check_outputs`, which runs
+    before any input is read): drives.yaml and every URDF beside it."""
+    robot_dir = Path(robot_dir)
+    drives_path = robot_dir if robot_dir.is_file() else robot_dir / "drives.yaml"
+    files = {"robot drives.yaml": drives_path}
+    if drives_path.parent.is_dir():
+        files |= {f"robot URDF {p.name}": p for p in sorted(drives_path.parent.glob("*.urdf"))}
+    return files
 
 
 def load_robot(robot_dir: str | Path, urdf: str | Path | None = None) -> Robot:

@@ -1,4 +1,4 @@
-"""The axis-2 gravity balancer (DESIGN §4, `schemas.drives.BalancerSpring`).
+"""The axis-2 gravity balancer (architecture §4, `schemas.drives.BalancerSpring`).
 
 A spring stretched between a pivot on the parent link (distance a from the joint axis) and one on the
 child link (distance b). With θ = q + offset its length and lever are

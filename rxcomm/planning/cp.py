@@ -52,7 +52,7 @@ from rxcomm.planning.topp import PlanLimits, ToppResult, time_optimal
 from rxcomm.schemas.path import Branch
 
 ACTIVE_THRESHOLD = 0.98  # a limit counts as active at ≥ 98 % of its bound (LimitReport.active_fraction)
-MAX_RATIO = 1.01  # the sampled output may exceed no limit by more (DESIGN §9 summary, max_limit_ratio)
+MAX_RATIO = 1.01  # the sampled output may exceed no limit by more (architecture §9 summary, max_limit_ratio)
 
 
 class CpSettings(BaseModel):
@@ -232,7 +232,8 @@ def plan_limits(robot: Robot, settings: CpSettings) -> PlanLimits:
 
 def check_statics(robot: Robot, jp: JointPath, pd: PathDynamics) -> None:
     """Refuse a path whose holding torque (gravity + spring) alone, or with Coulomb friction added
-    (needed to move at all), exceeds a joint's peak torque; name the joint and the σ stretch."""
+    (needed to move at all), exceeds a joint's peak torque; name drives.yaml's peak torque, the joint
+    and the σ stretch (InfeasibleError, exit 3, as plan-ptp's end points)."""
     from rxcomm.planning.path_ik import _fmt_ranges, _ranges
 
     tau_max = robot.tau_max
@@ -249,7 +250,9 @@ def check_statics(robot: Robot, jp: JointPath, pd: PathDynamics) -> None:
             raise InfeasibleError(
                 f"path {jp.path.name!r}: {what} {need[i, j]:.0f} N·m on {robot.joint_names[j]} at "
                 f"σ = {pd.sigma[i]:.4f} m (peak torque {tau_max[j]:.0f} N·m; over the limit at {stretch}): "
-                "no timing can follow this path"
+                "no timing can follow this path",
+                file=robot.drives_path,
+                field=f"joints[{j}].peak_torque_nm",
             )
 
 

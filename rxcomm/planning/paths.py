@@ -393,6 +393,49 @@ def build_curve(geometry) -> Curve:
     raise TypeError(f"unknown geometry {type(geometry).__name__}")
 
 
+def longest_reach_m(robot: Robot) -> float:
+    """An upper bound of the TCP's distance from the base origin in any configuration: the sum of the
+    chain's link offsets and the TCP offset (triangle inequality)."""
+    base_to_shoulder = robot.model.jointPlacements[1].translation, robot.model.jointPlacements[2].translation
+    return robot.reach_m + sum(float(np.linalg.norm(t)) for t in base_to_shoulder)
+
+
+def _positions(geometry) -> list[tuple[str, np.ndarray, bool]]:
+    """(field, value, is a distance from the base origin) of every length in a path geometry."""
+    g = geometry
+    out: list[tuple[str, np.ndarray, bool]] = []
+    for name in ("start_m", "end_m", "centre_m"):
+        if getattr(g, name, None) is not None:
+            out.append((name, np.asarray(getattr(g, name), float), True))
+    points = getattr(g, "points_m", None)
+    if points is not None:
+        out += [(f"points_m.{i}", np.asarray(p, float), True) for i, p in enumerate(points)]
+    if getattr(g, "radius_m", None) is not None:
+        out.append(("radius_m", np.asarray(g.radius_m, float), False))
+    return out
+
+
+def check_within_reach(spec: PathSpec, robot: Robot) -> None:
+    """Refuse a path with a position no configuration of `robot` can reach, whatever the IK: farther
+    from the base origin than `longest_reach_m` (a circle: a radius above it). Such a file is not in
+    this robot's base frame or not in metres (millimetres, typically): bad input (InputError naming
+    the field, exit 2), not an unreachable stretch (exit 3)."""
+    reach = longest_reach_m(robot)
+    for name, v, is_point in _positions(spec.geometry):
+        dist = float(np.linalg.norm(v))
+        if dist <= reach:
+            continue
+        what = "is" if is_point else "radius"
+        unit = ""
+        if dist / 1000 <= reach:
+            unit = f"; positions are in metres: millimetres? ({dist / 1000:.4g} m as mm)"
+        raise InputError(
+            f"{np.round(v, 6).tolist()} {what} {dist:.4g} m from the base origin, beyond the "
+            f"{reach:.3f} m {robot.name} can reach in any configuration{unit}",
+            field=f"geometry.{name}",
+        )
+
+
 def build_path(spec: PathSpec) -> CartesianPath:
     """The `CartesianPath` of a path spec; InputError (field named) on degenerate geometry."""
     curve = build_curve(spec.geometry)
@@ -420,6 +463,7 @@ def load_path(path: Path, robot: Robot) -> tuple[PathSpec, CartesianPath]:
     if spec.q_start_rad is not None and len(spec.q_start_rad) != robot.n:
         raise InputError(f"expected {robot.n} joint angles", file=path, field="q_start_rad")
     try:
+        check_within_reach(spec, robot)
         return spec, build_path(spec)
     except InputError as e:
         raise InputError(e.reason, file=path, field=e.field) from e

@@ -1,6 +1,6 @@
 """Time/energy-optimal point-to-point motion (paper §5.4–5.5) as a scaled free-final-time OCP.
 
-Formulation (DESIGN §7, "Planning facts"): the joints are a triple integrator driven by a jerk that is
+Formulation (architecture §7, "Planning facts"): the joints are a triple integrator driven by a jerk that is
 constant on each of N intervals of a normalised time s ∈ [0, 1]; t = T·s with the final time T a
 decision variable. The nodes carry (q, q̇, q̈); the torques come from the inverse dynamics at the nodes
 (no forward dynamics, no numerical integrator: integrating a constant jerk is exact). This is what
@@ -50,6 +50,7 @@ import hashlib
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Literal
 
 import casadi as ca
@@ -745,10 +746,13 @@ class PtpNotConverged(InfeasibleError):
         )
 
 
-def check_boundary_state(dynamics: PtpDynamics, limits: PtpLimits, q, name: str, joint_names) -> np.ndarray:
+def check_boundary_state(
+    dynamics: PtpDynamics, limits: PtpLimits, q, name: str, joint_names, drives_file: Path | None = None
+) -> np.ndarray:
     """Refuse an end point outside the position limits or whose holding torque exceeds the peak torque.
 
-    Raises InputError with field `name[joint]` (exit 2).
+    Outside the limits: InputError with field `name[joint]` (exit 2). Holding torque above the peak:
+    InfeasibleError naming `drives_file` and the joint's peak torque (exit 3, as plan-cp's statics).
     """
     q = np.asarray(q, float).ravel()
     n = len(limits.q_min)
@@ -763,9 +767,11 @@ def check_boundary_state(dynamics: PtpDynamics, limits: PtpLimits, q, name: str,
     g = np.asarray(dynamics.inv_dyn(q, np.zeros(n), np.zeros(n))).ravel()
     for j in range(n):
         if abs(g[j]) > limits.tau_max[j]:
-            raise InputError(
-                f"holding torque {g[j]:.1f} N·m exceeds the peak torque {limits.tau_max[j]:.1f} N·m",
-                field=f"{name}[{joint_names[j]}]",
+            raise InfeasibleError(
+                f"{name} [{joint_names[j]}]: holding torque {g[j]:.1f} N·m exceeds the peak torque "
+                f"{limits.tau_max[j]:.1f} N·m: no motion can start or end there",
+                file=drives_file,
+                field=f"joints[{j}].peak_torque_nm",
             )
     return q
 
@@ -793,16 +799,18 @@ def plan_ptp(
 ) -> PtpResult:
     """Plan the optimal rest-to-rest motion from `q_start` to `q_goal` (rad).
 
-    Raises InputError (exit 2) for end points outside the limits, PtpNotConverged (exit 3) when IPOPT
-    fails. `warm_start` overrides the ruckig profile; `ocp` a built NLP (default: `cached_ocp`).
+    Raises InputError (exit 2) for end points outside the limits, InfeasibleError (exit 3) for end
+    points the drives cannot hold, PtpNotConverged (exit 3) when IPOPT fails. `warm_start` overrides
+    the ruckig profile; `ocp` a built NLP (default: `cached_ocp`).
     If the dense check finds a limit exceeded by more than `DENSE_TOLERANCE` between the nodes, that
     limit's margin grows by the excess and the NLP is solved again from the solution (at most
     `max_resolves` times; coarse grids need it, N ≥ 50 rarely does).
     """
     options = options or PtpOptions()
     limits = PtpLimits.from_robot(robot, acceleration=options.acceleration_limits)
-    q_start = check_boundary_state(dynamics, limits, q_start, "start", robot.joint_names)
-    q_goal = check_boundary_state(dynamics, limits, q_goal, "goal", robot.joint_names)
+    names, drives = robot.joint_names, robot.drives_path
+    q_start = check_boundary_state(dynamics, limits, q_start, "start", names, drives)
+    q_goal = check_boundary_state(dynamics, limits, q_goal, "goal", names, drives)
     if np.max(np.abs(q_goal - q_start)) < 1e-9:
         raise InputError("the goal equals the start: nothing to plan", field="goal")
     if options.tcp_box_m is not None:

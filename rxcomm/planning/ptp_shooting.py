@@ -10,7 +10,7 @@ and rest-to-rest ends with the holding torque at both ends (q̈ = 0 there, as in
 The forward dynamics come from the inverse dynamics alone: M(q) column by column
 (M e_j = ID(q, 0, e_j) − ID(q, 0, 0)) and h(q, q̇) = ID(q, q̇, 0), then a symbolic 6×6 solve. Every RK4
 stage costs n + 2 RNEAs and a solve, and the Jacobian of a shooting interval is dense in 2n + 2n
-variables: this is why the formulation is slow (DESIGN §7 measured 31–156 s), and why `ptp` uses
+variables: this is why the formulation is slow (architecture §7 measured 31–156 s), and why `ptp` uses
 inverse dynamics at the nodes instead. Give it a wall-time cap (`PtpOptions.max_wall_s`).
 """
 

@@ -1,6 +1,6 @@
 """Time-optimal path parametrisation with toppra 0.6.10 (paper §5.2 with k2 = 0), as toppra is safe to use.
 
-Settings that avoid toppra's measured pitfalls (DESIGN §7 "Planning facts"): the `seidel` solver
+Settings that avoid toppra's measured pitfalls (architecture §7 "Planning facts"): the `seidel` solver
 only; `DiscretizationType.Interpolation` for every second-order constraint (collocation under-checks
 between grid points); the geometric path is our not-a-knot joint spline (clamped ends slow toppra
 down 25×); the output is toppra's constant-acceleration parametrisation, which we sample ourselves

@@ -3,7 +3,7 @@
 Ruckig computes a time-optimal profile under per-joint velocity, acceleration and jerk limits in
 microseconds, all joints time-synchronised. It knows no dynamics: as a warm start the limits only need
 to be plausible; as a fallback (`feasible_profile`) the profile is slowed down by time scaling until the
-dense check of the real limits (torque, torque rate, ...) passes. DESIGN §7: such a profile is ≈ 25 %
+dense check of the real limits (torque, torque rate, ...) passes. architecture §7: such a profile is ≈ 25 %
 slower than the dynamic optimum, a warm start and a fallback, not the answer.
 """
 

@@ -1,4 +1,4 @@
-"""`cell.yaml`: the robot cell around one robot (DESIGN §1: workspace, tracker, gateway).
+"""`cell.yaml`: the robot cell around one robot (architecture §1: workspace, tracker, gateway).
 
 A config file, not a stage output: no envelope, but a `kind`/`schema_version` so a wrong file is
 refused by name. Frames: everything geometric is in the robot's nominal **base frame** (the URDF
@@ -103,7 +103,7 @@ class TrackerSpec(Strict):
 
 
 class GatewayDefaults(Strict):
-    """Where `run` finds the drive gateway when `--gateway` is not given (DESIGN §6)."""
+    """Where `run` finds the drive gateway when `--gateway` is not given (architecture §6)."""
 
     host: str = "127.0.0.1"
     port: int = Field(1502, ge=1, le=65535)

@@ -1,4 +1,4 @@
-"""`drives.yaml`: what a URDF lacks to commission a robot (DESIGN §4).
+"""`drives.yaml`: what a URDF lacks to commission a robot (architecture §4).
 
 Joint-side quantities unless the name says motor. Position and velocity limits come from the URDF
 (`<limit lower upper velocity>`); torque limits come from here (the URDF `effort` is ignored).

@@ -1,4 +1,4 @@
-"""`dynamics.yaml`: identified dynamics of one robot (kind `rxcomm/Dynamics`, DESIGN §7 identify).
+"""`dynamics.yaml`: identified dynamics of one robot (kind `rxcomm/Dynamics`, architecture §7 identify).
 
 What planners and `run` need is τ(q, q̇, q̈); the base parameters determine it completely. Each base
 parameter stores its definition as a combination of named full parameters (p_b = Σ c_i·p_i, the

@@ -1,4 +1,4 @@
-"""The artefact envelope every rxcomm artefact carries (DESIGN §3).
+"""The artefact envelope every rxcomm artefact carries (architecture §3).
 
 Subclasses are the artefacts of the stages. They set ``KIND`` (``"rxcomm/Calibration"``) and
 ``SCHEMA_VERSION``, optionally ``REQUIRED_SUMMARY_KEYS``, and add their data fields after the

@@ -1,5 +1,5 @@
 """`excitation.yaml`: an optimal exciting trajectory for dynamic identification (kind `rxcomm/Excitation`,
-paper §4.2, DESIGN §7 excite).
+paper §4.2, architecture §7 excite).
 
 Per joint j a finite Fourier series of `harmonics` terms with the common base frequency ω_f (paper
 eq. 29, written with its velocity):

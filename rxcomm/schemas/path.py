@@ -1,4 +1,4 @@
-"""`PATH.yaml`: a Cartesian TCP path for `plan-cp` (DESIGN §7 plan-cp, paper §5.1).
+"""`PATH.yaml`: a Cartesian TCP path for `plan-cp` (architecture §7 plan-cp, paper §5.1).
 
 A config file written by hand or by the ISO 9283 generator (`rxcomm.planning.paths.iso9283_paths`): no
 envelope, but `kind`/`schema_version` so a wrong file is refused by name. Every position and
@@ -29,20 +29,26 @@ from __future__ import annotations
 import math
 from typing import Annotated, ClassVar, Literal
 
-from pydantic import Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
 from rxcomm.schemas.strict import Strict
 
 Vec3 = tuple[float, float, float]
 
 
-class Line(Strict):
+class _Finite(Strict):
+    # NaN and inf are refused by name (YAML reads `.nan`, `.inf` as floats): a path file is bad input,
+    # not an IK failure at "σ = nan m"
+    model_config = ConfigDict(allow_inf_nan=False)
+
+
+class Line(_Finite):
     type: Literal["line"]
     start_m: Vec3
     end_m: Vec3
 
 
-class Circle(Strict):
+class Circle(_Finite):
     """A circular arc or full circle: three points, or centre + normal + radius."""
 
     type: Literal["circle"]
@@ -75,7 +81,7 @@ class Circle(Strict):
         return self
 
 
-class Polyline(Strict):
+class Polyline(_Finite):
     type: Literal["polyline"]
     points_m: list[Vec3] = Field(min_length=2)
     blend_radius_m: float = Field(
@@ -85,7 +91,7 @@ class Polyline(Strict):
     )
 
 
-class Spline(Strict):
+class Spline(_Finite):
     type: Literal["spline"]
     points_m: list[Vec3] = Field(min_length=2)
 
@@ -93,7 +99,7 @@ class Spline(Strict):
 Geometry = Annotated[Line | Circle | Polyline | Spline, Field(discriminator="type")]
 
 
-class Orientation(Strict):
+class Orientation(_Finite):
     """TCP orientation along the path (URDF rpy, base frame)."""
 
     mode: Literal["hold", "slerp"] = "hold"
@@ -128,7 +134,7 @@ class Orientation(Strict):
         return tuple(math.radians(a) for a in self.end_rpy_deg)
 
 
-class Branch(Strict):
+class Branch(_Finite):
     """Which IK solution to start from (each None: either)."""
 
     shoulder: Literal["front", "back"] | None = "front"
@@ -136,14 +142,14 @@ class Branch(Strict):
     wrist: Literal["positive", "negative"] | None = "positive"
 
 
-class PathLimits(Strict):
+class PathLimits(_Finite):
     """Optional Cartesian limits that belong to the path (e.g. ISO 9283 tests at 1 m/s, 5 m/s²)."""
 
     tcp_speed_max_m_s: float | None = Field(None, gt=0)
     tcp_acceleration_max_m_s2: float | None = Field(None, gt=0)
 
 
-class PathSpec(Strict):
+class PathSpec(_Finite):
     """One TCP path in the robot base frame."""
 
     KIND: ClassVar[str] = "rxcomm/Path"

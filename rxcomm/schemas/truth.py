@@ -1,4 +1,4 @@
-"""`truth.yaml`: the simulated cell's hidden truth (DESIGN §6).
+"""`truth.yaml`: the simulated cell's hidden truth (architecture §6).
 
 Only `rxcomm.cell` (the simulator) and tests that score recovery read this. Stages never do.
 """

@@ -1,4 +1,4 @@
-"""`rxcomm calibrate`: geometric calibration from tracker measurements (paper §3.1–3.2, DESIGN §7).
+"""`rxcomm calibrate`: geometric calibration from tracker measurements (paper §3.1–3.2, architecture §7).
 
 Reads the robot and a measurements file (a `rxcomm/Measurements` artefact written by `run`, or a
 tracker CSV — see `rxcomm.calibration.fit.CSV_HELP`), fits the identifiable geometric error parameters
@@ -26,10 +26,11 @@ from rxcomm.calibration.fit import (
     read_measurements,
     write_calibrated_urdf,
 )
+from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.geometric_errors import parameter_names, placement_to_se3, se3_to_xyz_rpy
-from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.schemas.calibration import (
     BaselineFit,
     Calibration,
@@ -246,6 +247,10 @@ def run(
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written to `output`."""
     output = Path(output)
+    check_outputs(
+        {"output": output, "urdf-out": urdf_out},
+        {"measurements": measurements, "cell": cell, **robot_files(robot_dir)},
+    )
     robot = load_robot(robot_dir)
     ms = read_measurements(measurements, robot)
     inputs: dict[str, Path] = {

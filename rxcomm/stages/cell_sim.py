@@ -1,4 +1,4 @@
-"""`rxcomm cell-sim --truth TRUTH.yaml`: serve the simulated cell on the drive gateway protocol (DESIGN §6).
+"""`rxcomm cell-sim --truth TRUTH.yaml`: the simulated cell on the drive gateway protocol (architecture §6).
 
 A Modbus TCP server (register map v1, docs/gateway.md) in front of six simulated drives moving the
 robot of the truth file with its true dynamics, plus the simulated tracker. Runs until Ctrl-C (or

@@ -1,10 +1,10 @@
-"""`rxcomm excite`: an optimal exciting trajectory for dynamic identification (paper §4.2, DESIGN §7).
+"""`rxcomm excite`: an optimal exciting trajectory for dynamic identification (paper §4.2, architecture §7).
 
 Reads the robot and the cell (its `allowed_region` for tool, wrist centre and elbow), designs the
 rest-to-rest Fourier trajectory of `rxcomm.identification.excitation` and writes
 
 - ``excitation.yaml`` (kind rxcomm/Excitation): coefficients, rest pose, ω_f, per-start results, the
-  drive-cycle limit ratios and the DESIGN §9 summary (cond, cond_raw, baseline_cond, duration_s,
+  drive-cycle limit ratios and the architecture §9 summary (cond, cond_raw, baseline_cond, duration_s,
   seconds, max_limit_ratio);
 - the trajectory `run` executes beside it, ``excitation-trajectory.mcap`` + ``.yaml`` (kind
   rxcomm/Trajectory: q, q̇, q̈ and τ_ff from the prior model at the drive cycle);
@@ -22,11 +22,12 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.identification.excitation import ExcitationDesign, design_excitation, region_points
+from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.limits import check_limits
-from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
@@ -152,6 +153,14 @@ def run(
     traj_path = Path(trajectory_out) if trajectory_out is not None else trajectory_path(output)
     if traj_path.suffix != ".mcap":
         raise InputError("the trajectory output must be NAME.mcap", field="trajectory-out")
+    check_outputs(
+        {
+            "output": output,
+            "trajectory-out": traj_path,
+            "plot": output.with_suffix(".png") if plot else None,
+        },
+        {"cell": cell, **robot_files(robot_dir)},
+    )
     robot = load_robot(robot_dir)
     cell_model = read_yaml_model(cell, Cell)
     values = settings.model_dump() if isinstance(settings, ExcitationSettings) else dict(settings or {})

@@ -19,10 +19,11 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.identification.fit import Identification, IdentifySettings, identify, load_joint_log
+from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import write_yaml_artefact
 from rxcomm.model.base_parameters import dynamics_artefact_fields
-from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.schemas.dynamics import Dynamics
 
 
@@ -126,6 +127,10 @@ def run(
     output = Path(output)
     if output.suffix not in (".yaml", ".yml"):
         raise InputError("the output must be a .yaml file", field="output")
+    check_outputs(
+        {"output": output, "plot": output.with_suffix(".png") if plot else None},
+        {"log": log, "validate": validate, **robot_files(robot_dir)},
+    )
     robot = load_robot(robot_dir)
     values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
     opts = settings_from_options(IdentifySettings, values)

@@ -1,8 +1,8 @@
-"""`rxcomm plan-cp`: time/energy-optimal timing of a Cartesian TCP path (paper §5.1–5.3, DESIGN §7).
+"""`rxcomm plan-cp`: time/energy-optimal timing of a Cartesian TCP path (paper §5.1–5.3, architecture §7).
 
 Reads the robot, a path file (`rxcomm/Path`, `samples/ROBOT/paths/`), optionally identified dynamics
 and a calibration; plans with `rxcomm.planning.cp.plan_cp` and writes the trajectory `run` executes:
-``NAME.mcap`` (q, q̇, q̈, τ_ff, σ, σ̇ at the drive cycle) with ``NAME.yaml`` beside it (DESIGN §9
+``NAME.mcap`` (q, q̇, q̈, τ_ff, σ, σ̇ at the drive cycle) with ``NAME.yaml`` beside it (architecture §9
 summary), and with ``--plot`` ``NAME.png`` (the paper's Figs. 7 and 8). ``--iso9283 DIR`` instead
 writes the ISO 9283 test-plane paths of the robot (and ``--cell`` workspace) to DIR.
 """
@@ -21,11 +21,11 @@ from rich.markup import escape
 from rxcomm import console, plotting
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.errors import InputError
-from rxcomm.io.files import atomic_write_text
+from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
-from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
 from rxcomm.planning.cp import CpPlan, CpSettings, PlanDynamics, path_deviation_m, plan_cp
 from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
@@ -232,6 +232,7 @@ def command(
 
 @console.stage_command
 def iso_paths(robot_dir: Path, out_dir: Path, *, cell: Path | None = None, rpy_deg: str = "180,0,0") -> dict:
+    check_output_dir(out_dir, "iso9283", {"cell": cell, **robot_files(robot_dir)})
     return write_iso9283(load_robot(robot_dir), Path(out_dir), cell, rpy_deg)
 
 
@@ -261,6 +262,10 @@ def run(
     path, output = Path(path), Path(output)
     if output.suffix != ".mcap":
         raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    check_outputs(
+        {"output": output, "plot": output.with_suffix(".png") if plot else None},
+        {"path": path, "dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
+    )
     robot = load_robot(robot_dir)
     inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}
     if calibration is not None:

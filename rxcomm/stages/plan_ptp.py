@@ -1,8 +1,8 @@
-"""`rxcomm plan-ptp`: time/energy-optimal point-to-point motion (paper §5.4–5.5, DESIGN §7).
+"""`rxcomm plan-ptp`: time/energy-optimal point-to-point motion (paper §5.4–5.5, architecture §7).
 
 Reads the robot (and optionally identified dynamics and a calibration), solves the free-final-time
 OCP of `rxcomm.planning.ptp` between two rest states and writes the trajectory artefact `run` executes:
-``NAME.mcap`` (q, q̇, q̈, τ_ff at the drive cycle) with ``NAME.yaml`` beside it (DESIGN §9 summary).
+``NAME.mcap`` (q, q̇, q̈, τ_ff at the drive cycle) with ``NAME.yaml`` beside it (architecture §9 summary).
 """
 
 from __future__ import annotations
@@ -18,11 +18,12 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.errors import InputError
+from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.kinematics import solve_pose_ik
-from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
 from rxcomm.planning.ptp import (
     PtpDynamics,
@@ -230,6 +231,10 @@ def run(
     output = Path(output)
     if output.suffix != ".mcap":
         raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    check_outputs(
+        {"output": output, "plot": output.with_suffix(".png") if plot else None},
+        {"dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
+    )
     robot = load_robot(robot_dir)
     inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
     if calibration is not None:

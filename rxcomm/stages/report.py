@@ -15,7 +15,7 @@ import typer
 from rxcomm import __version__, console
 from rxcomm import report as rep
 from rxcomm.errors import InputError
-from rxcomm.io.files import atomic_write_text
+from rxcomm.io.files import atomic_write_text, check_outputs
 from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.configs import Configs
@@ -118,6 +118,9 @@ def command(
 def run(build_dir: Path, output: Path) -> list[str]:
     if not build_dir.is_dir():
         raise InputError("not a directory", file=build_dir)
+    # the report reads the build's artefacts and links its figures: none of them may be the output
+    artefacts = {p.name: p for p in sorted(build_dir.iterdir()) if p.suffix in (".yaml", ".mcap", ".png")}
+    check_outputs({"output": output}, artefacts)
     text, missing = build_report(build_dir)
     atomic_write_text(output, text)
     console.out.print(f"report → {output}" + (f" (missing: {', '.join(missing)})" if missing else ""))

@@ -1,4 +1,4 @@
-"""`rxcomm run`: execute a plan on the robot cell over the drive gateway (paper §2.3, DESIGN §7 run).
+"""`rxcomm run`: execute a plan on the robot cell over the drive gateway (paper §2.3, architecture §7 run).
 
 PLAN is a trajectory MCAP (excite / plan-cp / plan-ptp) or a pose list (`configs.yaml` from
 select-configs: a measurement campaign). Trajectory → ``-o NAME.mcap`` (+ ``NAME.yaml``, kind
@@ -30,14 +30,18 @@ from rxcomm.execution.plan import prepare_plan
 from rxcomm.execution.session import RunSettings, StreamSettings, run_trajectory
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.net import is_loopback
+from rxcomm.io.files import check_outputs
+from rxcomm.io.mcap_io import read_mcap_envelope
 from rxcomm.io.run_log import read_run_log
 from rxcomm.io.trajectory import load_trajectory_mcap
+from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
 from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.dynamics import DynamicParameters, prior_parameters
-from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.measurements import Measurements
+from rxcomm.schemas.trajectory import TrajectorySummary
 
 REQUEST_TIMEOUT_S = 0.5
 
@@ -76,8 +80,11 @@ def load_model(robot: Robot, dynamics: Path | None) -> tuple[DynamicParameters, 
     return prior_parameters(robot), "prior"
 
 
-def load_poses(path: Path, robot: Robot) -> Configs:
-    cfg = read_yaml_artefact(path, Configs)
+def load_poses(path: Path) -> Configs:
+    return read_yaml_artefact(path, Configs)
+
+
+def check_joint_names(cfg: Configs, path: Path, robot: Robot) -> Configs:
     if list(cfg.joint_names) != list(robot.joint_names):
         raise InputError(
             f"poses are for joints {cfg.joint_names}, the robot has {list(robot.joint_names)}",
@@ -170,6 +177,10 @@ def execute(
     """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
     plan, output = Path(plan), Path(output)
     kind = plan_kind(plan)
+    # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
+    cfg = load_poses(plan) if kind == "poses" else None
+    if kind == "trajectory":
+        check_kind(read_mcap_envelope(plan), TrajectorySummary, file=plan, prefix="envelope")
     want = ".mcap" if kind == "trajectory" else ".yaml"
     if output.suffix != want:
         what = (
@@ -178,6 +189,17 @@ def execute(
         raise InputError(f"a {kind} plan writes {what}", file=output, field="output")
     if compare is not None and not plot:
         raise InputError("--compare draws into the --plot figure: pass --plot too", field="compare")
+    embedded_truth = None if gateway is not None else (truth or Path(robot_dir) / "truth.yaml")
+    check_outputs(
+        {"output": output, "plot": output.with_suffix(".png") if plot else None},
+        {
+            "plan": plan,
+            "dynamics": dynamics,
+            "truth": embedded_truth,
+            "compare": compare,
+            **robot_files(robot_dir),
+        },
+    )
     robot = load_robot(robot_dir)
     params, model_name = load_model(robot, dynamics)
     ff_name = model_name if feedforward else "none"
@@ -233,7 +255,7 @@ def execute(
             if result.error is not None:
                 raise _with_context(result.error, result.stop_note, written)
             return summary
-        cfg = load_poses(plan, robot)
+        check_joint_names(cfg, plan, robot)
         check_poses(robot, [p.q_rad for p in cfg.poses])  # refused before touching the cell
         settings_c = CampaignSettings(
             feedforward=feedforward, speed_fraction=speed, fault_reset=fault_reset, stream=stream_settings

@@ -1,4 +1,4 @@
-"""`rxcomm select-configs`: optimal measurement poses for calibration (paper §3.3, DESIGN §7).
+"""`rxcomm select-configs`: optimal measurement poses for calibration (paper §3.3, architecture §7).
 
 Reads the robot and the cell, streams the joint grid through the cell checks, runs the exchange
 algorithm of `rxcomm.calibration.pose_selection` and writes `configs.yaml` (kind `rxcomm/Configs`): the
@@ -22,9 +22,10 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.calibration.pose_selection import Criterion, PoseSelection, select_measurement_poses
 from rxcomm.errors import InputError
+from rxcomm.io.files import check_outputs
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.geometric_errors import predict_poses
-from rxcomm.model.robot import Robot, load_robot
+from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.configs import ConfigPose, Configs
 
@@ -223,6 +224,10 @@ def run(
             raise InputError(f"must be ≥ {lo}, got {value}", field=name)
     if max_candidates < 0 or n_validation < 0:
         raise InputError("must be ≥ 0", field="max-candidates" if max_candidates < 0 else "n-validation")
+    check_outputs(
+        {"output": output, "plot": output.with_suffix(".png") if plot else None},
+        {"cell": cell, **robot_files(robot_dir)},
+    )
     robot = load_robot(robot_dir)
     cell_model = read_cell(cell)
     settings = {

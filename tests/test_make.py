@@ -1,0 +1,173 @@
+"""Honest make: editing the robot, the truth, a path or an option rebuilds exactly what depends on it.
+
+Each test works on a temporary copy of the Makefile and the sample robot whose chain was "built" with
+`make -t` (touch: every artefact and option stamp up to date, no stage run), then asks GNU make what it
+would remake (`make -n --debug=b`: its "Must remake target" lines). Nothing of the chain runs.
+"""
+
+import os
+import re
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from .conftest import ROOT
+
+pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="GNU make not installed")
+
+ROBOT = Path("samples/rx130l")
+
+# Every rule of `make commission`, by the file it writes in BUILD.
+ALL = {
+    "robot-info.txt",
+    "configs.yaml",
+    "calib-meas.yaml",
+    "calibration.yaml",
+    "excitation.yaml",
+    "excite-log.mcap",
+    "validation-plan.mcap",
+    "validation-log.mcap",
+    "dynamics.yaml",
+    "cp.mcap",
+    "ptp.mcap",
+    "run-noff.mcap",
+    "run-ff.mcap",
+    "run-ptp.mcap",
+    "report.md",
+}
+# The rules whose command talks to the simulated cell (`run`: it reads truth.yaml) ...
+ON_CELL = {
+    "calib-meas.yaml",
+    "excite-log.mcap",
+    "validation-log.mcap",
+    "run-noff.mcap",
+    "run-ff.mcap",
+    "run-ptp.mcap",
+}
+# ... and those downstream of their outputs. select-configs, excite, the validation plan and robot-info
+# never see the cell.
+AFTER_CELL = {"calibration.yaml", "dynamics.yaml", "cp.mcap", "ptp.mcap", "report.md"}
+# select-configs and what follows the pose set: measurement, calibration, the planners on the
+# calibrated robot, their runs, the report. Excitation, identification's logs and robot-info do not.
+AFTER_POSES = {
+    "configs.yaml",
+    "calib-meas.yaml",
+    "calibration.yaml",
+    "cp.mcap",
+    "ptp.mcap",
+    "run-noff.mcap",
+    "run-ff.mcap",
+    "run-ptp.mcap",
+    "report.md",
+}
+# The CP path feeds plan-cp; plan-ptp starts from its end states.
+AFTER_CP_PATH = {"cp.mcap", "ptp.mcap", "run-noff.mcap", "run-ff.mcap", "run-ptp.mcap", "report.md"}
+# What `make commission` builds, the files `make -q` can vouch for (phony targets are never "up to date").
+PRODUCTS = ["robot-info.txt", "report.md", "run-ptp.mcap"]
+
+
+def _env() -> dict[str, str]:
+    # Under `make test` the outer make's flags (and jobserver) would leak into these makes.
+    drop = {"MAKEFLAGS", "MFLAGS", "MAKELEVEL", "MAKEOVERRIDES", "MAKEFILES"}
+    return {k: v for k, v in os.environ.items() if k not in drop}
+
+
+def _make(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        ["make", "--no-print-directory", *args], cwd=cwd, env=_env(), capture_output=True, text=True
+    )
+
+
+def _remade(cwd: Path, *args: str, goal: str = "commission", build: str = "build") -> tuple[set, set]:
+    """(artefacts, option stamps) in `build` that `make -n GOAL ARGS` would remake."""
+    out = _make(cwd, "-n", "--debug=b", goal, *args)
+    assert out.returncode == 0, out.stderr
+    targets = set(re.findall(r"Must remake target '([^']+)'", out.stdout))
+    prefix = build + "/"
+    artefacts = {t[len(prefix) :] for t in targets if t.startswith(prefix) and "/.params/" not in t}
+    stamps = {t.rsplit("/", 1)[1] for t in targets if t.startswith(prefix + ".params/")}
+    return artefacts, stamps
+
+
+def _newer(path: Path) -> None:
+    """An edit: the file's mtime a minute ahead of everything built."""
+    t = time.time() + 60
+    os.utime(path, (t, t))
+
+
+@pytest.fixture
+def built(tmp_path: Path) -> Path:
+    """A copy of the Makefile and the sample robot with `make commission` and `make commission-ci`
+    touched up to date."""
+    shutil.copy(ROOT / "Makefile", tmp_path / "Makefile")
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    shutil.copytree(ROOT / ROBOT, tmp_path / ROBOT)
+    (tmp_path / ".venv").mkdir()
+    (tmp_path / ".venv" / ".installed").touch()  # after pyproject.toml: the install is current
+    for build in ("build", "build-ci"):
+        (tmp_path / build).mkdir()
+    for goal in ("commission", "commission-ci"):
+        out = _make(tmp_path, "-t", goal)
+        assert out.returncode == 0, out.stderr
+    return tmp_path
+
+
+def test_a_built_chain_is_up_to_date_and_a_dry_run_changes_nothing(built):
+    assert _remade(built) == (set(), set())
+    assert _make(built, "-q", *(f"build/{p}" for p in PRODUCTS)).returncode == 0
+    # A dry run with other options must not write their stamps: the build stays up to date.
+    assert _remade(built, "N_POSES=24")[0]
+    assert _make(built, "-q", *(f"build/{p}" for p in PRODUCTS)).returncode == 0
+    assert _make(built, "-q", *(f"build/{p}" for p in PRODUCTS)).returncode == 0
+    assert _make(built, "-q", "N_POSES=24", "build/report.md").returncode == 1
+
+
+def test_touching_the_urdf_or_drives_rebuilds_every_rule(built):
+    # Every command reads the robot (report through the artefacts); drives.yaml names the URDF.
+    assert (built / ROBOT / "drives.yaml").read_text().count("urdf: rx130l.urdf") == 1
+    assert _remade(built, "-W", str(ROBOT / "rx130l.urdf")) == (ALL, set())
+    assert _remade(built, "-W", str(ROBOT / "drives.yaml")) == (ALL, set())
+
+
+def test_editing_the_truth_rebuilds_the_cell_runs_and_their_dependents_only(built):
+    _newer(built / ROBOT / "truth.yaml")
+    artefacts, stamps = _remade(built)
+    assert artefacts == ON_CELL | AFTER_CELL
+    assert not artefacts & {"configs.yaml", "excitation.yaml", "validation-plan.mcap", "robot-info.txt"}
+    assert stamps == set()
+
+
+def test_n_poses_on_the_command_line_rebuilds_select_configs_and_what_follows(built):
+    assert _remade(built, "N_POSES=24") == (AFTER_POSES, {"select-configs"})
+    assert _remade(built, "N_POSES=32") == (set(), set())  # the default: what was built
+
+
+def test_other_inputs_rebuild_what_reads_them(built):
+    assert _remade(built, "-W", str(ROBOT / "paths/line-near-singularity.yaml"))[0] == AFTER_CP_PATH
+    # cell.yaml: select-configs, calibrate, excite and the simulated cell (its tracker's field of view).
+    not_cell = {"robot-info.txt", "validation-plan.mcap"}
+    assert _remade(built, "-W", str(ROBOT / "cell.yaml"))[0] == ALL - not_cell
+    excite = {"excitation.yaml", "excite-log.mcap", "dynamics.yaml"} | AFTER_CP_PATH
+    assert _remade(built, "EXCITE_OPTS=--starts 3") == (excite, {"excite"})
+
+
+def test_a_stamp_is_rewritten_only_when_its_text_changes(built):
+    stamp = built / "build/.params/select-configs"
+    assert "-n 32 " in stamp.read_text()
+    before = stamp.stat().st_mtime_ns
+    assert _make(built, "build/.params/select-configs").returncode == 0
+    assert stamp.stat().st_mtime_ns == before  # same options: untouched, nothing downstream rebuilds
+    assert _make(built, "N_POSES=24", "build/.params/select-configs").returncode == 0
+    assert "-n 24 " in stamp.read_text()
+    assert _make(built, "-q", "N_POSES=24", "build/report.md").returncode == 1  # now stale under 24
+    assert _remade(built)[1] == {"select-configs"}  # and back to 32 rebuilds again
+
+
+def test_commission_ci_reuses_the_same_rules_in_its_own_dir(built):
+    assert "-n 16 " in (built / "build-ci/.params/select-configs").read_text()
+    assert _remade(built, goal="commission-ci", build="build-ci") == (set(), set())
+    _newer(built / ROBOT / "truth.yaml")
+    assert _remade(built, goal="commission-ci", build="build-ci")[0] == ON_CELL | AFTER_CELL
