@@ -162,12 +162,47 @@ def calibration_section(s: Mapping, tables: Sequence[Mapping]) -> Section:
                 _f(s["frames_only_heldout_max_position_error_m"], 1e3, unit="mm"),
             ),
             *baseline_pose_figures(s),
+            *model_figures(s),
             Figure("compute time", _f(s["seconds"], unit="s")),
         ],
         table=calibration_table(tables),
         note="Errors are measured on held-out poses the fit never saw, on the simulated cell's tracker "
-        "(σ = 0.05 mm, 0.1 mrad).",
+        "(σ = 0.05 mm, 0.1 mrad), whose joints bend under gravity.",
     )
+
+
+def model_figures(s: Mapping) -> list[Figure]:
+    """The tracker noise used, the model the data chose, the rigid model beside it, the stiffness."""
+    out = []
+    if "tracker_position_sigma_m" in s:
+        ori = s.get("tracker_orientation_sigma_rad")
+        out.append(
+            Figure(
+                f"tracker noise used ({s.get('tracker_sigma_source', '?')})",
+                f"{_f(s['tracker_position_sigma_m'], 1e3, unit='mm')}"
+                + ("" if ori is None else f", {_f(ori, 1e3, unit='mrad')}"),
+            )
+        )
+    if "model" in s:
+        out.append(Figure("error model chosen (5-fold cross-validation)", str(s["model"])))
+    if s.get("rigid_heldout_max_position_error_m") is not None:
+        out.append(
+            Figure(
+                "held-out max position error, rigid full model",
+                _f(s["rigid_heldout_max_position_error_m"], 1e3, unit="mm"),
+            )
+        )
+    for key, value in s.items():
+        if key.startswith("stiffness_") and key.endswith("_nm_per_rad") and "_std_" not in key:
+            joint = key[len("stiffness_") : -len("_nm_per_rad")]
+            std = s.get(f"stiffness_{joint}_std_nm_per_rad")
+            out.append(
+                Figure(
+                    f"{joint} stiffness (from gravity sag)",
+                    f"{_f(value, 1e-6)} ± {_f(std, 1e-6)} MN·m/rad",
+                )
+            )
+    return out
 
 
 def excitation_section(s: Mapping, image: str | None) -> Section:

@@ -35,9 +35,15 @@ from rxcomm.schemas.truth import CellTruth
 from .conftest import SAMPLES
 
 
-def _load(name):
+def _load(name, rigid=True):
+    """(cell, truth, tracker_to_base). `rigid`: the truth without its joint compliance (the
+    geometric-recovery tests score the rigid model; compliance has its own tests)."""
     cell = Cell.model_validate(yaml.safe_load((SAMPLES / name / "cell.yaml").read_text()))
     truth = CellTruth.model_validate(yaml.safe_load((SAMPLES / name / "truth.yaml").read_text()))
+    if rigid:
+        truth = truth.model_copy(
+            update={"geometry": truth.geometry.model_copy(update={"joint_stiffness_nm_per_rad": {}})}
+        )
     t2b = placement_to_se3(cell.tracker.tracker_to_base.xyz_m, cell.tracker.tracker_to_base.rpy_rad)
     return cell, truth, t2b
 
@@ -252,6 +258,8 @@ def test_stage_load_calibration_and_ik_honour_it(tmp_path, rx_meas):
     assert time.perf_counter() - t0 < 10
     art = read_yaml_artefact(out, Calibration)
     assert art.summary["n_identifiable"] == 30 and art.tracker_to_base_source == "measurements"
+    assert art.tracker_noise.source == "measurements" and art.tracker_noise.position_sigma_m == 5e-5
+    assert art.model_selection.chosen == art.summary["model"] == "full"
     assert art.summary["heldout_max_position_error_m"] < 0.3e-3
     assert len(art.error_tables) == 6 and len(art.dropped) == 18
     assert all(p.std is not None for p in art.parameters if p.estimated)
@@ -390,10 +398,10 @@ def test_bad_inputs_are_input_errors(tmp_path, rx_meas):
     flat = MeasurementSet(q, p, r, np.ones(40, bool), ("fit",) * 40)
     with pytest.raises(InputError, match="rank-deficient"):
         calibrate(robot, flat, CalibrateSettings(holdout_fraction=0.0), tracker_to_base=t2b)
-    # Positions of another robot / wrong base: refused, not silently fitted.
-    far = MeasurementSet(ms.q, ms.position_m + np.array([0.0, 0.0, 0.3]), ms.rotation, ms.valid, ms.role)
-    with pytest.raises(InputError, match="from the nominal robot"):
-        calibrate(robot, far, tracker_to_base=t2b)
+    # Joint angles in the wrong order: refused after the fit, naming the likely causes.
+    swapped = MeasurementSet(ms.q[:, [0, 2, 1, 3, 4, 5]], ms.position_m, None, ms.valid, ms.role)
+    with pytest.raises(InputError, match="wrong robot, joint order"):
+        calibrate(robot, swapped, tracker_to_base=t2b)
 
 
 def test_stage_exit_2_on_bad_measurements(tmp_path, rx_meas):

@@ -44,7 +44,7 @@ from rxcomm.planning.ptp import (
 )
 from rxcomm.planning.ptp_shooting import ShootingOcp, forward_dynamics_function
 from rxcomm.planning.warm_start import feasible_profile, ruckig_profile, scaled_profile
-from rxcomm.schemas.calibration import Calibration, ParameterEstimate
+from rxcomm.schemas.calibration import Calibration, ModelSelection, ParameterEstimate, TrackerNoise
 from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.path import Branch
@@ -392,6 +392,8 @@ def test_pose_ik_honours_the_calibration(tmp_path, rx130l):
         robot=rx130l.name, joint_names=list(rx130l.joint_names), measurement="pose",
         tracker_to_base=Placement(), tracker_to_base_source="cell", parameters=params, dropped=[],
         frames_only_parameters=[], error_tables=[], fit_poses=[], heldout_poses=[], outlier_poses=[],
+        tracker_noise=TrackerNoise(position_sigma_m=5e-5, orientation_sigma_rad=1e-4, source="cell"),
+        model_selection=ModelSelection(folds=5, rule="given: full", chosen="full", candidates=[]),
     )  # fmt: skip
     cal_file = write_yaml_artefact(tmp_path / "calibration.yaml", cal)
     robot = load_calibrated_robot(rx130l, cal_file)

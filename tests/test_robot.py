@@ -90,4 +90,6 @@ def test_robot_info_shows_why_the_spring_matters():
     assert result.exit_code == 0, result.output
     assert "gravity alone needs 527 N·m on joint_2" in result.output
     assert "30 with full-pose measurement, 27 with the position of an off-axis point" in result.output
-    assert "flange reach          1.660 m" in result.output
+    # One reach figure: the robot's, which calibrate's unit check also uses.
+    assert f"reach                 {load_robot(SAMPLES / 'rx130l').reach_m:.3f} m" in result.output
+    assert "1.810 m" in result.output

@@ -8,6 +8,11 @@ orientation R_meas = exp([n]×)·R_true with n ~ N(0, σ_o²) per axis (tracker 
 `truth.noise`. With a `visibility` spec (the cell's `TrackerSpec`), poses the tracker cannot see give
 `valid=False` readings — the checks of `rxcomm.calibration.pose_selection` on the true robot.
 
+Joint compliance (`truth.geometry.joint_stiffness_nm_per_rad`): the encoders read the motor side, the
+link sags under its static holding torque τ(q) (gravity and balancer spring of the TRUE dynamics), so
+the tracker sees the arm at q_link = q − τ(q_link)/k per compliant joint (two fixed-point steps: τ
+changes by ~1e-3 relative over a deflection of ~1 mrad).
+
 The readings are duck-compatible with `rxcomm.cell.backend.TrackerReading` (`position_m`,
 `quaternion_wxyz`).
 """
@@ -19,6 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from rxcomm.errors import InputError
+from rxcomm.model.dynamics import RobotDynamics, truth_parameters
 from rxcomm.model.geometric_errors import ErrorModel, measured_pose, placement_to_se3
 from rxcomm.model.kinematics import quaternion_wxyz
 from rxcomm.model.robot import Robot
@@ -68,10 +75,31 @@ class SimulatedTracker:
         self._rng = rng
         self._visibility = visibility
         self._point = None if point is None else np.asarray(point, dtype=float)
+        self._compliance = np.zeros(robot_nominal.n)
+        for name, k in g.joint_stiffness_nm_per_rad.items():
+            if name not in robot_nominal.joint_names or not k > 0:
+                raise InputError(
+                    f"{name!r}: needs a joint of {list(robot_nominal.joint_names)} and a stiffness > 0",
+                    field="geometry.joint_stiffness_nm_per_rad",
+                )
+            self._compliance[robot_nominal.joint_names.index(name)] = 1.0 / k
+        self._dyn = None
+        if np.any(self._compliance):
+            self._dyn = RobotDynamics(self._robot_true, truth_parameters(robot_nominal, truth))
+
+    def link_angles(self, q: np.ndarray) -> np.ndarray:
+        """The links' angles with the motors (encoders) at `q`: sagged by the compliance (rad)."""
+        q = np.asarray(q, dtype=float)
+        if self._dyn is None:
+            return q
+        q_link = q
+        for _ in range(2):
+            q_link = q - self._compliance * self._dyn.gravity_torque(q_link)
+        return q_link
 
     def true_pose(self, q: np.ndarray) -> pin.SE3:
         """Noise-free TCP (or point) pose in the tracker frame (tests only: this is the truth)."""
-        m = measured_pose(self._robot_true, q, None, self._t2b)
+        m = measured_pose(self._robot_true, self.link_angles(q), None, self._t2b)
         if self._point is not None:
             m = pin.SE3(m.rotation, m.act(self._point))
         return m

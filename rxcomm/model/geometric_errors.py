@@ -301,6 +301,42 @@ def identification_jacobians(
     return np.concatenate([pos, spatial[:, 3:]], axis=1)
 
 
+def joint_motion_jacobians(
+    robot: Robot,
+    qs: np.ndarray,
+    errors: ErrorModel | None = None,
+    tracker_to_base: pin.SE3 | None = None,
+    position_only: bool = False,
+    point: np.ndarray | None = None,
+) -> np.ndarray:
+    """[N, 6 or 3, n]: ∂(measured point position, orientation increment)/∂q_j of the erroneous chain.
+
+    The rows of `identification_jacobians`; column j is joint j turning about its own axis (a spatial
+    twist Ad(B_j)·[0; axis_j] with B_j the frame before Rot(q_j)). Joint compliance (a deflection
+    δq_j = c_j·τ_j) enters the measured pose through these columns.
+    """
+    errors = ErrorModel.zeros(robot) if errors is None else errors
+    ch = _chain(robot, qs, errors, tracker_to_base)
+    p = ch.tcp[:, :3, 3] if point is None else ch.tcp[:, :3, 3] + ch.tcp[:, :3, :3] @ np.asarray(point)
+    axes = _joint_axes(robot)
+    w = np.einsum("njab,jb->nja", ch.joint_frames[:, :, :3, :3], axes)  # [N, n, 3] axes in the world
+    o = ch.joint_frames[:, :, :3, 3]  # [N, n, 3] points on the axes
+    pos = np.cross(w, p[:, None, :] - o)  # ω × (p − o)
+    out = pos.transpose(0, 2, 1)
+    if position_only:
+        return out
+    return np.concatenate([out, w.transpose(0, 2, 1)], axis=1)
+
+
+def joint_offset_names(robot: Robot) -> tuple[str, ...]:
+    """Per joint, the error parameter that is its encoder offset (the rotation about its own axis)."""
+    axes = _joint_axes(robot)
+    return tuple(
+        f"{name}.{COMPONENTS[3 + int(np.argmax(np.abs(axes[j])))]}"
+        for j, name in enumerate(robot.joint_names)
+    )
+
+
 def identification_jacobian(
     robot: Robot,
     q: np.ndarray,

@@ -27,6 +27,12 @@ class GeometryTruth(Strict):
 
     tracker_to_base: Placement = Field(description="pose of the robot base in the tracker frame (nominal)")
     error_parameters: dict[str, float]
+    joint_stiffness_nm_per_rad: dict[str, float] = Field(
+        default_factory=dict,
+        description="joint name → torsional stiffness of its transmission (N·m/rad); a joint not listed "
+        "is rigid. The link deflects by τ/k under the static holding torque τ (gravity and balancer "
+        "spring of the true dynamics) while the motor encoder stays put: the tracker sees the deflection",
+    )
 
 
 class LinkInertial(Strict):

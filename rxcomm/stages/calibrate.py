@@ -26,22 +26,37 @@ from rxcomm.calibration.fit import (
     read_measurements,
     write_calibrated_urdf,
 )
+from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
+from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.geometric_errors import parameter_names, placement_to_se3, se3_to_xyz_rpy
 from rxcomm.model.robot import Robot, load_robot, robot_files
+from rxcomm.options import parse_numbers
 from rxcomm.schemas.calibration import (
     BaselineFit,
     Calibration,
+    CandidateModel,
+    ComplianceEstimate,
     DroppedParameter,
     ErrorRow,
     ErrorTable,
+    ModelSelection,
     ParameterEstimate,
+    TrackerNoise,
 )
 from rxcomm.schemas.cell import Cell, Placement
 
 QUANTITIES = (("x", "m"), ("y", "m"), ("z", "m"), ("alpha", "rad"), ("beta", "rad"), ("gamma", "rad"))
+
+
+class Model(StrEnum):
+    auto = "auto"
+    frames = "frames"
+    offsets = "offsets"
+    full = "full"
+    full_compliance = "full+compliance"
 
 
 class Loss(StrEnum):
@@ -68,9 +83,55 @@ def _estimates(robot: Robot, fit: FitResult, only: set[str] | None = None) -> li
     return out
 
 
+def _model_selection(robot: Robot, res: CalibrationResult) -> ModelSelection:
+    names = parameter_names(robot)
+    cands = [
+        CandidateModel(
+            name=c.name,
+            n_parameters=c.n_parameters,
+            parameters=[names[i] for i in c.idx] + [f"{robot.joint_names[j]}.compliance" for j in c.comp],
+            cv_weighted_misfit=c.cv_misfit,
+            cv_standard_error=c.cv_se,
+            cv_rms_position_error_m=c.cv_rms_position_m,
+            cv_rms_orientation_error_rad=c.cv_rms_orientation_rad,
+            chosen=c.name == res.model,
+            note=c.note,
+        )
+        for c in res.candidates
+    ]
+    return ModelSelection(
+        folds=min(res.settings.cv_folds, int(res.fit_idx.size)),
+        rule="auto: the simplest candidate within one paired standard error of the best cross-validated "
+        "misfit"
+        if res.settings.model == "auto"
+        else f"given: {res.settings.model}",
+        chosen=res.model,
+        candidates=cands,
+    )
+
+
+def _compliance(robot: Robot, fit: FitResult) -> list[ComplianceEstimate]:
+    if fit.compliance is None:
+        return []
+    return [
+        ComplianceEstimate(
+            joint=robot.joint_names[j],
+            compliance_rad_per_nm=float(fit.compliance[j]),
+            std=float(fit.compliance_std[j]),
+            stiffness_nm_per_rad=float(1.0 / fit.compliance[j]) if fit.compliance[j] > 0 else None,
+        )
+        for j in np.flatnonzero(np.isfinite(fit.compliance_std))
+    ]
+
+
 def calibration_artefact(
-    robot: Robot, res: CalibrationResult, inputs: dict[str, Path], urdf_out: Path | None
+    robot: Robot,
+    res: CalibrationResult,
+    inputs: dict[str, Path],
+    urdf_out: Path | None,
+    noise_source: str | None = None,
 ) -> Calibration:
+    """`noise_source`: where a given σ came from (option, cell); None: the result's own source."""
     tables = []
     for (pose_set, model), st in res.tables.items():
         rows = []
@@ -102,6 +163,7 @@ def calibration_artefact(
         st = res.tables.get((pose_set, model))
         return None if st is None else getattr(st, attr)
 
+    source = res.noise.source if res.noise.source != "settings" else (noise_source or "option")
     summary = {
         "n_identifiable": len(res.identifiable),
         "fit_max_position_error_m": stat("fit", "calibrated", "max_position_error_m"),
@@ -115,6 +177,13 @@ def calibration_artefact(
             "heldout", "frames_only", "max_orientation_error_rad"
         ),
         "nominal_fit_max_position_error_m": stat("fit", "nominal", "max_position_error_m"),
+        "rigid_heldout_max_position_error_m": stat("heldout", "rigid", "max_position_error_m"),
+        "model": res.model,
+        "tracker_position_sigma_m": res.noise.position_sigma_m,
+        "tracker_orientation_sigma_rad": res.noise.orientation_sigma_rad,
+        "tracker_sigma_source": source,
+        "n_undetermined": len(res.undetermined),
+        "compliance_torque_model": "identified" if "dynamics" in inputs else "prior",
         "heldout_rms_position_error_m": stat("heldout", "calibrated", "rms_position_error_m"),
         "n_fit": int(res.fit_idx.size),
         "n_heldout": int(res.heldout_idx.size),
@@ -124,6 +193,13 @@ def calibration_artefact(
         "function_evaluations": res.fit.iterations,
         "seconds": res.seconds,
     }
+    for c in res.candidates:
+        summary[f"cv_rms_position_error_{c.name.replace('+', '_')}_m"] = c.cv_rms_position_m
+    for est in _compliance(robot, res.fit):
+        summary[f"stiffness_{est.joint}_nm_per_rad"] = est.stiffness_nm_per_rad
+        summary[f"stiffness_{est.joint}_std_nm_per_rad"] = (
+            None if est.stiffness_nm_per_rad is None else est.std * est.stiffness_nm_per_rad**2
+        )
     base = res.baseline
     baseline_fit = None
     ids = list(res.identifiable.indices)
@@ -171,6 +247,15 @@ def calibration_artefact(
         outlier_poses=res.outlier_idx.tolist(),
         baseline_fit=baseline_fit,
         calibrated_urdf=None if urdf_out is None else str(urdf_out),
+        tracker_noise=TrackerNoise(
+            position_sigma_m=res.noise.position_sigma_m,
+            orientation_sigma_rad=res.noise.orientation_sigma_rad,
+            source=source,
+        ),
+        model_selection=_model_selection(robot, res),
+        compliance=_compliance(robot, res.fit),
+        undetermined=list(res.undetermined),
+        notes=list(res.notes),
     )
 
 
@@ -179,7 +264,7 @@ def print_table(res: CalibrationResult) -> None:
     out = console.out
     out.print("  Table 2 (max |e| / peak-to-peak; x y z in mm, α β γ in deg)")
     for pose_set in ("fit", "heldout"):
-        for model in ("nominal", "frames_only", "baseline_poses", "calibrated"):
+        for model in ("nominal", "frames_only", "baseline_poses", "rigid", "calibrated"):
             st = res.tables.get((pose_set, model))
             if st is None:
                 continue
@@ -189,6 +274,48 @@ def print_table(res: CalibrationResult) -> None:
                 for m, p in zip(st.max_abs * scale, st.peak_to_peak * scale, strict=True)
             ]
             out.print(f"  {pose_set:<8}{model:<15}({st.n_poses:3d}) " + " ".join(cells))
+
+
+def print_model_and_noise(robot: Robot, res: CalibrationResult, source: str) -> None:
+    """The noise used, the model comparison, compliance, undetermined parameters, notes."""
+    out = console.out
+    n = res.noise
+    ori = "" if n.orientation_sigma_rad is None else f", {n.orientation_sigma_rad * 1e3:.4g} mrad"
+    out.print(f"  tracker noise ({source}): {n.position_sigma_m * 1e3:.4g} mm{ori} (1σ per axis)")
+    out.print("  model selection (cross-validated over the fit poses; rms position / orientation):")
+    for c in res.candidates:
+        mark = "→" if c.name == res.model else " "
+        if c.cv_misfit is None:
+            out.print(f"   {mark} {c.name:<16}{c.n_parameters:3d} p   not scored: {c.note}")
+            continue
+        o = "" if c.cv_rms_orientation_rad is None else f" / {c.cv_rms_orientation_rad * 1e3:.4g} mrad"
+        out.print(
+            f"   {mark} {c.name:<16}{c.n_parameters:3d} p   {c.cv_rms_position_m * 1e3:.4g} mm{o}"
+            f"   misfit {c.cv_misfit:.4g} ± {c.cv_se or 0.0:.2g}"
+        )
+    for est in _compliance(robot, res.fit):
+        k = "–" if est.stiffness_nm_per_rad is None else f"{est.stiffness_nm_per_rad:.4g} N·m/rad"
+        out.print(
+            f"  {est.joint}: compliance {est.compliance_rad_per_nm:.4g} ± {est.std:.2g} rad/(N·m), "
+            f"stiffness {k}"
+        )
+    if res.undetermined:
+        out.print(
+            f"  [yellow]not determined by these data (σ > {res.settings.undetermined_std_ratio:g} × the "
+            f"position noise at the TCP): {', '.join(res.undetermined)}[/yellow]"
+        )
+    for note in res.notes:
+        out.print(f"  [yellow]note:[/yellow] {note}")
+
+
+def _parse_sigma(text: str | None) -> tuple[float | None, float | None]:
+    """`--tracker-sigma POS_M[,ORI_RAD]`: (σ_p, σ_o or None)."""
+    if text is None:
+        return None, None
+    vals = parse_numbers(text, 2 if "," in text else 1, "tracker-sigma", "POS_M[,ORI_RAD]")
+    if not np.all(vals > 0):
+        raise InputError(f"noise must be > 0, got {text!r}", field="tracker-sigma")
+    return float(vals[0]), float(vals[1]) if vals.size == 2 else None
 
 
 def command(
@@ -215,6 +342,23 @@ def command(
     outlier_sigma: Annotated[float, typer.Option(help="Flag poses beyond this many robust σ.")] = 5.0,
     keep_outliers: Annotated[bool, typer.Option(help="Keep flagged poses in the final fit.")] = False,
     seed: Annotated[int, typer.Option(help="Seed of the held-out split.")] = 0,
+    tracker_sigma: Annotated[
+        str | None,
+        typer.Option(
+            help="Tracker noise POS_M[,ORI_RAD] (1σ per axis), e.g. 5e-5,1e-4; overrides the cell's. "
+            "Default: the cell's, the measurement file's, else estimated from the residuals."
+        ),
+    ] = None,
+    model: Annotated[
+        Model, typer.Option(help="Error model; auto: chosen by cross-validation over the fit poses.")
+    ] = Model.auto,
+    dynamics: Annotated[
+        Path | None,
+        typer.Option(
+            help="dynamics.yaml (identify): its holding torques bend the joints in the compliance "
+            "model (default: the prior model of the URDF and drives.yaml)."
+        ),
+    ] = None,
 ) -> None:
     """Identify the robot's geometric errors from tracker measurements; write the calibration."""
     run(
@@ -228,6 +372,9 @@ def command(
         outlier_sigma=outlier_sigma,
         keep_outliers=keep_outliers,
         seed=seed,
+        tracker_sigma=tracker_sigma,
+        model=model.value,
+        dynamics=dynamics,
     )
 
 
@@ -244,6 +391,9 @@ def run(
     outlier_sigma: float = 5.0,
     keep_outliers: bool = False,
     seed: int = 0,
+    tracker_sigma: str | None = None,
+    model: str = "auto",
+    dynamics: Path | None = None,
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written to `output`."""
     output = Path(output)
@@ -260,6 +410,7 @@ def run(
     }
     t2b = None
     overrides: dict[str, float] = {}
+    noise_source = None
     if cell is not None:
         cell_model = read_yaml_model(cell, Cell)
         tr = cell_model.tracker
@@ -269,6 +420,12 @@ def run(
             "orientation_sigma_rad": tr.orientation_sigma_rad,
         }
         inputs["cell"] = Path(cell)
+        noise_source = "cell"
+    sp, so = _parse_sigma(tracker_sigma)
+    if sp is not None:
+        overrides = {"position_sigma_m": sp, "orientation_sigma_rad": so}
+        noise_source = "option"
+    overrides = {k: v for k, v in overrides.items() if v is not None}
     settings = settings_from_options(
         CalibrateSettings,
         dict(
@@ -277,13 +434,18 @@ def run(
             loss=loss,
             outlier_sigma=outlier_sigma,
             drop_outliers=not keep_outliers,
+            model=model,
             **overrides,
         ),
         {"holdout_fraction": "holdout", "outlier_sigma": "outlier-sigma"},
     )
+    params = None
+    if dynamics is not None:
+        params = load_dynamics(dynamics, robot)
+        inputs["dynamics"] = Path(dynamics)
     with console.err.status(f"calibrate: fitting {robot.name} to {ms.n} poses"):
-        res = calibrate(robot, ms, settings, tracker_to_base=t2b)
-    art = calibration_artefact(robot, res, inputs, urdf_out)
+        res = calibrate(robot, ms, settings, tracker_to_base=t2b, dynamics=params)
+    art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)
     output.parent.mkdir(parents=True, exist_ok=True)
     if urdf_out is not None:
         Path(urdf_out).parent.mkdir(parents=True, exist_ok=True)
@@ -291,6 +453,7 @@ def run(
     write_yaml_artefact(output, art)
     console.summary_table(f"calibrate → {output}", art.summary)
     print_table(res)
+    print_model_and_noise(robot, res, art.tracker_noise.source)
     if res.outlier_idx.size:
         console.out.print(f"  outlier poses: {res.outlier_idx.tolist()}")
     if res.baseline is not None and res.baseline.fit is None:

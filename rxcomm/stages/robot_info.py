@@ -46,10 +46,7 @@ def stretched_pose(robot: Robot) -> np.ndarray:
 
 def robot_facts(robot: Robot) -> dict[str, object]:
     """The figures `robot-info` prints, as a flat mapping (SI units)."""
-    data = robot.create_data()
     q = stretched_pose(robot)
-    pin.framesForwardKinematics(robot.model, data, q)
-    flange = data.oMf[robot.flange_frame_id].translation
     dyn = RobotDynamics(robot, prior_parameters(robot))
     g = dyn.gravity_torque(q, include_spring=False)
     spring = dyn.gravity_torque(q, include_spring=True) - g
@@ -57,7 +54,7 @@ def robot_facts(robot: Robot) -> dict[str, object]:
         "name": robot.name,
         "dof": robot.n,
         "moving_mass_kg": float(sum(robot.model.inertias[i].mass for i in range(1, robot.model.njoints))),
-        "reach_flange_m": float(np.hypot(flange[0], flange[1])),
+        "reach_m": robot.reach_m,
         "stretched_pose_rad": q.tolist(),
         "stretched_gravity_torque_nm": g.tolist(),
         "stretched_spring_torque_nm": spring.tolist(),
@@ -87,7 +84,9 @@ def run(robot_dir: Path) -> dict[str, object]:
     out.print(f"[bold]{robot.name}[/]  ({robot.urdf_path}, {robot.drives_path})")
     out.print(f"  degrees of freedom    {robot.n}")
     out.print(f"  moving mass           {facts['moving_mass_kg']:.1f} kg")
-    out.print(f"  flange reach          {facts['reach_flange_m']:.3f} m (from the J1 axis, arm stretched)")
+    out.print(
+        f"  reach                 {facts['reach_m']:.3f} m (shoulder → TCP, links in a line: Robot.reach_m)"
+    )
     out.print(f"  drive cycle           {robot.drives.cycle_s * 1e6:.0f} µs")
     out.print("")
     out.print("  joint       lower°    upper°   vmax°/s   amax rad/s²  peak N·m  cont N·m  ratio")
