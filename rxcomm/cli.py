@@ -18,6 +18,7 @@ from rxcomm.stages import (
     identify,
     plan_cp,
     plan_ptp,
+    recover_log,
     report,
     robot_info,
     run,
@@ -60,6 +61,7 @@ app.command("identify")(identify.command)
 app.command("plan-cp")(plan_cp.command)
 app.command("plan-ptp")(plan_ptp.command)
 app.command("report")(report.command)
+app.command("recover-log")(recover_log.command)
 
 
 def main() -> None:

@@ -43,6 +43,8 @@ class Section:
 def _f(x: object, scale: float = 1.0, digits: int = 3, unit: str = "") -> str:
     if x is None:
         return "—"
+    if isinstance(x, str):  # e.g. "not applicable (virtual time)": said as it is, never as a number
+        return x
     if isinstance(x, list | tuple):
         return "[" + ", ".join(_f(v, scale, digits) for v in x) + "]" + (f" {unit}" if unit else "")
     return f"{float(x) * scale:.{digits}g}" + (f" {unit}" if unit else "")
@@ -296,7 +298,9 @@ def execution_section(ff: Mapping, noff: Mapping | None, image: str | None) -> S
     figs = [
         Figure("max joint lag with feed-forward", _f(ff["max_lag_rad"], 1e3, unit="mrad")),
         Figure("max TCP error with feed-forward", _f(ff["max_tcp_error_m"], 1e3, unit="mm")),
-        Figure("underruns", str(ff["underruns"])),
+        Figure("underruns", _f(ff["underruns"])),
+        Figure("min buffered lead while feeding", _f(ff.get("min_lead_s"), unit="s"), "≥ 0.1 s"),
+        Figure("cell cycle overruns", _f(ff.get("cell_overruns")), "0"),
     ]
     if noff is not None:
         figs += [

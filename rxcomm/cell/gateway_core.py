@@ -16,7 +16,7 @@ from rxcomm.cell.cia402 import Drive402, State
 from rxcomm.errors import GatewayError
 from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
-from rxcomm.gateway.registers import Control, ErrorCode, ModbusException, Status
+from rxcomm.gateway.registers import Control, ErrorCode, ModbusException, Status, StopCause
 
 EXC_ADDRESS = int(ModbusException.ILLEGAL_ADDRESS)
 EXC_VALUE = int(ModbusException.ILLEGAL_VALUE)
@@ -187,6 +187,13 @@ class GatewayCore:
         self._tracker_words = [0] * R.TRACKER_WORDS
         self.mute_ms_requested = 0
         self.drop_requested = False
+        # One master at a time (register 28): the claiming connection and its token (0 = unclaimed).
+        self.owner: object | None = None
+        self.owner_token = 0
+        self._conn: object | None = None  # the connection of the write being handled
+        self.stop_cause = 0  # StopCause of the first stop since CLEAR / RESET (register 43)
+        self.overruns = 0  # realtime: cycles the clock started more than a cycle late (register 44)
+        self.clock = int(R.Clock.VIRTUAL)  # the server sets what paces it (register 45)
 
     # ---- derived state -------------------------------------------------------------------------
 
@@ -219,6 +226,13 @@ class GatewayCore:
     def _set_error(self, code: int) -> None:
         if not self.error:
             self.error = int(code)
+
+    def _set_cause(self, cause: StopCause) -> None:
+        if not self.stop_cause:
+            self.stop_cause = int(cause)
+
+    def release_owner(self) -> None:
+        self.owner, self.owner_token = None, 0
 
     def _start_ramp(self, i: int) -> None:
         """Ramp from the demand velocity of the last cycle down to zero."""
@@ -256,24 +270,32 @@ class GatewayCore:
         self._set_error(code)
         self.quick_stop()
 
-    def comm_lost(self) -> None:
-        """Watchdog expiry or loss of every connection while torque is on."""
+    def comm_lost(self, cause: StopCause = StopCause.CONNECTION_LOST) -> None:
+        """Watchdog expiry or loss of the master's (or every) connection while torque is on."""
         if any(self.powered()):
             self.watchdog = True
+            self._set_cause(cause)
             self.fault_axes([True] * R.N_AXES, ErrorCode.HEARTBEAT)
 
     def check_watchdog(self, now_s: float) -> None:
-        if self.watchdog_ms and now_s - self.last_write_s > self.watchdog_ms / 1e3 and any(self.powered()):
-            self.comm_lost()
+        if not self.watchdog_ms or now_s - self.last_write_s <= self.watchdog_ms / 1e3:
+            return
+        self.release_owner()  # the watchdog is the master's lease: silent that long, it is gone
+        if any(self.powered()):
+            self.comm_lost(StopCause.WATCHDOG)
 
-    def connection_changed(self, opened: bool) -> None:
+    def connection_changed(self, opened: bool, conn: object | None = None) -> None:
         self.connections = max(0, self.connections + (1 if opened else -1))
-        if self.connections == 0:
+        owner_left = not opened and self.owner_token and conn is not None and conn is self.owner
+        if owner_left:
+            self.release_owner()
+        if self.connections == 0 or owner_left:
             self.comm_lost()
 
     def set_estop(self, pressed: bool) -> None:
         if pressed and not self.estop_pressed:
             self.estop_latched = True
+            self._set_cause(StopCause.ESTOP)
             self.fault_axes([True] * R.N_AXES, ErrorCode.EXTERNAL_ESTOP)
         self.estop_pressed = pressed
 
@@ -294,6 +316,7 @@ class GatewayCore:
         elif not d.powered:
             self._unpowered(axis)
         if before is State.OPERATION_ENABLED and self.phase in (Phase.ARMED, Phase.RUNNING):
+            self._set_cause(StopCause.AXIS_LEFT_OPERATION)
             self.quick_stop()  # a stream needs every axis: one leaving stops it and the others
 
     def reset(self) -> None:
@@ -301,6 +324,7 @@ class GatewayCore:
         for d in self.drives:
             d.fault_reset(fault_cause_active=self.estop_pressed)
         self.watchdog = self.underrun = self.seq_error = False
+        self.stop_cause = 0
         if not self.estop_pressed:
             self.estop_latched = False
         self.error = next((d.error_code for d in self.drives if d.faulted), 0)
@@ -313,6 +337,7 @@ class GatewayCore:
         self.levels = 0
         self.eos = False
         self.underrun = self.seq_error = False
+        self.stop_cause = 0
         self._sub = 0
         self.stream_cycle = 0
         self.trace_active = False
@@ -334,13 +359,21 @@ class GatewayCore:
 
     # ---- register writes -----------------------------------------------------------------------
 
-    def handle_write(self, address: int, values: list[int], now_s: float) -> int | None:
-        """Apply a write; None or a Modbus exception code (registers.ModbusException)."""
+    def handle_write(
+        self, address: int, values: list[int], now_s: float, conn: object | None = None
+    ) -> int | None:
+        """Apply a write from connection ``conn``; None or a Modbus exception code.
+
+        While a master has claimed the gateway (register 28), writes from any other connection are
+        refused with exception 3, except to the simulator's fault injection (the world outside)."""
         end = address + len(values)
         for name, base, count, read_only in _SECTIONS:
             if base <= address and end <= base + count:
                 if read_only:
                     return EXC_ADDRESS
+                if self.owner_token and conn is not self.owner and name != "sim":
+                    return EXC_VALUE
+                self._conn = conn
                 exc = getattr(self, f"_write_{name}")(address - base, values)
                 if exc is None or exc == EXC_BUSY:  # a busy answer proves the master alive
                     self.last_write_s = now_s
@@ -366,6 +399,9 @@ class GatewayCore:
         bits = regs.get(R.CTRL_BITS)
         if bits is not None and (exc := self._check_control(bits)):
             return exc
+        if R.CTRL_MASTER in regs:  # claim (token) or release (0); another master's write never gets here
+            self.owner_token = regs[R.CTRL_MASTER]
+            self.owner = self._conn if self.owner_token else None
         for addr, (_, _, attr) in ranges.items():
             if addr in regs:
                 setattr(self, attr, regs[addr])
@@ -382,6 +418,8 @@ class GatewayCore:
         return None
 
     def _check_control(self, bits: int) -> int | None:
+        if bits & ~_CONTROL_DEFINED:
+            return EXC_VALUE  # undefined bits
         clear = bool(bits & _CB["CLEAR"])
         if clear and self.phase is Phase.RUNNING:
             return EXC_VALUE
@@ -399,6 +437,7 @@ class GatewayCore:
         if bits & _CB["RESET"]:
             self.reset()
         if bits & _CB["QUICK_STOP"]:
+            self._set_cause(StopCause.QUICK_STOP_COMMAND)
             self.quick_stop()
         if bits & _CB["END_OF_STREAM"] and self.phase in _STREAM_OPEN:
             self.eos = True
@@ -409,6 +448,7 @@ class GatewayCore:
             if self.phase is Phase.ARMED:
                 self.phase = Phase.IDLE
             elif self.phase is Phase.RUNNING:
+                self._set_cause(StopCause.STREAM_DISABLED)
                 self.quick_stop()  # withdrawing stream enable mid-stream is a stop request
         self.levels = (bits & enable_bit) | (_CB["END_OF_STREAM"] if self.eos else 0)
 
@@ -453,11 +493,17 @@ class GatewayCore:
 
     def _write_sim(self, offset: int, values: list[int]) -> int | None:
         regs = {offset + i: v for i, v in enumerate(values)}
-        if regs.get(R.SIM_MUTE_MS, 0) > R.SIM_MUTE_MS_MAX:
-            return EXC_VALUE
+        if (
+            regs.get(R.SIM_MUTE_MS, 0) > R.SIM_MUTE_MS_MAX
+            or regs.get(R.SIM_ESTOP, 0) not in (0, 1)
+            or regs.get(R.SIM_FAULT_AXES, 0) & ~R.SIM_FAULT_AXES_MASK
+            or regs.get(R.SIM_DROP, 0) not in (0, R.SIM_DROP_VALUE)
+        ):
+            return EXC_VALUE  # out of range or undefined bits: nothing happens
         if R.SIM_ESTOP in regs:
             self.set_estop(bool(regs[R.SIM_ESTOP]))
         if mask := regs.get(R.SIM_FAULT_AXES, 0):
+            self._set_cause(StopCause.AXIS_FAULT)
             self.fault_axes([bool((mask >> i) & 1) for i in range(R.N_AXES)], ErrorCode.INJECTED)
         if regs.get(R.SIM_MUTE_MS):
             self.mute_ms_requested = regs[R.SIM_MUTE_MS]
@@ -507,6 +553,7 @@ class GatewayCore:
             self.ratio,
             self.decimation,
             self.cw_all,
+            self.owner_token,
         ]
 
     def stream_status(self) -> codec.StreamStatus:
@@ -530,6 +577,9 @@ class GatewayCore:
             error=self.error,
             trace_count=self.trace.next,
             heartbeat_echo=self.heartbeat,
+            stop_cause=self.stop_cause,
+            overruns=self.overruns,
+            clock=self.clock,
         )
 
     def _image_status(self, sample: bool) -> list[int]:
@@ -618,6 +668,7 @@ class GatewayCore:
                     self.underrun = True
                     self.underrun_count += 1
                     self._set_error(ErrorCode.UNDERRUN)
+                    self._set_cause(StopCause.UNDERRUN)
                     self.quick_stop()
                 return False
             self._seg_from, self._seg_tau_from = self.demand_pos, self.tau_ff
@@ -659,6 +710,7 @@ class GatewayCore:
                 self.trace.push(self.fb.position_rad, self.fb.torque_nm)
         trip = np.abs(self.fb.following_error_rad) > self._fe_limit
         if trip.any():
+            self._set_cause(StopCause.AXIS_FAULT)
             self.fault_axes(trip & np.array(powered), ErrorCode.FOLLOWING_ERROR)
         if any(self.ramping):
             self._end_ramps()
@@ -683,3 +735,4 @@ class GatewayCore:
 _EOS_FLAG = int(R.BlockFlags.END_OF_STREAM)
 _SB = {f.name: int(f) for f in Status}
 _CB = {f.name: int(f) for f in Control}
+_CONTROL_DEFINED = sum(_CB.values())

@@ -11,12 +11,17 @@ Time (``TimeMode``):
   a run's physics does not depend on how fast the master is. The watchdog still uses wall time.
 - ``realtime``: a cycle every 400 µs of wall time on a drift-free schedule (deadline += period; a
   late wake-up runs the overdue cycles at once; beyond ``max_lag_cycles`` the schedule resyncs and
-  counts it). An empty buffer while streaming is an underrun.
+  counts it). An empty buffer while streaming is an underrun. A cycle started more than one period
+  late is an overrun (register 44): the cell reports its own lateness, so a busy machine cannot pass
+  for a good run.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextvars
+import logging
+import struct
 import threading
 import time
 from enum import StrEnum
@@ -24,16 +29,21 @@ from types import TracebackType
 
 from pydantic import BaseModel, ConfigDict, Field
 from pymodbus.constants import ExcCodes
+from pymodbus.pdu import ExceptionResponse
 from pymodbus.server import ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from rxcomm.cell.backend import CellBackend
 from rxcomm.cell.gateway_core import CoreLimits, GatewayCore
 from rxcomm.errors import GatewayError
 from rxcomm.gateway import registers as R
-from rxcomm.gateway.net import is_loopback
+from rxcomm.gateway.net import is_loopback, quiet_pymodbus
 
 VIRTUAL_BATCH_CYCLES = 64
+_log = logging.getLogger("rxcomm.cell")
+_CONNECTION: contextvars.ContextVar[object | None] = contextvars.ContextVar("connection", default=None)
+quiet_pymodbus()
 
 
 class TimeMode(StrEnum):
@@ -77,6 +87,69 @@ def _simdata() -> list[SimData]:
     return out
 
 
+class _Connection(ServerRequestHandler):
+    """pymodbus' per-connection handler, telling the cell which connection a request came on
+    (ownership, register 28), answering only the documented function codes, and dropping a frame it
+    cannot parse with one log line instead of a traceback."""
+
+    def __init__(self, server: _TcpServer):
+        super().__init__(server, server.trace_packet, server.trace_pdu, None)
+        self._cell = server.cell
+
+    def callback_connected(self) -> None:
+        super().callback_connected()
+        self._cell._on_connect(True, self)
+
+    def callback_disconnected(self, exc: Exception | None) -> None:
+        super().callback_disconnected(exc)
+        self._cell._on_connect(False, self)
+
+    def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
+        if len(data) >= 8:  # MBAP header + function code: refuse an undocumented one before decoding
+            tid, protocol, length = struct.unpack(">HHH", data[:6])
+            fc = data[7] & 0x7F
+            if protocol == 0 and fc not in R.FUNCTION_CODES and len(data) >= 6 + length:
+                rsp = ExceptionResponse(fc, ExcCodes.ILLEGAL_FUNCTION, device_id=data[6], transaction=tid)
+                self.server_send(rsp, addr)
+                return 6 + length
+        try:
+            return super().callback_data(data, addr)
+        except Exception as e:  # noqa: BLE001 - any undecodable frame: drop it, keep serving
+            _log.debug("dropped a malformed Modbus frame (%d bytes): %s", len(data), e)
+            self.last_pdu = None
+            return len(data)
+
+    async def handle_request(self) -> None:
+        pdu = self.last_pdu
+        if pdu is None:
+            return
+        if pdu.function_code not in R.FUNCTION_CODES:
+            response = ExceptionResponse(pdu.function_code, ExcCodes.ILLEGAL_FUNCTION)
+            response.transaction_id, response.dev_id = pdu.transaction_id, pdu.dev_id
+            self.server_send(response, self.last_addr)
+            return
+        token = _CONNECTION.set(self)  # this request's task only: the action reads it
+        try:
+            await super().handle_request()
+        finally:
+            _CONNECTION.reset(token)
+
+
+def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, object]) -> None:
+    """A failure inside a connection's callbacks (e.g. a peer that vanished mid-answer) is one log
+    line, not asyncio's default traceback on the cell's stderr; the connection's loss is handled."""
+    _log.debug("gateway I/O: %s (%s)", context.get("message"), context.get("exception"))
+
+
+class _TcpServer(ModbusTcpServer):
+    def __init__(self, cell: CellServer, *args: object, **kwargs: object):
+        self.cell = cell
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+
+    def callback_new_connection(self) -> _Connection:
+        return _Connection(self)
+
+
 class CellServer:
     """Gateway server around a backend; ``with CellServer(backend) as srv: srv.port``."""
 
@@ -91,6 +164,8 @@ class CellServer:
             settle_max_cycles=self.config.settle_max_cycles,
         )
         self.core = GatewayCore(backend, limits)
+        realtime = self.config.time_mode is TimeMode.REALTIME
+        self.core.clock = int(R.Clock.REALTIME if realtime else R.Clock.VIRTUAL)
         self.lock = threading.Condition()  # serialises every core access; notified on writes
         self._stop = threading.Event()
         self._started = threading.Event()
@@ -154,6 +229,7 @@ class CellServer:
     def _io_main(self) -> None:
         loop = asyncio.new_event_loop()
         asyncio.set_event_loop(loop)
+        loop.set_exception_handler(_loop_exception)
         opened = False
         try:
             loop.run_until_complete(self._open())
@@ -181,15 +257,13 @@ class CellServer:
 
     async def _open(self) -> None:
         device = SimDevice(id=0, simdata=_simdata(), action=self._action)
-        self._server = ModbusTcpServer(
-            device, address=(self.config.host, self.config.port), trace_connect=self._on_connect
-        )
+        self._server = _TcpServer(self, device, address=(self.config.host, self.config.port))
         await self._server.serve_forever(background=True)
         self._port = self._server.transport.sockets[0].getsockname()[1]
 
-    def _on_connect(self, connected: bool) -> None:
+    def _on_connect(self, connected: bool, conn: object) -> None:
         with self.lock:
-            self.core.connection_changed(connected)
+            self.core.connection_changed(connected, conn)
             self.lock.notify()
 
     def _drop_connections(self) -> None:
@@ -199,6 +273,7 @@ class CellServer:
             conn.close()  # pymodbus does not report these as disconnects: account for them here
         with self.lock:
             self.core.connections = 0
+            self.core.release_owner()
             self.core.comm_lost()
             self.lock.notify()
 
@@ -216,7 +291,7 @@ class CellServer:
             await asyncio.sleep(wait)
             return ExcCodes.GATEWAY_NO_RESPONSE
         if set_values is not None:
-            return self._write(address, [int(v) for v in set_values])
+            return self._write(address, [int(v) for v in set_values], _CONNECTION.get())
         with self.lock:
             words = self.core.handle_read(address, count)
         if isinstance(words, int):
@@ -225,9 +300,9 @@ class CellServer:
         registers[offset : offset + count] = words
         return None
 
-    def _write(self, address: int, values: list[int]) -> ExcCodes | None:
+    def _write(self, address: int, values: list[int], conn: object | None) -> ExcCodes | None:
         with self.lock:
-            exc = self.core.handle_write(address, values, time.monotonic())
+            exc = self.core.handle_write(address, values, time.monotonic(), conn)
             mute_ms, self.core.mute_ms_requested = self.core.mute_ms_requested, 0
             drop, self.core.drop_requested = self.core.drop_requested, False
             self.lock.notify()
@@ -262,8 +337,11 @@ class CellServer:
             if now < deadline:
                 time.sleep(min(deadline - now, 0.002))
                 continue
-            self.max_late_s = max(self.max_late_s, now - deadline)
+            late = now - deadline
+            self.max_late_s = max(self.max_late_s, late)
             with self.lock:
+                if late > period:  # this cycle's slot passed unserved: a real drive would fault
+                    self.core.overruns += 1
                 self.core.check_watchdog(time.monotonic())
                 self.core.run_cycle(allow_underrun=True)
             deadline += period

@@ -9,6 +9,7 @@ does not import the bench package.
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
@@ -147,8 +148,104 @@ def bench_streaming(
     ]
 
 
-if __name__ == "__main__":  # python -m rxcomm.execution.bench [seconds] [ideal|sim]
+def _rss_bytes(pid: int) -> float:
+    """Resident set size of a process (Linux /proc), bytes; NaN where unavailable."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return float(line.split()[1]) * 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+def bench_soak(
+    duration_s: float = 600.0,
+    stream_s: float = 60.0,
+    *,
+    robot_dir: str | Path = SAMPLE_ROBOT,
+    backend: str = "ideal",
+) -> list[dict[str, Any]]:
+    """Realtime soak: the same ``stream_s`` trajectory streamed back to back for ``duration_s`` over one
+    connection to a realtime gateway in another process (enable, stream, disable each time, as
+    `run` does), looking for what only time shows: underruns, lost records, the cell's own cycle
+    overruns, the round-trip tail, and memory growth (RSS) of master and cell after the first minute
+    (a leak grows without bound; a plateau is allocation warming up)."""
+    robot = load_robot(robot_dir)
+    q0 = np.array([0.0, -0.3, 1.2, 0.0, 0.6, 0.0])
+    params = prior_parameters(robot)
+    plan = prepare_plan(robot, back_and_forth(robot, q0, stream_s), params, robot.drives.cycle_s)
+    n_streams = max(1, round(duration_s / plan.duration_s))
+    truth = str(Path(robot_dir) / "truth.yaml")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _SERVER, backend, _csv(q0), _csv(robot.tau_max), truth],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    me = os.getpid()
+    samples: list[tuple[float, float, float]] = []  # (wall s since start, master RSS, cell RSS)
+    logs = []
+    errors = []
+    try:
+        assert proc.stdout is not None and proc.stdin is not None
+        line = proc.stdout.readline()
+        if not line.strip().isdigit():
+            raise GatewayError(f"bench gateway process did not start (said {line!r})")
+        t0 = time.perf_counter()
+        samples.append((0.0, _rss_bytes(me), _rss_bytes(proc.pid)))
+        with GatewayClient("127.0.0.1", int(line), timeout_s=1.0) as client:
+            for _ in range(n_streams):
+                result = run_trajectory(client, robot, plan, params, RunSettings())
+                if result.log is not None:
+                    logs.append(result.log)
+                if result.error is not None:
+                    errors.append(str(result.error))
+                    break
+                samples.append((time.perf_counter() - t0, _rss_bytes(me), _rss_bytes(proc.pid)))
+        proc.stdin.close()
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=5)
+    wall = samples[-1][0]
+    # growth after the first minute: from the first sample at ≥ 60 s (or the first stream's end)
+    first = next((s for s in samples if s[0] >= 60.0), samples[min(1, len(samples) - 1)])
+    last = samples[-1]
+
+    def growth(k: int) -> float:
+        return (last[k] - first[k]) / first[k] if first is not last else float("nan")
+
+    rts = np.concatenate([lg.round_trips_s for lg in logs]) if logs else np.zeros(0)
+    overruns = [lg.overruns for lg in logs]
+    label = f"{wall:.0f} s realtime soak, {len(logs)} × {plan.duration_s:g} s, {backend} backend"
+    stopped = "" if not errors else f": stopped, {errors[0]}"
+    rows = [
+        (f"streams completed{stopped}", "", float(len(logs) - len(errors)), f"{n_streams}"),
+        ("underruns", "", float(sum(lg.underruns for lg in logs)), "0"),
+        ("lost trace records", "", float(sum(lg.lost_records for lg in logs)), "0"),
+        (
+            "cell cycle overruns (cycles started > 1 cycle late)",
+            "",
+            float(sum(overruns)) if None not in overruns else float("nan"),
+            "reported",
+        ),
+        ("FC23 round trip p99", "s", float(np.percentile(rts, 99)) if rts.size else float("nan"), "< lead"),
+        ("master RSS growth after the first minute", "%", 100 * growth(1), "≤ 10 %"),
+        ("cell RSS growth after the first minute", "%", 100 * growth(2), "≤ 10 %"),
+        ("master RSS at the end", "MB", last[1] / 1e6, ""),
+        ("cell RSS at the end", "MB", last[2] / 1e6, ""),
+    ]
+    return [
+        {"stage": "run", "metric": f"{m} ({label})", "unit": u, "ours": v, "paper": "", "target": tgt}
+        for m, u, v, tgt in rows
+    ]
+
+
+if __name__ == "__main__":  # python -m rxcomm.execution.bench [seconds] [ideal|sim] [soak]
     secs = float(sys.argv[1]) if len(sys.argv) > 1 else 60.0
     kind = sys.argv[2] if len(sys.argv) > 2 else "ideal"
-    for row in bench_streaming(secs, backend=kind):
-        print(f"{row['metric']:<80} {row['ours']:.6g} {row['unit']}")
+    bench = bench_soak if sys.argv[3:4] == ["soak"] else bench_streaming
+    for row in bench(secs, backend=kind):
+        print(f"{row['metric']:<100} {row['ours']:.6g} {row['unit']}")

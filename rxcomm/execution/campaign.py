@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.plan import StreamPlan, prepare_plan
-from rxcomm.execution.session import RunResult, Session, StreamSettings, StreamStopped
+from rxcomm.execution.session import RunResult, Session, StreamSettings, StreamStopped, timing_figures
 from rxcomm.gateway.client import GatewayClient, TrackerSample
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.robot import Robot
@@ -119,9 +119,12 @@ def run_campaign(
     params: DynamicParameters,
     settings: CampaignSettings | None = None,
     progress: Callable[[str, float], None] | None = None,
+    on_pose: Callable[[CampaignResult], None] | None = None,
 ) -> CampaignResult:
     """Drive to every pose and read the tracker there. Refusals before motion raise; a stop during
-    the campaign is returned in ``result.run.error`` with the readings taken so far."""
+    the campaign is returned in ``result.run.error`` with the readings taken so far. ``on_pose`` gets
+    the result after every pose measured (the stage writes the measurements so far: a killed
+    campaign keeps them)."""
     settings = settings or CampaignSettings()
     t_start = time.perf_counter()
     q_poses = check_poses(robot, poses, settings.limit_tolerance)
@@ -144,6 +147,8 @@ def run_campaign(
             run.moves.append(ses.stream(move))
             sample, attempts = _settle_and_read(ses, settings)
             result.readings.append(PoseReading(i, q_poses[i], ses.positions(), sample, attempts))
+            if on_pose is not None:
+                on_pose(result)
         if progress is not None:
             progress("poses", 1.0)
         run.stop_note = ses.stop_drives(after_stop=False)
@@ -213,7 +218,7 @@ def campaign_summary(result: CampaignResult) -> dict[str, object]:
         "n_poses": len(result.readings),
         "n_valid": result.n_valid,
         "n_planned": result.n_planned,
-        "underruns": int(sum(m.underruns for m in run.moves)),
+        **timing_figures(run.moves),
         "max_move_lag_rad": float(max(lags)) if lags else None,
         "max_tracker_attempts": max((r.attempts for r in result.readings), default=0),
         "interpolation_ratio": run.ratio,

@@ -1,21 +1,30 @@
 """The run log: ``NAME.mcap`` (Foxglove-plottable time series) + ``NAME.yaml`` (kind `rxcomm/RunLog`).
 
 The contract `identify` reads (see ``rxcomm.schemas.run_log``): ``/run/joints`` at the setpoint rate
-(the drive cycle when R = 1) and ``/run/gateway`` once per block reply. Written after the motion from
-the arrays the session kept in memory. A run that ended in a stop keeps ``NAME.mcap.part``: a finished,
-readable MCAP whose envelope summary says ``outcome`` and ``stop_reason``; no ``NAME.yaml``.
+(the drive cycle when R = 1) and ``/run/gateway`` once per block reply. Written while the robot
+moves (``RunLogWriter``, the session's record sink): to ``NAME.mcap.part`` in chunks flushed to the
+OS every ``FLUSH_PERIOD_S`` of wall time, renamed to ``NAME.mcap`` (and ``NAME.yaml`` written) when
+the run completes. A run that ended in a stop keeps ``NAME.mcap.part``: a finished, readable MCAP
+whose envelope summary says ``outcome`` and ``stop_reason``; no ``NAME.yaml``. A killed run (SIGKILL,
+power cut of the PC) leaves an unfinished ``.part`` whose envelope says ``outcome: running``;
+``recover_run_log`` (`rxcomm recover-log`) turns it into a readable log and says what was lost.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rxcomm.execution.session import RunResult, StreamLog
-from rxcomm.io.mcap_io import McapWriter, number_field, vector_field
+from rxcomm.errors import InputError
+from rxcomm.execution.plan import StreamPlan
+from rxcomm.execution.session import NOT_APPLICABLE_VIRTUAL, RunResult, StreamLog, timing_figures
+from rxcomm.io.files import part_path
+from rxcomm.io.mcap_io import McapWriter, number_field, recover_mcap, vector_field
+from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
 from rxcomm.model.kinematics import frame_placement
 from rxcomm.model.robot import Robot
@@ -28,6 +37,8 @@ from rxcomm.schemas.run_log import (
     RunLog,
     RunLogTopic,
 )
+
+FLUSH_PERIOD_S = 0.5  # wall time between chunks handed to the OS: what a killed run can lose
 
 
 def tcp_errors(robot: Robot, q_demand: np.ndarray, q_actual: np.ndarray) -> np.ndarray:
@@ -57,7 +68,8 @@ def run_summary(robot: Robot, result: RunResult, tcp_error: np.ndarray | None = 
     log = result.log
     approach = result.approach
     streams = [s for s in (approach, log) if s is not None]
-    out: dict[str, Any] = {"underruns": int(sum(s.underruns for s in streams))}
+    virtual = any(s.virtual_time for s in streams)
+    out: dict[str, Any] = dict(timing_figures(streams))
     if log is not None and log.n_records:
         fe = np.abs(log.following_error)
         tcp = tcp_errors(robot, log.q_demand, log.q_actual) if tcp_error is None else tcp_error
@@ -81,7 +93,9 @@ def run_summary(robot: Robot, result: RunResult, tcp_error: np.ndarray | None = 
         "n_records": 0 if log is None else log.n_records,
         "lost_records": 0 if log is None else log.lost_records,
         "busy_replies": 0 if log is None else log.busy_replies,
-        "min_lead_s": None if log is None else _finite_or_none(log.min_lead_s()),
+        "min_lead_s": NOT_APPLICABLE_VIRTUAL
+        if virtual
+        else (None if log is None else _finite_or_none(log.min_lead_s())),
         "round_trip_probe_p50_s": _percentile(result.round_trip_probe_s, 50),
         "round_trip_p50_s": None if log is None else _percentile(log.round_trips_s, 50),
         "round_trip_p99_s": None if log is None else _percentile(log.round_trips_s, 99),
@@ -111,6 +125,167 @@ def joint_columns(robot: Robot, log: StreamLog, tcp_error: np.ndarray | None = N
     }
 
 
+class RunLogWriter:
+    """The run log, written while the robot moves (the session's ``RecordSink``).
+
+    ``begin`` (called when the plan's stream starts) opens ``NAME.mcap.part`` with the envelope
+    (summary ``outcome: running``) and both channels; ``records``/``gateway`` append rows and flush a
+    chunk each time (every ``period_s``); ``close(result)`` appends what the stream recorded after the
+    last hand-over, writes the final summary and finishes: ``NAME.mcap`` + ``NAME.yaml`` when the run
+    completed, the finished ``NAME.mcap.part`` after a stop. Before ``begin`` nothing is on disk.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        robot: Robot,
+        *,
+        inputs: Mapping[str, str | Path],
+        settings: Mapping[str, Any],
+        feedforward: str,
+        embedded_cell: bool,
+        period_s: float = FLUSH_PERIOD_S,
+    ) -> None:
+        self.path = Path(path)
+        summary_yaml_path(self.path)  # refuses a name not ending in .mcap before anything is written
+        self.robot = robot
+        self.inputs, self.settings = dict(inputs), dict(settings)
+        self.feedforward, self.embedded_cell = feedforward, embedded_cell
+        self.period_s = period_s
+        self._w: McapWriter | None = None
+        self._plan: StreamPlan | None = None
+        self.n_joint = 0  # /run/joints rows written
+        self.n_gw = 0
+        self._tcp: list[np.ndarray] = []
+
+    @property
+    def part_path(self) -> Path:
+        return part_path(self.path)
+
+    def begin(self, plan: StreamPlan, ratio: int, cycle_s: float) -> None:
+        if self._w is not None:
+            raise ValueError("run log already begun")
+        self._plan = plan
+        running = {
+            "outcome": "running",
+            "stop_reason": "the log was cut off (the run was killed) if this still says running",
+            "interpolation_ratio": ratio,
+            "sample_s": plan.sample_s,
+            "n_setpoints": plan.n,
+            "planned_duration_s": (plan.n - 1) * plan.sample_s,
+        }
+        env = RunLog.envelope(self.inputs, self.settings, running)
+        w = McapWriter(self.path, env, flush_period_s=self.period_s)
+        try:
+            # Channels first, with units in the schema, so even a log stopped before its first record
+            # has them.
+            w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n))
+            w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
+            w.flush()
+        except BaseException:
+            w.abort()
+            raise
+        self._w = w
+
+    def records(self, first: int, q_actual: np.ndarray, tau_actual: np.ndarray) -> None:
+        """Rows ``first…`` of ``/run/joints`` (consecutive: ``first`` must be the rows written so far)."""
+        assert self._w is not None and self._plan is not None
+        if first != self.n_joint:
+            raise ValueError(f"run log rows must be consecutive: got {first}, expected {self.n_joint}")
+        m = q_actual.shape[0]
+        if m == 0:
+            return
+        p = self._plan
+        sl = slice(first, first + m)
+        tcp = tcp_errors(self.robot, p.q[sl], q_actual)
+        cols = {
+            "q_demand": p.q[sl],
+            "qd_demand": p.qd[sl],
+            "qdd_demand": p.qdd[sl],
+            "q_actual": q_actual,
+            "tau_actual": tau_actual,
+            "tau_ff": p.tau_ff[sl],
+            "following_error": p.q[sl] - q_actual,
+            "tcp_error_m": tcp,
+        }
+        self._w.write_arrays(JOINTS_TOPIC, np.arange(first, first + m) * p.sample_s, cols, digits=10)
+        self._w.flush()
+        self._tcp.append(tcp)
+        self.n_joint += m
+
+    def gateway(self, rows: Mapping[str, np.ndarray]) -> None:
+        assert self._w is not None
+        n = len(rows["t"])
+        if n:
+            self._w.write_arrays(GATEWAY_TOPIC, rows["t"], {k: rows[k] for k in GATEWAY_FIELDS}, digits=10)
+            self._w.flush()
+            self.n_gw += n
+
+    def close(self, result: RunResult) -> tuple[Path, dict[str, Any]]:
+        """Write the rest of ``result.log`` and the summary; returns (the file written, the summary).
+
+        Completed: ``NAME.mcap`` + ``NAME.yaml``. Stopped: ``NAME.mcap.part`` only (finished, readable).
+        """
+        log = result.log
+        if self._w is None:  # stopped before the plan's stream began (or a log written after the fact)
+            plan = log.plan if log is not None else None
+            if plan is None:
+                plan = StreamPlan(result.ratio * result.cycle_s, *(np.zeros((1, self.robot.n)),) * 4)
+            self.begin(plan, result.ratio, result.cycle_s)
+        w = self._w
+        assert w is not None
+        try:
+            if log is not None:
+                if log.n_records > self.n_joint:
+                    self.records(self.n_joint, log.q_actual[self.n_joint :], log.tau_actual[self.n_joint :])
+                g = log.gateway
+                if len(g["t"]) > self.n_gw:
+                    self.gateway({k: v[self.n_gw :] for k, v in g.items()})
+            tcp = np.concatenate(self._tcp) if self._tcp else np.zeros(0)
+            if log is not None:
+                tcp = tcp[: log.n_records]
+            summary = run_summary(self.robot, result, tcp if log is not None else None)
+            data = self._yaml_data(result, summary)
+            RunLog.model_validate(data)  # a bad summary is a bug: the .part stays
+            w.set_summary(summary)
+        except BaseException:
+            w.abort()
+            raise
+        if result.error is not None:
+            return w.abort(), summary
+
+        def write_yaml(part: Path) -> None:
+            write_summary_yaml(self.path, RunLog.model_validate({**data, "mcap_sha256": sha256_file(part)}))
+
+        return w.finish(before_rename=write_yaml), summary
+
+    def abandon(self) -> Path | None:
+        """The stage failed outside the run (a bug, an interrupt): keep what is on disk as ``.part``."""
+        return None if self._w is None else self._w.abort()
+
+    def _yaml_data(self, result: RunResult, summary: dict[str, Any]) -> dict[str, Any]:
+        env = RunLog.envelope(self.inputs, self.settings, summary)
+        sample_s = result.ratio * result.cycle_s
+        return {
+            **env,
+            "mcap_file": self.path.name,
+            "mcap_sha256": "0" * 64,
+            "joint_names": list(self.robot.joint_names),
+            "cycle_s": result.cycle_s,
+            "interpolation_ratio": result.ratio,
+            "sample_s": sample_s,
+            "feedforward": self.feedforward,
+            "gateway": result.gateway,
+            "embedded_cell": self.embedded_cell,
+            "topics": [
+                RunLogTopic(
+                    topic=JOINTS_TOPIC, period_s=sample_s, n_messages=self.n_joint, fields=JOINT_FIELDS
+                ),
+                RunLogTopic(topic=GATEWAY_TOPIC, period_s=None, n_messages=self.n_gw, fields=GATEWAY_FIELDS),
+            ],
+        }
+
+
 def write_run_log(
     path: str | Path,
     robot: Robot,
@@ -121,58 +296,12 @@ def write_run_log(
     feedforward: str,
     embedded_cell: bool,
 ) -> tuple[Path, dict[str, Any]]:
-    """Write the log of ``result``; returns (the file written, the summary).
-
-    Completed: ``NAME.mcap`` + ``NAME.yaml``. Stopped: ``NAME.mcap.part`` only (finished, readable).
-    """
-    path = Path(path)
-    summary_yaml_path(path)  # refuses a name not ending in .mcap before anything is written
-    log = result.log
-    tcp = None
-    if log is not None:
-        tcp = tcp_errors(robot, log.q_demand, log.q_actual)
-    summary = run_summary(robot, result, tcp)
-    env = RunLog.envelope(dict(inputs), dict(settings), summary)
-    sample_s = result.ratio * result.cycle_s
-    n_joint = 0 if log is None else log.n_records
-    n_gw = 0 if log is None else len(log.gateway["t"])
-    data = {
-        **env,
-        "mcap_file": path.name,
-        "mcap_sha256": "0" * 64,
-        "joint_names": list(robot.joint_names),
-        "cycle_s": result.cycle_s,
-        "interpolation_ratio": result.ratio,
-        "sample_s": sample_s,
-        "feedforward": feedforward,
-        "gateway": result.gateway,
-        "embedded_cell": embedded_cell,
-        "topics": [
-            RunLogTopic(topic=JOINTS_TOPIC, period_s=sample_s, n_messages=n_joint, fields=JOINT_FIELDS),
-            RunLogTopic(topic=GATEWAY_TOPIC, period_s=None, n_messages=n_gw, fields=GATEWAY_FIELDS),
-        ],
-    }
-    RunLog.model_validate(data)  # a bad summary fails before anything is written
-
-    def write_yaml(part: Path) -> None:
-        write_summary_yaml(path, RunLog.model_validate({**data, "mcap_sha256": sha256_file(part)}))
-
-    w = McapWriter(path, env)
-    try:
-        # Channels first, with units in the schema, so even a log stopped before its first record has them.
-        w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(robot.n))
-        w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
-        if log is not None:
-            t = np.arange(log.n_records) * log.plan.sample_s
-            w.write_arrays(JOINTS_TOPIC, t, joint_columns(robot, log, tcp), digits=10)
-            g = log.gateway
-            w.write_arrays(GATEWAY_TOPIC, g["t"], {k: g[k] for k in GATEWAY_FIELDS}, digits=10)
-    except BaseException:
-        w.abort()
-        raise
-    if result.error is not None:
-        return w.abort(), summary
-    return w.finish(before_rename=write_yaml), summary
+    """Write the log of a finished ``result`` in one go (``RunLogWriter`` does it during the run);
+    returns (the file written, the summary)."""
+    w = RunLogWriter(
+        path, robot, inputs=inputs, settings=settings, feedforward=feedforward, embedded_cell=embedded_cell
+    )
+    return w.close(result)
 
 
 def _joint_schema(n: int) -> dict[str, dict[str, Any]]:
@@ -185,3 +314,68 @@ def _gateway_schema() -> dict[str, dict[str, Any]]:
         k: number_field(d) if k in floats else {"type": "integer", "description": d}
         for k, d in GATEWAY_FIELDS.items()
     }
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """What ``recover_run_log`` got back from a run log's ``.part``."""
+
+    source: Path
+    written: Path
+    n_records: int  # /run/joints rows recovered
+    recovered_s: float  # their span, s (0 with fewer than two rows)
+    planned_s: float | None  # the plan's duration as the log's first envelope said (None: unknown)
+    complete: bool  # the .part was a finished file (a stopped run), nothing was cut off
+    stopped_because: str | None
+
+    def warning(self) -> str:
+        """One line: what was recovered and what was lost."""
+        got = f"recovered {self.recovered_s:.3f} s of {JOINTS_TOPIC} ({self.n_records} records)"
+        if self.complete:
+            return f"{got} from {self.source}: the file was finished (a stopped run's log), nothing lost"
+        plan = f" of the {self.planned_s:.3f} s planned" if self.planned_s is not None else ""
+        lost = (
+            f"lost: everything after t = {self.recovered_s:.3f} s{plan} "
+            f"(the writer was killed; {self.stopped_because})"
+        )
+        return f"{got} from {self.source}; {lost}"
+
+
+def recovered_path(part: str | Path) -> Path:
+    """``run.mcap.part`` -> ``run.recovered.mcap``: never the completed log's name, so neither make nor
+    a later stage mistakes a cut-off log for a complete run."""
+    part = Path(part)
+    name = part.name.removesuffix(".part")
+    stem = name.removesuffix(".mcap")
+    return part.with_name(f"{stem}.recovered.mcap")
+
+
+def recover_run_log(part: str | Path, out: str | Path | None = None) -> Recovery:
+    """Turn the ``NAME.mcap.part`` of a killed (or stopped) run into a finished, readable run log at
+    ``out`` (default ``NAME.recovered.mcap``): everything up to the last chunk the writer flushed,
+    plus an ``rxcomm/recovered`` record saying from where and why reading stopped. InputError if the
+    file is not a run log."""
+    part = Path(part)
+    out = Path(out) if out is not None else recovered_path(part)
+    if out.resolve() == part.resolve():
+        raise InputError("the recovered log must not overwrite the file it is read from", file=out)
+    contents = recover_mcap(part)
+    env = contents.envelope
+    if not env:
+        raise InputError("no rxcomm envelope: not an rxcomm run log (or cut off before it)", file=part)
+    check_kind(env, RunLog, file=part, prefix="envelope")
+    if JOINTS_TOPIC not in contents.topics:
+        raise InputError(f"no {JOINTS_TOPIC} channel: cut off before the run began", file=part)
+    recover_mcap(part, out)
+    joints = contents.topics[JOINTS_TOPIC]
+    n = len(joints)
+    planned = env.get("summary", {}).get("planned_duration_s")
+    return Recovery(
+        source=part,
+        written=out,
+        n_records=n,
+        recovered_s=float(joints.t[-1] - joints.t[0]) if n > 1 else 0.0,
+        planned_s=float(planned) if isinstance(planned, int | float) else None,
+        complete=contents.complete,
+        stopped_because=contents.stopped_because,
+    )

@@ -10,8 +10,9 @@ The order of a run (architecture §7 run):
 4. round trip measured with empty blocks, interpolation ratio R chosen so a 6-setpoint block lasts at
    least ``ROUND_TRIP_MARGIN`` × the mean round trip (``choose_ratio``); trace decimation R (one
    record per setpoint);
-5. enable, stream (``rxcomm.gateway.stream``), every reply's trace and status kept in memory (the MCAP
-   writer blocks ~10 ms closing a chunk: the log is written after the motion, never inside the loop);
+5. enable, stream (``rxcomm.gateway.stream``), every reply's trace and status kept in memory and, with
+   a ``RecordSink`` (the run log writer), handed over every ``period_s`` of wall time so a killed
+   run leaves its log up to then (the buffered lead, ≥ 0.1 s, rides out the writer's few tens of ms);
 6. disable. Any stop after enabling — gateway stop bits, lost connection, Ctrl-C — quick-stops, waits
    until the demand stands still (bounded), disables, and is *returned* in ``RunResult.error`` with
    what was recorded up to it, so the caller can still write the log.
@@ -24,6 +25,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -31,9 +33,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.plan import StreamPlan, distance_to_start, prepare_plan
+from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import BlockReply, GatewayClient, RoundTripStats
-from rxcomm.gateway.registers import DriveState, ErrorCode, Status
+from rxcomm.gateway.registers import DriveState, ErrorCode, Status, StopCause
 from rxcomm.gateway.stream import STOP_BITS, stream
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.robot import Robot
@@ -44,6 +47,21 @@ LATCHED_FAULT_BITS = (
     Status.WATCHDOG | Status.ESTOP | Status.AXIS_FAULT | Status.UNDERRUN | Status.SEQUENCE_ERROR
 )
 COMMUNICATION_ERRORS = (ErrorCode.HEARTBEAT, ErrorCode.UNDERRUN)  # the master's fault: exit 4
+# In virtual time the cell's clock waits for setpoints: an underrun cannot happen and the lead is not
+# held against a clock, so neither figure says anything about the master. Printed instead of a 0.
+NOT_APPLICABLE_VIRTUAL = "not applicable (virtual time)"
+
+
+def timing_figures(streams: list[StreamLog]) -> dict[str, object]:
+    """Underruns and cell overruns of ``streams``: counts in real time, NOT_APPLICABLE_VIRTUAL in
+    virtual time, None (not measured) when the gateway's counters could not be read."""
+    if any(s.virtual_time for s in streams):
+        return {"underruns": NOT_APPLICABLE_VIRTUAL, "cell_overruns": NOT_APPLICABLE_VIRTUAL}
+    overruns = [s.overruns for s in streams]
+    return {
+        "underruns": int(sum(s.underruns for s in streams)),
+        "cell_overruns": None if not streams or None in overruns else int(sum(overruns)),  # type: ignore[arg-type]
+    }
 
 
 class StreamSettings(BaseModel):
@@ -107,6 +125,8 @@ class StreamLog:
     wall_s: float
     cpu_s: float
     completed: bool
+    overruns: int | None = None  # drive cycles the gateway started late during the stream (None: unknown)
+    virtual_time: bool = False  # the gateway's clock waits for setpoints: no underrun, no lead to keep
 
     @property
     def n_records(self) -> int:
@@ -162,10 +182,32 @@ class _LastRoundTrip(RoundTripStats):
         self.last_s = seconds
 
 
-class _Recorder:
-    """``stream(on_reply=...)``: keeps trace chunks and status rows, calls ``progress`` at ≤ 10 Hz."""
+class RecordSink(Protocol):
+    """Takes a stream's records while it runs (the run log writer): ``records`` gets consecutive
+    rows of setpoints already executed, ``gateway`` the status rows since the last call."""
 
-    def __init__(self, n: int, timing: _LastRoundTrip, progress: Callable[[float], None] | None) -> None:
+    period_s: float  # wall time between hand-overs
+
+    def begin(self, plan: StreamPlan, ratio: int, cycle_s: float) -> None: ...
+
+    def records(self, first: int, q_actual: np.ndarray, tau_actual: np.ndarray) -> None: ...
+
+    def gateway(self, rows: dict[str, np.ndarray]) -> None: ...
+
+
+class _Recorder:
+    """``stream(on_reply=...)``: keeps trace chunks and status rows, calls ``progress`` at ≤ 10 Hz and
+    hands new rows to the ``sink`` every ``sink.period_s``."""
+
+    def __init__(
+        self,
+        n: int,
+        timing: _LastRoundTrip,
+        progress: Callable[[float], None] | None,
+        sink: RecordSink | None = None,
+        ratio: int = 1,
+        cycle_s: float = R.CYCLE_US * 1e-6,
+    ) -> None:
         self.n = n
         self.timing = timing
         self.progress = progress
@@ -174,11 +216,19 @@ class _Recorder:
         self.t0 = time.perf_counter()
         self._next_progress = 0.0
         self.last_execute = 0
+        self.sink = sink
+        self.ratio, self.cycle_s = ratio, cycle_s
+        self.emitted = 0  # records handed to the sink
+        self._rows_emitted = 0
+        self._chunks_emitted = 0
+        self._trace_end = 0  # one past the highest record received
+        self._next_emit = self.t0 + (sink.period_s if sink is not None else 0.0)
 
     def __call__(self, reply: BlockReply) -> None:
         tr = reply.trace
         if tr.count:
             self.chunks.append((tr.first, tr.position_rad, tr.torque_nm))
+            self._trace_end = max(self._trace_end, tr.first + tr.count)
         st = reply.status
         if st is None:
             return
@@ -198,6 +248,34 @@ class _Recorder:
         if self.progress is not None and wall >= self._next_progress:
             self._next_progress = wall + 0.1
             self.progress(min(1.0, st.execute_index / self.n))
+        if self.sink is not None and time.perf_counter() >= self._next_emit:
+            self.emit()
+
+    def emit(self) -> None:
+        """Hand the sink the records of setpoints executed so far (not those of a stop ramp after the
+        last executed setpoint: they have no planned demand) and the new status rows."""
+        assert self.sink is not None
+        end = min(self._trace_end, self.last_execute, self.n)
+        if end > self.emitted:
+            q = np.full((end - self.emitted, R.N_AXES), np.nan)  # NaN: a record lost to overflow
+            tau = q.copy()
+            for first, pos, tq in self.chunks[self._chunks_emitted :]:
+                lo, hi = max(first, self.emitted), min(first + pos.shape[0], end)
+                if hi > lo:
+                    q[lo - self.emitted : hi - self.emitted] = pos[lo - first : hi - first]
+                    tau[lo - self.emitted : hi - self.emitted] = tq[lo - first : hi - first]
+            # a chunk reaching past ``end`` is looked at again next time
+            while self._chunks_emitted < len(self.chunks):
+                first, pos, _ = self.chunks[self._chunks_emitted]
+                if first + pos.shape[0] > end:
+                    break
+                self._chunks_emitted += 1
+            self.sink.records(self.emitted, q, tau)
+            self.emitted = end
+        if len(self.rows) > self._rows_emitted:
+            self.sink.gateway(_gateway_arrays(self.rows[self._rows_emitted :], self.ratio, self.cycle_s))
+            self._rows_emitted = len(self.rows)
+        self._next_emit = time.perf_counter() + self.sink.period_s
 
     def trace(self, keep: int) -> tuple[np.ndarray, np.ndarray]:
         """Rows 0..keep-1 by record index (NaN where a record never arrived)."""
@@ -211,20 +289,27 @@ class _Recorder:
         return q, tau
 
     def gateway_arrays(self, ratio: int, cycle_s: float) -> dict[str, np.ndarray]:
-        a = np.array(self.rows, dtype=float).reshape(-1, 7)
-        ex = a[:, 4].astype(np.int64)
-        level = a[:, 6].astype(np.int64)
-        return {
-            "t": ex * ratio * cycle_s,
-            "wall_s": a[:, 0],
-            "round_trip_s": a[:, 1],
-            "status": a[:, 2].astype(np.int64),
-            "error": a[:, 3].astype(np.int64),
-            "execute_index": ex,
-            "write_index": a[:, 5].astype(np.int64),
-            "buffer_level": level,
-            "lead_s": level * ratio * cycle_s,
-        }
+        return _gateway_arrays(self.rows, ratio, cycle_s)
+
+
+def _gateway_arrays(
+    rows: list[tuple[float, float, int, int, int, int, int]], ratio: int, cycle_s: float
+) -> dict[str, np.ndarray]:
+    """Status rows as the ``/run/gateway`` columns."""
+    a = np.array(rows, dtype=float).reshape(-1, 7)
+    ex = a[:, 4].astype(np.int64)
+    level = a[:, 6].astype(np.int64)
+    return {
+        "t": ex * ratio * cycle_s,
+        "wall_s": a[:, 0],
+        "round_trip_s": a[:, 1],
+        "status": a[:, 2].astype(np.int64),
+        "error": a[:, 3].astype(np.int64),
+        "execute_index": ex,
+        "write_index": a[:, 5].astype(np.int64),
+        "buffer_level": level,
+        "lead_s": level * ratio * cycle_s,
+    }
 
 
 # ---- the session ----------------------------------------------------------------------------------
@@ -276,6 +361,7 @@ class Session:
             )
         self.cycle_s = cycle_s
         self.capacity = ident.buffer_capacity
+        self.client.claim()  # one master at a time: refused here, before anything is written
 
     def check_faults(self, reset: bool) -> None:
         """Refuse (SafetyStop) drive faults or latched gateway stops, or clear them when ``reset``."""
@@ -303,6 +389,7 @@ class Session:
     def configure(self) -> int:
         """Measure the round trip with empty blocks, choose R, write watchdog/prefill/R/D."""
         s = self.settings
+        self.client.claim()  # again: planning may have outlasted the lease (the power-on watchdog)
         times = []
         for _ in range(s.round_trip_probes):
             t0 = time.perf_counter()
@@ -326,13 +413,21 @@ class Session:
         lead = max(self.settings.lead_s, self.settings.min_lead_s + 0.05)
         return int(min(math.ceil(lead / sample_s), self.capacity - 2 * R.MAX_CYCLES_PER_BLOCK))
 
-    def stream(self, plan: StreamPlan, progress: Callable[[float], None] | None = None) -> StreamLog:
+    def stream(
+        self,
+        plan: StreamPlan,
+        progress: Callable[[float], None] | None = None,
+        sink: RecordSink | None = None,
+    ) -> StreamLog:
         """Stream ``plan`` (subsampled to this session's ratio) and return what was recorded; a stop
-        raises ``StreamStopped`` carrying the explained error and the log up to it."""
+        raises ``StreamStopped`` carrying the explained error and the log up to it. ``sink`` gets the
+        records while the stream runs (the rest after it is up to the caller: ``sink.emitted``)."""
         sub = plan.subsample(self.ratio)
-        rec = _Recorder(sub.n, self.timing, progress)
+        if sink is not None:
+            sink.begin(sub, self.ratio, self.cycle_s)
+        rec = _Recorder(sub.n, self.timing, progress, sink, self.ratio, self.cycle_s)
         self.client.heartbeat(0)  # feeds the watchdog: a campaign reads tracker and encoders before this
-        before = self._underrun_count()
+        before = self._status()
         rt0 = self.timing.count
         wall0, cpu0 = time.perf_counter(), time.process_time()
         error: RxcommError | None = None
@@ -351,12 +446,15 @@ class Session:
             # may predate it); a gateway that clears its buffer on a stop reports 0: keep the larger.
             rec.last_execute = max(executed, rec.last_execute)
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-        after = self._underrun_count()
+        after = self._status()
         gw = rec.gateway_arrays(self.ratio, self.cycle_s)
+        overruns = None
         if before is not None and after is not None:
-            underruns = (after - before) % 0x10000
+            underruns = (after.underrun_count - before.underrun_count) % 0x10000
+            overruns = (after.overruns - before.overruns) % 0x10000
         else:
             underruns = int(np.any(gw["status"] & int(Status.UNDERRUN)))
+        virtual = before is not None and before.clock == R.Clock.VIRTUAL
         keep = sub.n if error is None else min(sub.n, rec.last_execute)
         q_act, tau_act = rec.trace(keep)
         if error is not None:  # records of the last setpoints before a stop may never have arrived
@@ -377,6 +475,8 @@ class Session:
             wall_s=wall,
             cpu_s=cpu,
             completed=error is None,
+            overruns=overruns,
+            virtual_time=virtual,
         )
         if error is not None:
             raise StreamStopped(error, log)
@@ -402,9 +502,9 @@ class Session:
     def client_open(self) -> bool:
         return bool(self.client._open)  # the client closes itself on any communication error
 
-    def _underrun_count(self) -> int | None:
+    def _status(self) -> codec.GatewayStatus | None:
         try:
-            return self.client.status().underrun_count
+            return self.client.status()
         except GatewayError:
             return None
 
@@ -423,7 +523,7 @@ class Session:
         faulted = [(names[i], a.error_code) for i, a in enumerate(axes) if a.error_code]
         code = st.error or (faulted[0][1] if faulted else 0)
         t_s = st.execute_index * self.ratio * self.cycle_s
-        what = _code_name(code)
+        what = _cause_name(st.stop_cause) + ("" if not code else f", {_code_name(code)}")
         where = ", ".join(f"{n} {_code_name(c)}" for n, c in faulted)
         text = f"{what} at t = {t_s:.3f} s" + (f" ({where})" if where else "")
         if code in COMMUNICATION_ERRORS:
@@ -472,6 +572,27 @@ class StreamStopped(Exception):  # noqa: N818 - a carrier inside rxcomm.executio
         self.log = log
 
 
+_CAUSES = {
+    StopCause.NONE: "no stop cause reported",
+    StopCause.UNDERRUN: "setpoint underrun",
+    StopCause.WATCHDOG: "watchdog expired (no write from the master in time)",
+    StopCause.CONNECTION_LOST: "the master's connection was lost",
+    StopCause.ESTOP: "emergency stop",
+    StopCause.AXIS_FAULT: "axis fault",
+    StopCause.QUICK_STOP_COMMAND: "quick stop commanded",
+    StopCause.STREAM_DISABLED: "stream enable withdrawn",
+    StopCause.AXIS_LEFT_OPERATION: "a controlword took an axis out of operation enabled",
+}
+
+
+def _cause_name(cause: int) -> str:
+    """Register 43 in words (with its number, for a PLC programmer's log)."""
+    try:
+        return f"{_CAUSES[StopCause(cause)]} (stop cause {cause})"
+    except ValueError:
+        return f"stop cause {cause}"
+
+
 def _code_name(code: int) -> str:
     try:
         return f"{ErrorCode(code).name.lower().replace('_', ' ')} ({code:#06x})"
@@ -489,11 +610,13 @@ def run_trajectory(
     params: DynamicParameters,
     settings: RunSettings | None = None,
     progress: Callable[[str, float], None] | None = None,
+    sink: RecordSink | None = None,
 ) -> RunResult:
     """Execute a prepared ``plan`` (``prepare_plan``) on a connected gateway. ``params`` is the model
     for the approach move's feed-forward and limit check. Refusals before motion raise (InputError,
     GatewayError, SafetyStop); a stop during motion is returned in ``RunResult.error`` with the log
-    recorded up to it. ``progress(what, fraction)`` is called at ≤ 10 Hz while streaming."""
+    recorded up to it. ``progress(what, fraction)`` is called at ≤ 10 Hz while streaming; ``sink`` (the
+    run log writer) gets the plan's records while it streams."""
     settings = settings or RunSettings()
     ses = Session(client, robot, settings.stream)
     ses.check_identity()
@@ -532,7 +655,7 @@ def run_trajectory(
         if approach is not None:
             result.approach = ses.stream(approach, _named(progress, "approach"))
         stage = "plan"
-        result.log = ses.stream(plan, _named(progress, "run"))
+        result.log = ses.stream(plan, _named(progress, "run"), sink)
         result.stop_note = ses.stop_drives(after_stop=False)
     except StreamStopped as s:
         if stage == "approach":

@@ -8,6 +8,9 @@ any communication error the connection is closed and every later call raises Gat
 
 from __future__ import annotations
 
+import contextlib
+import itertools
+import os
 import time
 from collections import deque
 from collections.abc import Callable
@@ -22,10 +25,12 @@ from pymodbus.pdu import ModbusPDU
 from rxcomm.errors import GatewayError, SafetyStop
 from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
-from rxcomm.gateway.net import is_loopback
+from rxcomm.gateway.net import is_loopback, quiet_pymodbus
 from rxcomm.gateway.registers import Control, state_from_statusword
 from rxcomm.gateway.registers import DriveState as State
 from rxcomm.gateway.registers import ModbusException as Exc
+
+quiet_pymodbus()
 
 
 @dataclass(frozen=True)
@@ -91,6 +96,15 @@ class RoundTripStats:
         return float(np.percentile(self.seconds(), q)) if self._d else float("nan")
 
 
+_tokens = itertools.count(1)
+
+
+def _new_token() -> int:
+    """A non-zero 16-bit master token, different for each client of this process (and, through the
+    process id, likely different from other processes' clients): a label to tell masters apart."""
+    return ((os.getpid() << 4) + next(_tokens)) % 0xFFFF + 1
+
+
 def _empty_chunk(first: int) -> TraceChunk:
     z = np.zeros((0, R.N_AXES))
     return TraceChunk(first, z, z.copy(), 0)
@@ -115,6 +129,8 @@ class GatewayClient:
         self.prefill = 0
         self.ratio = 1
         self.decimation = 1
+        self.token = _new_token()  # register 28: who this master is (non-zero, one per client)
+        self.claimed = False
 
     # ---- connection ----------------------------------------------------------------------------
 
@@ -125,6 +141,10 @@ class GatewayClient:
         return self
 
     def close(self) -> None:
+        if self.claimed and self._open and self._mb.connected:
+            with contextlib.suppress(GatewayError):  # closing the connection releases it too
+                self.release()
+        self.claimed = False
         self._open = False
         self._mb.close()
 
@@ -159,7 +179,48 @@ class GatewayClient:
     def _write(self, address: int, values: list[int], what: str) -> None:
         rsp = self._call(what, self._mb.write_registers, address=address, values=values)
         if rsp.isError():
-            raise GatewayError(f"{what}: refused with exception {getattr(rsp, 'exception_code', '?')}")
+            code = getattr(rsp, "exception_code", "?")
+            raise GatewayError(f"{what}: refused with exception {code}{self._other_master(code)}")
+
+    def owner_token(self) -> int:
+        """Register 28: the token of the master that claimed the gateway (0: unclaimed)."""
+        return self._read(R.CTRL_MASTER, 1, "master register")[0]
+
+    def _other_master(self, code: object) -> str:
+        """Why a write was refused, when the reason is another master's claim (else '')."""
+        if code != Exc.ILLEGAL_VALUE or not self._open:
+            return ""
+        try:
+            owner = self.owner_token()
+        except GatewayError:
+            return ""
+        if owner and (not self.claimed or owner != self.token):
+            return f" (the gateway is claimed by another master, token {owner:#06x})"
+        return ""
+
+    # ---- ownership: one master at a time ----------------------------------------------------------
+
+    def claim(self) -> None:
+        """Claim the gateway (register 28 := token) so no other connection can write to it. The claim
+        lasts while this connection is open and keeps the watchdog fed (the watchdog is the lease);
+        claiming again is harmless. GatewayError if another master holds it."""
+        rsp = self._call("claim", self._mb.write_registers, address=R.CTRL_MASTER, values=[self.token])
+        if rsp.isError():
+            code = getattr(rsp, "exception_code", "?")
+            owner = self.owner_token() if code == Exc.ILLEGAL_VALUE else 0
+            if owner:  # the gateway refuses a claim only while another connection holds it
+                raise GatewayError(
+                    f"gateway {self.host}:{self.port} is in use by another master (token {owner:#06x}): "
+                    "one master at a time; it is free once that master releases it, disconnects or "
+                    "stays silent for its watchdog time"
+                )
+            raise GatewayError(f"claim: refused with exception {code}")
+        self.claimed = True
+
+    def release(self) -> None:
+        """Give up the claim (register 28 := 0)."""
+        self._write(R.CTRL_MASTER, [0], "release")
+        self.claimed = False
 
     # ---- identity and state --------------------------------------------------------------------
 
@@ -347,10 +408,10 @@ class GatewayClient:
             code = getattr(rsp, "exception_code", None)
             if code == Exc.DEVICE_BUSY:
                 return BlockReply(False, None, _empty_chunk(self._trace_next))
-            raise GatewayError(
-                f"block at index {first_index} refused with exception {code}"
-                + (" (index gap or stream not open)" if code == Exc.ILLEGAL_VALUE else "")
+            why = self._other_master(code) or (
+                " (index gap or stream not open)" if code == Exc.ILLEGAL_VALUE else ""
             )
+            raise GatewayError(f"block at index {first_index} refused with exception {code}{why}")
         status, records = codec.decode_window(list(rsp.registers))
         return BlockReply(True, status, self._take_trace(records))
 

@@ -152,8 +152,10 @@ def decode_block(words: list[int]) -> SetpointBlock:
     if k > R.MAX_CYCLES_PER_BLOCK or len(words) != R.BLK_HEADER + k * R.CYCLE_WORDS:
         raise GatewayError(f"setpoint block: count {k} does not match {len(words)} words")
     v = from_words(_BLOCK_HEADER + _ROW * k, words)
+    if v[3] & ~int(R.BlockFlags.END_OF_STREAM):
+        raise GatewayError(f"setpoint block: undefined flag bits {v[3]:#06x}")
     pos, tq = _split_rows(v[4:], k)
-    return SetpointBlock(v[0], v[2], v[3] & int(R.BlockFlags.END_OF_STREAM), pos, tq)
+    return SetpointBlock(v[0], v[2], v[3], pos, tq)
 
 
 # --- status + trace window 2000- ---------------------------------------------------------------
@@ -203,9 +205,9 @@ def decode_window(words: list[int]) -> tuple[StreamStatus, TraceRecords]:
     return StreamStatus(R.Status(h[0]), h[1], h[2], h[3], h[4]), TraceRecords(h[5], pos, tq)
 
 
-# --- status registers 30-42 --------------------------------------------------------------------
+# --- status registers 30-45 --------------------------------------------------------------------
 
-_STATUS = "H3I3HIH"
+_STATUS = "H3I3HI4H"
 
 
 @dataclass(frozen=True)
@@ -219,6 +221,9 @@ class GatewayStatus:
     error: int
     trace_count: int
     heartbeat_echo: int
+    stop_cause: int = 0  # registers.StopCause
+    overruns: int = 0  # drive cycles started more than one cycle late
+    clock: int = 0  # registers.Clock
 
 
 def encode_status(s: GatewayStatus) -> list[int]:
@@ -233,6 +238,9 @@ def encode_status(s: GatewayStatus) -> list[int]:
         s.error,
         s.trace_count & R.U32_MAX,
         s.heartbeat_echo & 0xFFFF,
+        int(s.stop_cause),
+        min(s.overruns, R.U16_MAX),
+        int(s.clock),
     )
 
 

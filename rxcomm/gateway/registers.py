@@ -12,6 +12,7 @@ from enum import IntEnum, IntFlag
 
 MAGIC = 0x5258  # "RX"
 MAP_VERSION = 1
+FUNCTION_CODES = (3, 6, 16, 23)  # all the gateway answers; any other: exception 1 (illegal function)
 N_AXES = 6
 CYCLE_US = 400
 MAX_CYCLES_PER_BLOCK = 6
@@ -34,6 +35,7 @@ U32_MAX = 2**32 - 1
 ID_BASE = 0
 ID_MAGIC = 0
 ID_MAP_VERSION = 1
+FUNCTION_CODES = (3, 6, 16, 23)  # all the gateway answers; any other: exception 1 (illegal function)
 ID_N_AXES = 2
 ID_CYCLE_US = 3
 ID_BUFFER_CAPACITY = 4  # setpoint ring, cycles (setpoints)
@@ -53,7 +55,8 @@ CTRL_TRACE_CURSOR = 24
 CTRL_INTERPOLATION_RATIO = 25
 CTRL_TRACE_DECIMATION = 26
 CTRL_CONTROLWORD_ALL = 27
-CTRL_COUNT = 8
+CTRL_MASTER = 28  # ownership: write a non-zero token to claim, 0 to release; reads the owner's token
+CTRL_COUNT = 9
 
 WATCHDOG_MS_MAX = 60_000
 INTERPOLATION_RATIO_MAX = 64
@@ -85,7 +88,17 @@ ST_UNDERRUN_COUNT = 38
 ST_ERROR = 39
 ST_TRACE_COUNT = 40  # u32, records produced since clear
 ST_HEARTBEAT_ECHO = 42
-ST_COUNT = 13
+ST_STOP_CAUSE = 43  # why the last stream or quick stop ended (StopCause), until CLEAR / RESET
+ST_OVERRUNS = 44  # drive cycles the gateway started more than one cycle late (since power-on, saturates)
+ST_CLOCK = 45  # Clock: what paces the drive cycles
+ST_COUNT = 16
+
+
+class Clock(IntEnum):
+    """Register 45."""
+
+    REALTIME = 0  # a drive cycle every cycle_us of wall time (a real gateway; the simulator --realtime)
+    VIRTUAL = 1  # simulator: cycles run only when setpoints are buffered, so underruns cannot happen
 
 
 class Status(IntFlag):
@@ -176,6 +189,10 @@ SIM_WORDS = 4
 SIM_MUTE_MS_MAX = 10_000
 
 
+SIM_FAULT_AXES_MASK = (1 << N_AXES) - 1  # 3101: bits above the axes are undefined (exception 3)
+SIM_DROP_VALUE = 1  # 3103: the only defined command value
+
+
 class ErrorCode(IntEnum):
     """Axis and gateway error codes (CiA 301/402 where one fits, 0xFFxx rxcomm-specific)."""
 
@@ -187,9 +204,24 @@ class ErrorCode(IntEnum):
     INJECTED = 0xFF02  # sim: forced axis fault
 
 
+class StopCause(IntEnum):
+    """Register 43: the first cause of a stream abort or quick stop since the last CLEAR / RESET."""
+
+    NONE = 0
+    UNDERRUN = 1  # setpoint buffer empty before end of stream
+    WATCHDOG = 2  # no accepted write from the master for watchdog ms
+    CONNECTION_LOST = 3  # the master's (or the last) connection closed
+    ESTOP = 4
+    AXIS_FAULT = 5  # following error or an injected fault
+    QUICK_STOP_COMMAND = 6  # control bit QUICK_STOP
+    STREAM_DISABLED = 7  # STREAM_ENABLE withdrawn while running
+    AXIS_LEFT_OPERATION = 8  # a controlword took an axis out of operation enabled mid-stream
+
+
 class ModbusException(IntEnum):
     """The exception codes the gateway answers with."""
 
+    ILLEGAL_FUNCTION = 1  # a function code other than 3, 6, 16, 23
     ILLEGAL_ADDRESS = 2  # outside the map, or a write to a read-only register
     ILLEGAL_VALUE = 3  # gap in block indices, malformed block, refused command or value
     DEVICE_BUSY = 6  # setpoint buffer full: retry the same block later

@@ -18,13 +18,14 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.campaign import (
+    CampaignResult,
     CampaignSettings,
     campaign_summary,
     check_poses,
     measured_poses,
     run_campaign,
 )
-from rxcomm.execution.log import write_run_log
+from rxcomm.execution.log import RunLogWriter
 from rxcomm.execution.plan import prepare_plan
 from rxcomm.execution.session import RunSettings, StreamSettings, run_trajectory
 from rxcomm.gateway.client import GatewayClient
@@ -226,22 +227,27 @@ def execute(
                 limit_tolerance=settings.limit_tolerance,
             )
             with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, embedded):
-                result = run_trajectory(client, robot, prepared, params, settings, update)
+                # The log is written while the robot moves: a killed run leaves NAME.mcap.part.
+                sink = RunLogWriter(
+                    output,
+                    robot,
+                    inputs=inputs,
+                    settings={
+                        **settings.model_dump(mode="json"),
+                        "model": model_name,
+                        "embedded_cell": embedded,
+                        "realtime": realtime,
+                    },
+                    feedforward=ff_name,
+                    embedded_cell=embedded,
+                )
+                try:
+                    result = run_trajectory(client, robot, prepared, params, settings, update, sink)
+                except BaseException:
+                    sink.abandon()
+                    raise
             stop_bar()
-            written, summary = write_run_log(
-                output,
-                robot,
-                result,
-                inputs=inputs,
-                settings={
-                    **settings.model_dump(mode="json"),
-                    "model": model_name,
-                    "embedded_cell": embedded,
-                    "realtime": realtime,
-                },
-                feedforward=ff_name,
-                embedded_cell=embedded,
-            )
+            written, summary = sink.close(result)
             _print_run(summary, written, robot)
             if plot:
                 figure = plot_lags(written, compare, output.with_suffix(".png"), robot)
@@ -254,23 +260,40 @@ def execute(
         settings_c = CampaignSettings(
             feedforward=feedforward, speed_fraction=speed, fault_reset=fault_reset, stream=stream_settings
         )
+        part = output.with_name(output.name + ".part")
+        roles = [p.role for p in cfg.poses]
         with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, embedded):
-            camp = run_campaign(client, robot, [p.q_rad for p in cfg.poses], params, settings_c, update)
+            env_settings = {
+                **settings_c.model_dump(mode="json"),
+                "model": model_name,
+                "embedded_cell": embedded,
+            }
+
+            def measurements(camp: CampaignResult, summary: dict[str, Any]) -> Measurements:
+                return Measurements(
+                    **Measurements.envelope(inputs, env_settings, summary),
+                    robot=robot.name,
+                    joint_names=list(robot.joint_names),
+                    poses=measured_poses(camp, roles),
+                )
+
+            def on_pose(camp: CampaignResult) -> None:  # each pose on disk as it is taken
+                running = {
+                    "outcome": "running",
+                    "stop_reason": "cut off (the run was killed) if still running",
+                }
+                write_yaml_artefact(part, measurements(camp, {**campaign_summary(camp), **running}))
+
+            camp = run_campaign(
+                client, robot, [p.q_rad for p in cfg.poses], params, settings_c, update, on_pose
+            )
         stop_bar()
         summary = campaign_summary(camp)
-        env = Measurements.envelope(
-            inputs,
-            {**settings_c.model_dump(mode="json"), "model": model_name, "embedded_cell": embedded},
-            summary,
-        )
-        meas = Measurements(
-            **env,
-            robot=robot.name,
-            joint_names=list(robot.joint_names),
-            poses=measured_poses(camp, [p.role for p in cfg.poses]),
-        )
-        written = output if camp.run.error is None else output.with_name(output.name + ".part")
+        meas = measurements(camp, summary)
+        written = output if camp.run.error is None else part
         write_yaml_artefact(written, meas)
+        if written == output:
+            part.unlink(missing_ok=True)
         console.summary_table(
             f"run: {summary['n_valid']}/{summary['n_poses']} poses measured → {written}", summary
         )
@@ -286,6 +309,7 @@ def _print_run(summary: dict[str, Any], written: Path, robot: Robot) -> None:
         "outcome",
         "duration_s",
         "underruns",
+        "cell_overruns",
         "max_lag_rad",
         "rms_lag_rad",
         "max_tcp_error_m",
