@@ -353,6 +353,7 @@ def test_identified_dynamics_drive_the_torque_limits(tmp_path, rx130l):
         rx130l.joint_names,
         np.concatenate([prior.inertial.ravel() * 1.6, prior.vector()[prior.inertial.size :]]),
         True,
+        prior.has_motor_friction,
     )
     bset = base_parameters(rx130l, n_samples=300, seed=0)
     fields = dynamics_artefact_fields(rx130l, bset, bset.project(heavy), full=heavy)
@@ -381,7 +382,7 @@ def test_calibration_moves_the_joint_path_to_the_calibrated_model(tmp_path, rx13
 
     from rxcomm.io.yaml_io import write_yaml_artefact
     from rxcomm.model.geometric_errors import ErrorModel
-    from rxcomm.schemas.calibration import Calibration, ParameterEstimate
+    from rxcomm.schemas.calibration import Calibration, ModelSelection, ParameterEstimate, TrackerNoise
     from rxcomm.schemas.cell import Placement
 
     errors = {"joint_2.tx": 0.003, "joint_3.ry": 0.004, "tool.tz": -0.002}
@@ -400,6 +401,8 @@ def test_calibration_moves_the_joint_path_to_the_calibrated_model(tmp_path, rx13
         fit_poses=[],
         heldout_poses=[],
         outlier_poses=[],
+        tracker_noise=TrackerNoise(position_sigma_m=5e-5, orientation_sigma_rad=1e-4, source="cell"),
+        model_selection=ModelSelection(folds=5, rule="given: full", chosen="full", candidates=[]),
     )
     cal_file = write_yaml_artefact(tmp_path / "calibration.yaml", cal)
     plan_file(ISO_LINE, tmp_path, calibration=cal_file, method="toppra", torque_rate=False)
