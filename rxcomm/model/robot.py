@@ -166,6 +166,12 @@ class Robot:
         links = sum(np.linalg.norm(m.jointPlacements[j].translation) for j in range(3, m.njoints))
         return float(links + np.linalg.norm(m.frames[self.tcp_frame_id].placement.translation))
 
+    @property
+    def reach_from_base_m(self) -> float:
+        """Largest possible distance base origin → TCP (m): `reach_m` plus the offsets base → shoulder."""
+        m = self.model
+        return self.reach_m + sum(float(np.linalg.norm(m.jointPlacements[j].translation)) for j in (1, 2))
+
     def create_data(self) -> pin.Data:
         return self.model.createData()
 

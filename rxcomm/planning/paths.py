@@ -393,13 +393,6 @@ def build_curve(geometry) -> Curve:
     raise TypeError(f"unknown geometry {type(geometry).__name__}")
 
 
-def longest_reach_m(robot: Robot) -> float:
-    """An upper bound of the TCP's distance from the base origin in any configuration: the sum of the
-    chain's link offsets and the TCP offset (triangle inequality)."""
-    base_to_shoulder = robot.model.jointPlacements[1].translation, robot.model.jointPlacements[2].translation
-    return robot.reach_m + sum(float(np.linalg.norm(t)) for t in base_to_shoulder)
-
-
 def _positions(geometry) -> list[tuple[str, np.ndarray, bool]]:
     """(field, value, is a distance from the base origin) of every length in a path geometry."""
     g = geometry
@@ -417,10 +410,10 @@ def _positions(geometry) -> list[tuple[str, np.ndarray, bool]]:
 
 def check_within_reach(spec: PathSpec, robot: Robot) -> None:
     """Refuse a path with a position no configuration of `robot` can reach, whatever the IK: farther
-    from the base origin than `longest_reach_m` (a circle: a radius above it). Such a file is not in
+    from the base origin than `Robot.reach_from_base_m` (a circle: a radius above it). Such a file is not in
     this robot's base frame or not in metres (millimetres, typically): bad input (InputError naming
     the field, exit 2), not an unreachable stretch (exit 3)."""
-    reach = longest_reach_m(robot)
+    reach = robot.reach_from_base_m
     for name, v, is_point in _positions(spec.geometry):
         dist = float(np.linalg.norm(v))
         if dist <= reach:
