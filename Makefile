@@ -89,16 +89,16 @@ QOF        = $$($(PY) -c "import yaml; s = yaml.safe_load(open('$(1)'))['summary
 RUN_SIM   := --robot $(ROBOT) --truth $(TRUTH) --approach --interpolation-ratio 1
 
 $(B)/robot-info.txt: $(STAMP) $(ROBOT_FILES) $(call params,robot-info,$(ROBOT)) | $(B)
-	$(RX) robot-info $(ROBOT) > $@.part && mv $@.part $@ && cat $@
+	$(RX) robot-info --robot $(ROBOT) > $@.part && mv $@.part $@ && cat $@
 
 # --measure-baseline: the campaign also measures the naive set (the paper's linear scan), so the
 # report shows the held-out error each pose set leaves.
-SELECT_ARGS = --robot $(ROBOT) --cell $(CELL) -n $(N_POSES) --measure-baseline $(SELECT_OPTS) --plot
+SELECT_ARGS = --robot $(ROBOT) --cell $(CELL) --poses $(N_POSES) --measure-baseline $(SELECT_OPTS) --plot
 $(B)/configs.yaml: $(STAMP) $(ROBOT_FILES) $(CELL) $(call params,select-configs,$(SELECT_ARGS)) | $(B)
 	$(RX) select-configs $(SELECT_ARGS) -o $@
 
 # The measurement campaign: point-to-point moves need no path accuracy, so a coarse setpoint ratio.
-MEAS_ARGS = --robot $(ROBOT) --truth $(TRUTH) --speed 0.5 --interpolation-ratio 8
+MEAS_ARGS = --robot $(ROBOT) --truth $(TRUTH) --speed-fraction 0.5 --interpolation-ratio 8
 $(B)/calib-meas.yaml: $(B)/configs.yaml $(SIM_FILES) $(call params,measure,$(MEAS_ARGS))
 	$(RX) run $< $(MEAS_ARGS) -o $@
 
@@ -166,7 +166,7 @@ commission: $(B)/robot-info.txt $(B)/report.md $(B)/run-ptp.mcap
 # CI: the same rules, reduced (fewer poses and candidates, fewer excitation starts), in its own dir.
 commission-ci:
 	$(MAKE) commission BUILD=build-ci N_POSES=16 \
-		SELECT_OPTS="--max-candidates 1500 --restarts 2 --n-validation 16" EXCITE_OPTS="--starts 2"
+		SELECT_OPTS="--max-candidates 1500 --restarts 2 --validation-poses 16" EXCITE_OPTS="--starts 2"
 
 clean:
 	rm -rf $(BUILD) build-ci

@@ -22,6 +22,7 @@ from bench.table import Row
 
 # Each module exposes `rows(quick: bool) -> list[Row]`.
 SECTIONS = [
+    "bench.cli",
     "bench.foundation",
     "bench.calibration",
     "bench.run",

@@ -1,36 +1,192 @@
 """The `rxcomm` command: one subcommand per stage (architecture §9).
 
-This is the composition root: the only library module that imports `rxcomm.stages`. Each stage
-module exposes a typer command function; registering it here is all a new stage needs.
+This is the composition root: the only library module that imports `rxcomm.stages`. Stages are
+registered by module name in `STAGES` and imported only when their command runs (or shows its
+help, or completes): `rxcomm --help` / `--version` must answer at once, and the stages pull in
+toppra, matplotlib, scipy, casadi and pinocchio. A new stage is one `STAGES` entry.
+
+Old option spellings (docs/cli.md, "deprecated") are rewritten to the current ones before click
+parses, with a warning on stderr, so they work without showing in `--help`.
 """
 
 from __future__ import annotations
 
+import importlib
+import sys
+from dataclasses import dataclass
 from typing import Annotated
 
 import typer
+from typer.core import TyperCommand, TyperGroup
 
 from rxcomm import __version__
-from rxcomm.stages import (
-    calibrate,
-    cell_sim,
-    excite,
-    identify,
-    plan_cp,
-    plan_ptp,
-    recover_log,
-    report,
-    robot_info,
-    run,
-    select_configs,
-)
+
+
+@dataclass(frozen=True)
+class Stage:
+    module: str  # under rxcomm.stages; exposes a typer command function `command`
+    short_help: str  # the listing's line: the start of `command`'s docstring (a test checks)
+    example: str  # one typical invocation on the sample robot, shown at the end of --help
+    deprecated: tuple[tuple[str, str], ...] = ()  # (old spelling, current spelling), docs/cli.md
+
+
+STAGES: dict[str, Stage] = {
+    "robot-info": Stage(
+        "robot_info",
+        "Print a robot's DOF, limits, reach, mass, the stretched-pose gravity load and identifiability.",
+        "rxcomm robot-info --robot samples/rx130l",
+    ),
+    "select-configs": Stage(
+        "select_configs",
+        "Select measurement poses that make the geometric error parameters well identifiable.",
+        "rxcomm select-configs --robot samples/rx130l --cell samples/rx130l/cell.yaml --poses 32 "
+        "--measure-baseline -o build/configs.yaml",
+        (("-n", "--poses"), ("--n", "--poses"), ("--intervals", "--grid-intervals"))
+        + (("--n-validation", "--validation-poses"),),
+    ),
+    "calibrate": Stage(
+        "calibrate",
+        "Identify the robot's geometric errors from tracker measurements; write the calibration.",
+        "rxcomm calibrate --robot samples/rx130l --measurements build/calib-meas.yaml "
+        "--cell samples/rx130l/cell.yaml --urdf-out build/calibrated.urdf -o build/calibration.yaml",
+        (("--holdout", "--holdout-fraction"), ("--model", "--error-model")),
+    ),
+    "run": Stage(
+        "run",
+        "Execute a trajectory (or a pose list) on the cell",
+        "rxcomm run build/cp.mcap --robot samples/rx130l --approach --dynamics build/dynamics.yaml "
+        "-o build/run-ff.mcap",
+        (("--speed", "--speed-fraction"),),
+    ),
+    "cell-sim": Stage(
+        "cell_sim",
+        "Serve the simulated robot cell (drives, true dynamics, tracker) as a Modbus TCP drive gateway.",
+        "rxcomm cell-sim --truth samples/rx130l/truth.yaml --port 1502 --start-deg 0,-30,60,0,45,0",
+        (("--q0", "--start"),),
+    ),
+    "excite": Stage(
+        "excite",
+        "Design the optimal exciting trajectory (min cond of the base regressor) within every limit.",
+        "rxcomm excite --robot samples/rx130l --cell samples/rx130l/cell.yaml --position-margin-deg 3 "
+        "-o build/excitation.yaml",
+        (("--omega", "--omega-rad-s"), ("--position-margin", "--position-margin-rad")),
+    ),
+    "identify": Stage(
+        "identify",
+        "Identify the base dynamic parameters (+ friction, rotor inertia, spring) and validate them.",
+        "rxcomm identify --robot samples/rx130l --log build/excite-log.mcap "
+        "--validate build/validation-log.mcap -o build/dynamics.yaml",
+        (("--model", "--dynamics"), ("--torques-csv", "--torques-out"), ("--min-speed", "--min-speed-rad-s"))
+        + (("--max-gap", "--max-gap-s"), ("--torque-lag", "--torque-lag-s"))
+        + (("--stick-guard", "--stick-guard-s"),),
+    ),
+    "plan-cp": Stage(
+        "plan_cp",
+        "Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`.",
+        "rxcomm plan-cp --robot samples/rx130l --path samples/rx130l/paths/line-near-singularity.yaml "
+        "--path-intervals 200 -o build/cp.mcap",
+        (("-N", "--path-intervals"), ("--intervals", "--path-intervals"))
+        + (("--torque-rate", "--torque-rate-limits"), ("--no-torque-rate", "--no-torque-rate-limits"))
+        + (("--tcp-speed-max", "--max-tcp-speed-m-s"),)
+        + (("--tcp-acceleration-max", "--max-tcp-acceleration-m-s2"),),
+    ),
+    "plan-ptp": Stage(
+        "plan_ptp",
+        "Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses.",
+        "rxcomm plan-ptp --robot samples/rx130l --start-deg 0,-30,60,0,45,0 --goal-deg 60,0,30,0,60,0 "
+        "-o build/ptp.mcap",
+        (("-N", "--time-intervals"), ("--intervals", "--time-intervals"), ("--margin", "--margin-fraction"))
+        + (("--tcp-box", "--tcp-box-m"), ("--max-wall", "--max-wall-s")),
+    ),
+    "report": Stage(
+        "report",
+        "Write the commissioning report",
+        "rxcomm report build",
+    ),
+    "recover-log": Stage(
+        "recover_log",
+        "Recover the run log of a killed `run` from its NAME.mcap.part, saying what was lost.",
+        "rxcomm recover-log build/run-ff.mcap.part",
+    ),
+}
+
+# Commands whose old form took a positional argument that is now an option (docs/cli.md).
+POSITIONAL_ALIASES = {"robot-info": "--robot"}
+
+
+def rewrite_deprecated(name: str, args: list[str]) -> list[str]:
+    """`args` with the old spellings of `name`'s options replaced by the current ones (a warning each)."""
+    aliases = dict(STAGES[name].deprecated)
+    out: list[str] = []
+    for i, a in enumerate(args):
+        if a == "--":
+            out += args[i:]
+            break
+        key, eq, value = a.partition("=")
+        if key in aliases:
+            typer.echo(f"rxcomm {name}: {key} is deprecated, use {aliases[key]}", err=True)
+            a = aliases[key] + eq + value
+        out.append(a)
+    opt = POSITIONAL_ALIASES.get(name)
+    if opt and out and not out[0].startswith("-"):
+        typer.echo(f"rxcomm {name}: the positional argument is deprecated, use {opt} {out[0]}", err=True)
+        out.insert(0, opt)
+    return out
+
+
+class LazyStages(TyperGroup):
+    """A group whose stage commands are imported on first use, not when the group is built."""
+
+    _listing = False
+
+    def list_commands(self, ctx: typer.Context) -> list[str]:
+        return list(STAGES)
+
+    def get_command(self, ctx: typer.Context, cmd_name: str) -> TyperCommand | None:
+        stage = STAGES.get(cmd_name)
+        if stage is None:
+            return None
+        if self._listing:  # the group's own --help: a stand-in with the short help, no import
+            return TyperCommand(cmd_name, help=stage.short_help)
+        return stage_command(cmd_name)
+
+    def format_help(self, ctx: typer.Context, formatter: object) -> None:
+        self._listing = True
+        try:
+            super().format_help(ctx, formatter)
+        finally:
+            self._listing = False
+
+
+_loaded: dict[str, TyperCommand] = {}
+
+
+def stage_command(name: str) -> TyperCommand:
+    """The click command of stage `name` (imports its module once)."""
+    if name not in _loaded:
+        stage = STAGES[name]
+        module = importlib.import_module(f"rxcomm.stages.{stage.module}")
+        single = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
+        single.command(name, epilog=f"Example:  {stage.example}")(module.command)
+        cmd = typer.main.get_command(single)
+        parse = cmd.parse_args
+
+        def parse_args(ctx: typer.Context, args: list[str], _parse=parse, _name=name) -> list[str]:
+            return _parse(ctx, rewrite_deprecated(_name, list(args)))
+
+        cmd.parse_args = parse_args  # type: ignore[method-assign]
+        _loaded[name] = cmd
+    return _loaded[name]
+
 
 app = typer.Typer(
     name="rxcomm",
+    cls=LazyStages,
     help="Commissioning pipeline for 6-axis industrial robots: calibration, dynamic identification, "
     "time/energy-optimal planning and model-based execution. Every stage reads and writes files.",
+    epilog="Example:  rxcomm robot-info --robot samples/rx130l  (options: docs/cli.md)",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
 )
 
@@ -50,19 +206,5 @@ def _main(
     """rxcomm: commission a robot step by step, each step one subcommand."""
 
 
-# Stage registrations (one line each).
-app.command("robot-info")(robot_info.command)
-app.command("select-configs")(select_configs.command)
-app.command("calibrate")(calibrate.command)
-app.command("run")(run.command)
-app.command("cell-sim")(cell_sim.command)
-app.command("excite")(excite.command)
-app.command("identify")(identify.command)
-app.command("plan-cp")(plan_cp.command)
-app.command("plan-ptp")(plan_ptp.command)
-app.command("report")(report.command)
-app.command("recover-log")(recover_log.command)
-
-
 def main() -> None:
-    app()
+    app(prog_name="rxcomm", args=sys.argv[1:])

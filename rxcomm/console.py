@@ -75,6 +75,15 @@ def stage_command(fn: Callable[..., T]) -> Callable[..., T]:
     return wrapper
 
 
+def checked(fn: Callable[..., T], *args) -> T:
+    """`fn(*args)` in a command function (e.g. an option pair converted to radians), with an
+    RxcommError turned into its one-line message and exit code, as `stage_command` does."""
+    try:
+        return fn(*args)
+    except RxcommError as e:
+        raise fail(e) from e
+
+
 def progress() -> Progress:
     """A progress bar on stderr (silent when stderr is not a terminal, so logs stay clean)."""
     return Progress(

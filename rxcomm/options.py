@@ -19,3 +19,37 @@ def parse_numbers(text: str, count: int, field: str, unit: str = "") -> np.ndarr
     if values.shape != (count,) or not np.all(np.isfinite(values)):
         raise InputError(f"expected {what}, got {text!r}", field=field)
     return values
+
+
+POSE_PREFIX = "pose:"
+
+
+def radians_text(rad: str | None, deg: str | None, option: str) -> str | None:
+    """The joint vector of the option pair `--OPTION` (rad) / `--OPTION-deg` (deg) as radian text.
+
+    A degree value may also be a TCP pose `pose:x,y,z,α,β,γ` (m, deg): its angles are converted, its
+    position kept. The count is checked where the text is parsed; here only that numbers were given."""
+    if rad is not None and deg is not None:
+        raise InputError(f"give --{option} (rad) or --{option}-deg, not both", field=f"{option}-deg")
+    if deg is None:
+        return rad
+    text = deg.strip()
+    pose = text.lower().startswith(POSE_PREFIX)
+    if pose:
+        text = text[len(POSE_PREFIX) :]
+    try:
+        values = [float(p.strip()) for p in text.split(",")]
+    except ValueError as e:
+        raise InputError(f"expected comma-separated numbers (deg), got {deg!r}", field=f"{option}-deg") from e
+    kept = values[:3] if pose else []
+    rad_values = kept + [float(np.radians(v)) for v in values[len(kept) :]]
+    return (POSE_PREFIX if pose else "") + ",".join(repr(v) for v in rad_values)
+
+
+def radians_value(rad: float | None, deg: float | None, option: str, default_rad: float) -> float:
+    """The angle of the option pair `--OPTION-rad` / `--OPTION-deg` in radians (`default_rad` if neither)."""
+    if rad is not None and deg is not None:
+        raise InputError(f"give --{option}-rad or --{option}-deg, not both", field=f"{option}-deg")
+    if deg is not None:
+        return float(np.radians(deg))
+    return default_rad if rad is None else rad

@@ -32,7 +32,13 @@ from .test_run import Q0, cosine_plan, save_plan, write_configs
 
 ROBOT = SAMPLES / "rx130l"
 LINE = ROBOT / "paths" / "iso9283-line.yaml"
-CP_FAST = ("--method", "toppra", "--no-torque-rate", "-N", 40)  # seconds, where a refusal is not first
+CP_FAST = (
+    "--method",
+    "toppra",
+    "--no-torque-rate-limits",
+    "--path-intervals",
+    40,
+)  # seconds, where a refusal is not first
 CLOSED_PORT = "127.0.0.1:9"  # nothing listens: contacting the gateway would end in exit 4
 
 
@@ -248,7 +254,7 @@ def test_plan_ptp_into_a_bad_place_is_refused_before_the_solve(tmp_path, place, 
     before = snapshot(tmp_path)
     res = invoke(
         "plan-ptp", "--robot", ROBOT, "--start", "0,-0.5,1,0,0.5,0", "--goal", "0.5,-0.3,1.2,0,0.8,0.5",
-        "-N", 12, "-o", out,
+        "--time-intervals", 12, "-o", out,
     )  # fmt: skip
     assert_refused(res, 2, str(out), reason)
     assert_untouched(before, tmp_path)
@@ -277,8 +283,9 @@ def _stage_args(stage: str, tmp_path: Path, out: Path) -> list[object]:
     """The stage's command line with cheap settings (what the old code ran before failing)."""
     cell = ROBOT / "cell.yaml"
     return {
-        "select-configs": ["select-configs", "--robot", ROBOT, "--cell", cell, "-n", 6, "--intervals", 3,
-                           "--max-candidates", 60, "--restarts", 1, "--n-validation", 0, "-o", out],
+        "select-configs": ["select-configs", "--robot", ROBOT, "--cell", cell, "--poses", 6,
+                           "--grid-intervals", 3, "--max-candidates", 60, "--restarts", 1,
+                           "--validation-poses", 0, "-o", out],
         "excite": ["excite", "--robot", ROBOT, "--cell", cell, "--harmonics", 2, "--starts", 1,
                    "--samples", 50, "-o", out],
         "identify": ["identify", "--robot", ROBOT, "--log", tmp_path / "log.mcap", "-o", out],

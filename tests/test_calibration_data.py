@@ -203,7 +203,7 @@ def test_camera_noise_few_poses_model_chosen_by_the_data(robot):
 
 def test_one_reach_figure(tmp_path, robot):
     """robot-info's reach is the unit check's."""
-    r = CliRunner().invoke(app, ["robot-info", str(ROBOT)])
+    r = CliRunner().invoke(app, ["robot-info", "--robot", str(ROBOT)])
     assert r.exit_code == 0 and f"{robot.reach_m:.3f} m" in r.output
     qs = random_poses(robot, 10, np.random.default_rng(0))
     p, _ = predict_poses(robot, qs)

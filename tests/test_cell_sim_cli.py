@@ -135,8 +135,8 @@ def test_embedded_cell_for_run():
     ("args", "needle"),
     [
         (["--host", "0.0.0.0"], "--allow-remote"),
-        (["--q0", "0,0,0"], "--q0"),
-        (["--q0", "0,0,0,0,3.0,0"], "joint_5"),
+        (["--start", "0,0,0"], "--start"),
+        (["--start", "0,0,0,0,3.0,0"], "joint_5"),
         (["--duration-s", "-1"], "--duration-s"),
     ],
 )

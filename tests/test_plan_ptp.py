@@ -223,7 +223,7 @@ def test_cli_joint_states_to_mcap_and_summary(tmp_path, m900):
         [
             "plan-ptp", "--robot", str(SAMPLES / "m900"),
             "--start", "-0.5,0.3,-0.4,0.2,0.6,0.0", "--goal", "0.6,0.1,-0.1,-0.4,0.9,1.0",
-            "-N", "12", "--plot", "-o", str(out),
+            "--time-intervals", "12", "--plot", "-o", str(out),
         ],
     )  # fmt: skip
     assert r.exit_code == 0, r.output
@@ -270,7 +270,8 @@ def test_cli_bad_numbers_are_exit_2(tmp_path):
 
 def test_cli_no_convergence_is_exit_3_and_writes_fallback_only_when_asked(tmp_path):
     args = ["plan-ptp", "--robot", str(SAMPLES / "rx130l"), "--start", "-0.5,0.3,1.2,0.4,0.5,-0.5",
-            "--goal", "0.5,0.4,1.0,-0.4,0.6,0.5", "-N", "8", "--max-wall", "0.001"]  # fmt: skip
+            "--goal", "0.5,0.4,1.0,-0.4,0.6,0.5", "--time-intervals", "8",
+            "--max-wall-s", "0.001"]  # fmt: skip
     r = RUNNER.invoke(app, [*args, "-o", str(tmp_path / "a.mcap")])
     assert r.exit_code == 3 and "Maximum_WallTime_Exceeded" in r.output
     assert not (tmp_path / "a.mcap").exists()
@@ -364,7 +365,8 @@ def test_cli_uses_identified_dynamics(tmp_path, m900):
     r = RUNNER.invoke(
         app,
         ["plan-ptp", "--robot", str(SAMPLES / "m900"), "--start", "-0.5,0.3,-0.4,0.2,0.6,0.0",
-         "--goal", "0.6,0.1,-0.1,-0.4,0.9,1.0", "-N", "12", "--dynamics", str(dyn_file), "-o", str(out)],
+         "--goal", "0.6,0.1,-0.1,-0.4,0.9,1.0", "--time-intervals", "12", "--dynamics", str(dyn_file),
+         "-o", str(out)],
     )  # fmt: skip
     assert r.exit_code == 0, r.output
     traj, env = load_trajectory_mcap(out)

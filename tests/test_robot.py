@@ -64,7 +64,7 @@ def test_bad_robot_files_exit_2_naming_the_field(tmp_path, file, old, new, field
         load_robot(d)
     assert e.value.field is not None and e.value.field.startswith(field), e.value
     assert e.value.file.endswith(file)
-    result = CliRunner().invoke(app, ["robot-info", str(d)])
+    result = CliRunner().invoke(app, ["robot-info", "--robot", str(d)])
     assert result.exit_code == 2, result.output
     assert field in result.output and file in result.output
 
@@ -117,13 +117,13 @@ def test_joint_count_mismatch(tmp_path):
 
 
 def test_missing_robot_dir(tmp_path):
-    result = CliRunner().invoke(app, ["robot-info", str(tmp_path / "nope")])
+    result = CliRunner().invoke(app, ["robot-info", "--robot", str(tmp_path / "nope")])
     assert result.exit_code == 2
     assert "drives.yaml" in result.output
 
 
 def test_robot_info_shows_why_the_spring_matters():
-    result = CliRunner().invoke(app, ["robot-info", str(SAMPLES / "rx130l")])
+    result = CliRunner().invoke(app, ["robot-info", "--robot", str(SAMPLES / "rx130l")])
     assert result.exit_code == 0, result.output
     assert "gravity alone needs 527 N·m on joint_2" in result.output
     assert "30 with full-pose measurement, 27 with the position of an off-axis point" in result.output

@@ -254,7 +254,19 @@ def test_stage_writes_configs_and_refuses_bad_cell(tmp_path):
     args = ["select-configs", "--robot", str(SAMPLES / "m900"), "--cell", str(SAMPLES / "m900" / "cell.yaml")]
     r = CliRunner().invoke(
         app,
-        [*args, "-n", "12", "--intervals", "7", "--max-candidates", "800", "--restarts", "1", "-o", str(out)],
+        [
+            *args,
+            "--poses",
+            "12",
+            "--grid-intervals",
+            "7",
+            "--max-candidates",
+            "800",
+            "--restarts",
+            "1",
+            "-o",
+            str(out),
+        ],
     )
     assert r.exit_code == 0, r.output
     cfg = read_yaml_artefact(out, Configs)
@@ -275,8 +287,8 @@ def test_stage_writes_configs_and_refuses_bad_cell(tmp_path):
     # --measure-baseline: the linear scan joins the pose list for run to measure.
     r = CliRunner().invoke(
         app,
-        [*args, "-n", "12", "--intervals", "7", "--max-candidates", "800", "--restarts", "1"]
-        + ["--n-validation", "4", "--measure-baseline", "-o", str(out)],
+        [*args, "--poses", "12", "--grid-intervals", "7", "--max-candidates", "800", "--restarts", "1"]
+        + ["--validation-poses", "4", "--measure-baseline", "-o", str(out)],
     )
     assert r.exit_code == 0, r.output
     cfg = read_yaml_artefact(out, Configs)

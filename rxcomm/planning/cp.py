@@ -633,7 +633,7 @@ def plan_cp(
         raise InfeasibleError(
             f"path {path.name!r}: {name} of {joint} reaches {ratio:.3f} × its limit at t = {t_w:.4f} s "
             f"(σ = {s[min(i, len(s) - 1)]:.4f} m) after {refinements} local re-tightenings; "
-            "try more --intervals"
+            "try more --path-intervals"
         )
     return CpPlan(
         joint_path=jp,

@@ -336,7 +336,10 @@ def command(
     ] = None,
     holdout: Annotated[
         float | None,
-        typer.Option(help="Fraction of fit poses held out (default: 0 with validation poses, else 0.25)."),
+        typer.Option(
+            "--holdout-fraction",
+            help="Fraction of fit poses held out (default: 0 with validation poses, else 0.25).",
+        ),
     ] = None,
     loss: Annotated[Loss, typer.Option(help="Robust loss on the weighted residuals.")] = Loss.linear,
     outlier_sigma: Annotated[float, typer.Option(help="Flag poses beyond this many robust σ.")] = 5.0,
@@ -350,7 +353,10 @@ def command(
         ),
     ] = None,
     model: Annotated[
-        Model, typer.Option(help="Error model; auto: chosen by cross-validation over the fit poses.")
+        Model,
+        typer.Option(
+            "--error-model", help="Error model; auto: chosen by cross-validation over the fit poses."
+        ),
     ] = Model.auto,
     dynamics: Annotated[
         Path | None,

@@ -23,7 +23,7 @@ from rxcomm.cell.sim import SimSettings, SimulatedCell
 from rxcomm.cell.truth import load_truth
 from rxcomm.errors import InputError
 from rxcomm.gateway.net import is_loopback
-from rxcomm.options import parse_numbers
+from rxcomm.options import parse_numbers, radians_text
 
 
 def command(
@@ -41,7 +41,11 @@ def command(
         bool, typer.Option(help="Pace drive cycles by the wall clock (demos); default: virtual time.")
     ] = False,
     q0: Annotated[
-        str | None, typer.Option(help="Initial joint angles 'q1,…,q6' (rad); default all zero (arm upright).")
+        str | None,
+        typer.Option("--start", help="Initial joint angles 'q1,…,q6' (rad); default all zero (arm upright)."),
+    ] = None,
+    q0_deg: Annotated[
+        str | None, typer.Option("--start-deg", help="Initial joint angles in degrees.")
     ] = None,
     cell: Annotated[
         Path | None,
@@ -58,6 +62,7 @@ def command(
     ] = False,
 ) -> None:
     """Serve the simulated robot cell (drives, true dynamics, tracker) as a Modbus TCP drive gateway."""
+    q0 = console.checked(radians_text, q0, q0_deg, "start")
     run(
         truth,
         host=host,
@@ -94,7 +99,8 @@ def run(
         raise InputError("must be positive", field="--duration-s")
     sim_truth = load_truth(truth, cell)
     settings = SimSettings(
-        q0_rad=None if q0 is None else tuple(parse_numbers(q0, sim_truth.robot.n, "--q0", "rad")), seed=seed
+        q0_rad=None if q0 is None else tuple(parse_numbers(q0, sim_truth.robot.n, "--start", "rad")),
+        seed=seed,
     )
     backend = SimulatedCell(sim_truth, settings)
     config = ServerConfig(

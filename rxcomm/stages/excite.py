@@ -28,7 +28,7 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.limits import check_limits
 from rxcomm.model.robot import Robot, load_robot, robot_files
-from rxcomm.options import parse_numbers
+from rxcomm.options import parse_numbers, radians_text, radians_value
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
 from rxcomm.schemas.plain import sha256_file
@@ -95,7 +95,9 @@ def command(
         typer.Option(help="Trajectory MCAP for `run` (default: OUTPUT's stem + '-trajectory.mcap')."),
     ] = None,
     harmonics: Annotated[int, typer.Option(help="Fourier harmonics per joint (paper: 5).")] = 5,
-    omega: Annotated[float, typer.Option(help="Base frequency ω_f, rad/s (paper: 0.8).")] = 0.8,
+    omega: Annotated[
+        float, typer.Option("--omega-rad-s", help="Base frequency ω_f, rad/s (paper: 0.8).")
+    ] = 0.8,
     samples: Annotated[int, typer.Option(help="Objective samples per period k (paper: 80).")] = 80,
     periods: Annotated[int, typer.Option(help="Periods in the executed trajectory.")] = 1,
     starts: Annotated[int, typer.Option(help="Seeded random feasible starts; the best is kept.")] = 4,
@@ -106,7 +108,13 @@ def command(
     torque_fraction: Annotated[float, typer.Option(help="Of peak torque, prior model.")] = 0.8,
     velocity_fraction: Annotated[float, typer.Option(help="Of the velocity limits.")] = 0.95,
     acceleration_fraction: Annotated[float, typer.Option(help="Of the acceleration limits.")] = 0.95,
-    position_margin: Annotated[float, typer.Option(help="Kept from each joint limit, rad.")] = 0.05,
+    position_margin: Annotated[
+        float | None,
+        typer.Option("--position-margin-rad", help="Kept from each joint limit, rad (default 0.05)."),
+    ] = None,
+    position_margin_deg: Annotated[
+        float | None, typer.Option("--position-margin-deg", help="Kept from each joint limit, degrees.")
+    ] = None,
     max_iterations: Annotated[int, typer.Option(help="SLSQP iterations per start.")] = 150,
     baseline_trajectories: Annotated[
         int, typer.Option(help="Random feasible trajectories whose median cond is the baseline.")
@@ -114,9 +122,14 @@ def command(
     start: Annotated[
         str | None, typer.Option(help="Fixed rest pose 'q1,…,q6' (rad); optimised when not given.")
     ] = None,
+    start_deg: Annotated[str | None, typer.Option(help="Fixed rest pose 'q1,…,q6' in degrees.")] = None,
     plot: Annotated[bool, typer.Option(help="Write OUTPUT.png: trajectory and tool path.")] = False,
 ) -> None:
     """Design the optimal exciting trajectory (min cond of the base regressor) within every limit."""
+    start = console.checked(radians_text, start, start_deg, "start")
+    position_margin = console.checked(
+        radians_value, position_margin, position_margin_deg, "position-margin", 0.05
+    )
     values = {
         "harmonics": harmonics,
         "omega_f_rad_s": omega,

@@ -7,8 +7,8 @@ identifies the base parameters (`rxcomm.identification.fit`), validates them on 
 ``dynamics.yaml`` (kind rxcomm/Dynamics), which plan-cp, plan-ptp and run load. ``--plot`` writes
 ``dynamics.png``: measured against predicted torques on the validation data (paper Fig. 5b).
 
-``--model dynamics.yaml --validate LOG`` scores an identified model on another log without refitting
-(the same figures; nothing is written but ``--torques-csv``, the measured and predicted torques per row).
+``--dynamics dynamics.yaml --validate LOG`` scores an identified model on another log without refitting
+(the same figures; nothing is written but ``--torques-out``, the measured and predicted torques per row).
 """
 
 from __future__ import annotations
@@ -95,10 +95,15 @@ def command(
     output: Annotated[Path | None, typer.Option("-o", "--output", help="Output dynamics.yaml.")] = None,
     model: Annotated[
         Path | None,
-        typer.Option(help="Score this identified dynamics.yaml on --validate LOG instead of identifying."),
+        typer.Option(
+            "--dynamics", help="Score this identified dynamics.yaml on --validate LOG instead of identifying."
+        ),
     ] = None,
     torques_csv: Annotated[
-        Path | None, typer.Option(help="Write the validation rows' measured and predicted torques as CSV.")
+        Path | None,
+        typer.Option(
+            "--torques-out", help="Write the validation rows' measured and predicted torques as CSV."
+        ),
     ] = None,
     validate: Annotated[
         Path | None,
@@ -123,24 +128,27 @@ def command(
         float, typer.Option(help="Sample rate after filtering, Hz (2 × cut-off keeps rows uncorrelated).")
     ] = 20.0,
     min_speed: Annotated[
-        float, typer.Option(help="Rows of joints slower than this are rejected, rad/s.")
+        float, typer.Option("--min-speed-rad-s", help="Rows of joints slower than this are rejected, rad/s.")
     ] = 0.05,
     max_cond: Annotated[
         float, typer.Option(help="Refuse a worse conditioned (unit-column) regressor.")
     ] = 1e4,
     max_gap: Annotated[
-        float, typer.Option(help="Longest gap in the log bridged by interpolation, s.")
+        float, typer.Option("--max-gap-s", help="Longest gap in the log bridged by interpolation, s.")
     ] = 0.01,
     torque_lag: Annotated[
         float | None,
         typer.Option(
+            "--torque-lag-s",
             help="The torque acting at a position sample is logged this much later, s "
-            "(default: one drive cycle for a run log, 0 for a CSV)."
+            "(default: one drive cycle for a run log, 0 for a CSV).",
         ),
     ] = None,
     stick_guard: Annotated[
         float | None,
-        typer.Option(help="Reject rows this close to a joint's slow samples, s (default 1/cutoff)."),
+        typer.Option(
+            "--stick-guard-s", help="Reject rows this close to a joint's slow samples, s (default 1/cutoff)."
+        ),
     ] = None,
     plot: Annotated[bool, typer.Option(help="Write OUTPUT.png: measured vs predicted torques.")] = False,
 ) -> None:
@@ -169,10 +177,11 @@ def _check_mode(model: Path | None, log: Path | None, output: Path | None, valid
     if model is not None:
         if validate is None or log is not None or output is not None:
             raise InputError(
-                "--model scores a model on --validate LOG: give --validate, not --log or -o", field="model"
+                "--dynamics scores a model on --validate LOG: give --validate, not --log or -o",
+                field="dynamics",
             )
     elif log is None or output is None:
-        raise InputError("give --log and -o (or --model with --validate to score a model)", field="log")
+        raise InputError("give --log and -o (or --dynamics with --validate to score a model)", field="log")
 
 
 def _settings(settings: IdentifySettings | dict | None) -> IdentifySettings:
@@ -206,7 +215,7 @@ def score_run(
     torques_csv: Path | None = None,
 ) -> Validation:
     """Score an identified model (dynamics.yaml) on a log without refitting; returns the validation."""
-    check_outputs({"torques-csv": torques_csv}, {"log": log, "model": model, **robot_files(robot_dir)})
+    check_outputs({"torques-out": torques_csv}, {"log": log, "dynamics": model, **robot_files(robot_dir)})
     robot = load_robot(robot_dir)
     art = read_yaml_artefact(model, Dynamics)
     values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
@@ -249,7 +258,7 @@ def run(
         {
             "output": output,
             "plot": output.with_suffix(".png") if plot else None,
-            "torques-csv": torques_csv,
+            "torques-out": torques_csv,
         },
         {"log": log, "validate": validate, **robot_files(robot_dir)},
     )

@@ -185,17 +185,27 @@ def command(
     k1: Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")] = 1.0,
     k2: Annotated[float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)² (needs nlp).")] = 0.0,
     torque_rate: Annotated[
-        bool, typer.Option("--torque-rate/--no-torque-rate", help="Honour the drives' torque-rate limits.")
+        bool,
+        typer.Option(
+            "--torque-rate-limits/--no-torque-rate-limits", help="Honour the drives' torque-rate limits."
+        ),
     ] = True,
     method: Annotated[
         Method, typer.Option(help="nlp: the path NLP warm-started by toppra; toppra: toppra alone (fast).")
     ] = Method.nlp,
-    intervals: Annotated[int, typer.Option("-N", "--intervals", help="Grid intervals along the path.")] = 200,
+    intervals: Annotated[int, typer.Option("--path-intervals", help="Grid intervals along the path.")] = 200,
     tcp_speed_max: Annotated[
-        float | None, typer.Option(help="TCP speed limit, m/s (default: the path file's, else none).")
+        float | None,
+        typer.Option(
+            "--max-tcp-speed-m-s", help="TCP speed limit, m/s (default: the path file's, else none)."
+        ),
     ] = None,
     tcp_acceleration_max: Annotated[
-        float | None, typer.Option(help="TCP acceleration limit, m/s² (default: the path file's, else none).")
+        float | None,
+        typer.Option(
+            "--max-tcp-acceleration-m-s2",
+            help="TCP acceleration limit, m/s² (default: the path file's, else none).",
+        ),
     ] = None,
     plot: Annotated[
         bool, typer.Option(help="Write NAME.png: TCP speed (Fig. 7), binding limits (Fig. 8).")

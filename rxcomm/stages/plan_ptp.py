@@ -24,7 +24,7 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.kinematics import solve_pose_ik
 from rxcomm.model.robot import Robot, load_robot, robot_files
-from rxcomm.options import parse_numbers
+from rxcomm.options import POSE_PREFIX, parse_numbers, radians_text
 from rxcomm.planning.ptp import (
     PtpDynamics,
     PtpLimits,
@@ -36,8 +36,6 @@ from rxcomm.planning.ptp import (
 )
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
-
-POSE_PREFIX = "pose:"
 
 
 class Shoulder(StrEnum):
@@ -56,6 +54,14 @@ class Wrist(StrEnum):
 
 
 # --- inputs -----------------------------------------------------------------------------------------
+def state_text(rad: str | None, deg: str | None, option: str) -> str:
+    """The radian text of the required pair `--OPTION` / `--OPTION-deg`."""
+    text = radians_text(rad, deg, option)
+    if text is None:
+        raise InputError(f"give --{option} (rad) or --{option}-deg", field=option)
+    return text
+
+
 def parse_state(
     robot: Robot, text: str, field: str, branch: Branch, near: np.ndarray | None = None
 ) -> tuple[np.ndarray, str]:
@@ -72,7 +78,7 @@ def parse_box(text: str | None) -> tuple[tuple[float, ...], tuple[float, ...]] |
         return None
     v = parse_numbers(text, 6, "tcp-box")
     if not np.all(v[:3] < v[3:]):
-        raise InputError(f"min corner {v[:3].tolist()} must be below max {v[3:].tolist()}", field="tcp-box")
+        raise InputError(f"min corner {v[:3].tolist()} must be below max {v[3:].tolist()}", field="tcp-box-m")
     return tuple(v[:3]), tuple(v[3:])
 
 
@@ -133,17 +139,21 @@ def plot_ptp(traj: Trajectory, limits: PtpLimits, joint_names, path: Path, title
 # --- the stage --------------------------------------------------------------------------------------
 def command(
     robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
-    start: Annotated[
-        str,
-        typer.Option(
-            help="Start at rest: joint angles 'q1,…,q6' (rad) or a TCP pose 'pose:x,y,z,α,β,γ' "
-            "(m; Cardan x-y-z angles in rad; base frame)."
-        ),
-    ],
-    goal: Annotated[str, typer.Option(help="Goal at rest, as --start.")],
     output: Annotated[
         Path, typer.Option("-o", "--output", help="Output trajectory NAME.mcap (+ NAME.yaml).")
     ],
+    start: Annotated[
+        str | None,
+        typer.Option(
+            help="Start at rest: joint angles 'q1,…,q6' (rad) or a TCP pose 'pose:x,y,z,α,β,γ' "
+            "(m; Cardan x-y-z angles in rad; base frame). This or --start-deg is required."
+        ),
+    ] = None,
+    start_deg: Annotated[
+        str | None, typer.Option(help="As --start with every angle in degrees (poses: m and deg).")
+    ] = None,
+    goal: Annotated[str | None, typer.Option(help="Goal at rest, as --start.")] = None,
+    goal_deg: Annotated[str | None, typer.Option(help="Goal at rest, as --start-deg.")] = None,
     dynamics: Annotated[
         Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
     ] = None,
@@ -153,8 +163,12 @@ def command(
     ] = None,
     k1: Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")] = 1.0,
     k2: Annotated[float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)².")] = 0.0,
-    intervals: Annotated[int, typer.Option("-N", "--intervals", help="Jerk intervals of the OCP grid.")] = 50,
-    margin: Annotated[float, typer.Option(help="Limits tightened by this fraction in the NLP.")] = 0.01,
+    intervals: Annotated[
+        int, typer.Option("--time-intervals", help="Jerk intervals of the OCP time grid.")
+    ] = 50,
+    margin: Annotated[
+        float, typer.Option("--margin-fraction", help="Limits tightened by this fraction in the NLP.")
+    ] = 0.01,
     acceleration_limits: Annotated[
         bool,
         typer.Option(
@@ -163,16 +177,17 @@ def command(
         ),
     ] = True,
     tcp_box: Annotated[
-        str | None, typer.Option(help="Keep the TCP in 'xmin,ymin,zmin,xmax,ymax,zmax' (m, base frame).")
+        str | None,
+        typer.Option("--tcp-box-m", help="Keep the TCP in 'xmin,ymin,zmin,xmax,ymax,zmax' (m, base frame)."),
     ] = None,
     shoulder: Annotated[Shoulder, typer.Option(help="IK branch for poses: shoulder.")] = Shoulder.front,
     elbow: Annotated[Elbow, typer.Option(help="IK branch for poses: elbow.")] = Elbow.up,
     wrist: Annotated[Wrist, typer.Option(help="IK branch for poses: sign of J5.")] = Wrist.positive,
-    max_wall: Annotated[float | None, typer.Option(help="Solver wall-time cap, s.")] = None,
+    max_wall: Annotated[float | None, typer.Option("--max-wall-s", help="Solver wall-time cap, s.")] = None,
     compile_: Annotated[
         bool,
         typer.Option(
-            "--compile",
+            "--compile/--no-compile",
             help="Compile the NLP's node functions to C (needs gcc/cc; cached in ~/.cache/rxcomm, "
             "or $RXCOMM_CACHE_DIR): ~2× faster solves after a one-off ~1 min compile.",
         ),
@@ -184,6 +199,9 @@ def command(
     plot: Annotated[bool, typer.Option(help="Write NAME.png: normalised torques and velocities.")] = False,
 ) -> None:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
+    start, goal = (
+        console.checked(state_text, *pair) for pair in ((start, start_deg, "start"), (goal, goal_deg, "goal"))
+    )
     run(
         robot_dir,
         start,

@@ -106,16 +106,18 @@ def command(
     build_dir: Annotated[
         Path, typer.Argument(help="Directory holding the chain's artefacts (make commission: build/).")
     ],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Markdown file to write.")] = Path(
-        "build/report.md"
-    ),
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Markdown file to write (default: BUILD/report.md).")
+    ] = None,
 ) -> None:
     """Write the commissioning report: each stage's figures beside the paper's, with the stages' plots."""
     run(build_dir, output)
 
 
 @console.stage_command
-def run(build_dir: Path, output: Path) -> list[str]:
+def run(build_dir: Path, output: Path | None = None) -> list[str]:
+    build_dir = Path(build_dir)
+    output = build_dir / "report.md" if output is None else Path(output)
     if not build_dir.is_dir():
         raise InputError("not a directory", file=build_dir)
     # the report reads the build's artefacts and links its figures: none of them may be the output

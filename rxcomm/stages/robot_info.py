@@ -70,7 +70,7 @@ def robot_facts(robot: Robot) -> dict[str, object]:
 
 
 def command(
-    robot_dir: Annotated[Path, typer.Argument(help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
 ) -> None:
     """Print a robot's DOF, limits, reach, mass, the stretched-pose gravity load and identifiability."""
     run(robot_dir)

@@ -412,7 +412,11 @@ def command(
         typer.Option(help="Drive cycles per setpoint (1-64). Default: chosen from the measured round trip."),
     ] = None,
     speed: Annotated[
-        float, typer.Option(help="Approach and campaign moves: fraction of the velocity/acceleration limits.")
+        float,
+        typer.Option(
+            "--speed-fraction",
+            help="Approach and campaign moves: fraction of the velocity/acceleration limits.",
+        ),
     ] = 0.2,
     fault_reset: Annotated[
         bool, typer.Option(help="Reset drive faults and latched gateway stops before moving.")

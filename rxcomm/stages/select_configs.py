@@ -152,8 +152,10 @@ def command(
     robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
     cell: Annotated[Path, typer.Option(help="cell.yaml: workspace, self-collision, tracker.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output configs.yaml.")],
-    n: Annotated[int, typer.Option("-n", "--n", help="Number of measurement poses to select.")] = 32,
-    intervals: Annotated[int, typer.Option(help="Grid intervals per joint (midpoints; 13⁶ ≈ 4.8 M).")] = 13,
+    n: Annotated[int, typer.Option("--poses", help="Number of measurement poses to select.")] = 32,
+    intervals: Annotated[
+        int, typer.Option("--grid-intervals", help="Joint-grid intervals per joint (midpoints; 13⁶ ≈ 4.8 M).")
+    ] = 13,
     max_candidates: Annotated[
         int,
         typer.Option(help="Seeded uniform subset of the feasible grid poses to select from (0: all)."),
@@ -169,8 +171,9 @@ def command(
     n_validation: Annotated[
         int,
         typer.Option(
+            "--validation-poses",
             help="Extra random feasible poses to measure for validation (held out); as many as fit "
-            "poses let one campaign tell two pose sets apart."
+            "poses let one campaign tell two pose sets apart.",
         ),
     ] = 32,
     seed: Annotated[int, typer.Option(help="Seed of the sub-sampling, starts and validation poses.")] = 0,
@@ -219,11 +222,11 @@ def run(
     """The stage as a function (tests call it): returns the summary written to `output`."""
     t0 = time.perf_counter()
     output = Path(output)
-    for value, name, lo in ((n, "n", 1), (intervals, "intervals", 1), (restarts, "restarts", 1)):
+    for value, name, lo in ((n, "poses", 1), (intervals, "grid-intervals", 1), (restarts, "restarts", 1)):
         if value < lo:
             raise InputError(f"must be ≥ {lo}, got {value}", field=name)
     if max_candidates < 0 or n_validation < 0:
-        raise InputError("must be ≥ 0", field="max-candidates" if max_candidates < 0 else "n-validation")
+        raise InputError("must be ≥ 0", field="max-candidates" if max_candidates < 0 else "validation-poses")
     check_outputs(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {"cell": cell, **robot_files(robot_dir)},

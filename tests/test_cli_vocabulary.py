@@ -1,0 +1,122 @@
+"""The command line: docs/cli.md is the option vocabulary, `rxcomm --help` answers without importing the
+stages, deprecated spellings still work, every command's help shows an example."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from rxcomm import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = ROOT / "docs" / "cli.md"
+HEAVY = ("toppra", "matplotlib", "scipy", "casadi", "pinocchio")
+
+
+def documented() -> dict[str, tuple[set[str], set[str]]]:
+    """command -> (option spellings, deprecated spellings) from the tables of docs/cli.md."""
+    tables: dict[str, tuple[set[str], set[str]]] = {}
+    name = None
+    for line in DOC.read_text(encoding="utf-8").splitlines():
+        if m := re.match(r"### `rxcomm ([a-z0-9-]+)`", line):
+            name = m.group(1)
+            tables[name] = (set(), set())
+        elif name and line.startswith("| `-"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            names = re.findall(r"`(-[^`]+)`", cells[0])
+            if cells[1] == "switch":  # rule 7: a switch --X is also --no-X
+                names += [f"--no-{o[2:]}" for o in names if not o.startswith("--no-")]
+            tables[name][0].update(names)
+            tables[name][1].update(re.findall(r"`(-[^`]+)`", cells[-1]))
+    return tables
+
+
+def command_tree() -> dict:
+    group = typer.main.get_command(cli.app)
+    ctx = typer.Context(group)
+    return {name: group.get_command(ctx, name) for name in group.list_commands(ctx)}
+
+
+def spellings(cmd) -> set[str]:
+    return {
+        o
+        for p in cmd.params
+        if p.param_type_name == "option" and not p.hidden
+        for o in (*p.opts, *p.secondary_opts)
+        if o != "--help"
+    }
+
+
+def test_every_option_is_spelled_as_docs_cli_md_says():
+    docs, tree = documented(), command_tree()
+    assert set(docs) == set(tree), "docs/cli.md must have one table per command"
+    for name, cmd in tree.items():
+        assert spellings(cmd) == docs[name][0], name
+        old = {o for o, _ in cli.STAGES[name].deprecated}
+        assert old == docs[name][1] - {"positional"}, name  # the table's deprecated column
+        assert not old & spellings(cmd), f"{name}: a deprecated spelling is still a visible option"
+        for _, new in cli.STAGES[name].deprecated:
+            assert new in spellings(cmd), f"{name}: alias to unknown {new}"
+
+
+def test_units_are_the_last_word_and_no_single_letter_option_but_o():
+    unitless = re.compile(r"--(max-gap|torque-lag|min-speed|max-wall|margin|position-margin|omega|speed)$")
+    for name, cmd in command_tree().items():
+        for o in spellings(cmd):
+            assert not unitless.match(o), f"{name} {o}: unit missing from the name"
+            assert o.startswith("--") or o == "-o", f"{name} {o}"
+
+
+def test_short_help_is_the_start_of_the_commands_help_and_every_help_has_an_example():
+    tree = command_tree()
+    for name, stage in cli.STAGES.items():
+        cmd = tree[name]
+        assert " ".join(cmd.help.split()).startswith(stage.short_help), name
+        res = CliRunner().invoke(cli.app, [name, "--help"], terminal_width=200)
+        assert res.exit_code == 0, res.output
+        assert "Example:" in res.output and f"rxcomm {name}" in res.output, name
+        # the example itself parses: its options are the command's
+        args = stage.example.split()[2:]
+        assert {a.partition("=")[0] for a in args if a.startswith("-")} <= spellings(cmd), name
+
+
+def test_import_of_the_cli_and_top_level_help_load_no_heavy_library():
+    code = (
+        "import sys; import rxcomm.cli as c\n"
+        "try:\n    c.app(['--help'], prog_name='rxcomm')\nexcept SystemExit:\n    pass\n"
+        f"print([m for m in {HEAVY!r} if m in sys.modules])"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert res.stdout.strip().splitlines()[-1] == "[]", res.stdout
+    assert "plan-ptp" in res.stdout  # the listing still names every command
+
+
+def test_completion_is_on():
+    res = CliRunner().invoke(cli.app, ["--help"], terminal_width=200)
+    assert "--install-completion" in res.output and "--show-completion" in res.output
+
+
+@pytest.mark.parametrize(
+    ("name", "old", "new"),
+    [
+        ("select-configs", ["-n", "12", "--intervals=7"], ["--poses", "12", "--grid-intervals=7"]),
+        ("robot-info", ["samples/rx130l"], ["--robot", "samples/rx130l"]),
+        ("plan-ptp", ["-N", "8", "--max-wall", "1"], ["--time-intervals", "8", "--max-wall-s", "1"]),
+        ("identify", ["--model", "d.yaml", "--", "--model"], ["--dynamics", "d.yaml", "--", "--model"]),
+    ],
+)
+def test_deprecated_spellings_are_rewritten(name, old, new, capsys):
+    assert cli.rewrite_deprecated(name, old) == new
+    assert "deprecated" in capsys.readouterr().err
+
+
+def test_deprecated_spelling_still_runs_the_command():
+    res = CliRunner().invoke(cli.app, ["robot-info", str(ROOT / "samples" / "rx130l")])
+    assert res.exit_code == 0, res.output
+    assert "deprecated" in res.output and "rx130l" in res.output
