@@ -207,4 +207,10 @@ def _main(
 
 
 def main() -> None:
-    app(prog_name="rxcomm", args=sys.argv[1:])
+    try:
+        app(prog_name="rxcomm", args=sys.argv[1:])
+    except OSError as e:  # outside a stage's own handling (importing it, writing help): still one line
+        from rxcomm import console
+
+        console.err.print(f"error: {console.os_error(e)}", markup=False)
+        sys.exit(2)

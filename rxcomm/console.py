@@ -8,6 +8,8 @@ from __future__ import annotations
 import errno
 import functools
 import sys
+import threading
+import time
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -18,6 +20,7 @@ from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
+    SpinnerColumn,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
@@ -84,8 +87,15 @@ def checked(fn: Callable[..., T], *args) -> T:
         raise fail(e) from e
 
 
-def progress() -> Progress:
-    """A progress bar on stderr (silent when stderr is not a terminal, so logs stay clean)."""
+# Without a terminal (make, CI) a bar cannot redraw: each running task is printed as one plain line
+# this often instead, so a log never sits silent for minutes.
+PLAIN_PERIOD_S = 5.0
+
+
+def progress() -> Progress | PlainProgress:
+    """A progress bar on stderr; when stderr is not a terminal, plain periodic lines instead."""
+    if not sys.stderr.isatty():
+        return PlainProgress()
     return Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -94,8 +104,116 @@ def progress() -> Progress:
         TimeRemainingColumn(),
         console=err,
         transient=False,
-        disable=not sys.stderr.isatty(),
     )
+
+
+class PlainProgress:
+    """The part of rich's Progress the stages use, printing `description: 40 % 12 s` (or, without a
+    total, `description: 12 s`) for every unfinished task each `period_s`, from a daemon thread so a
+    long library call without progress callbacks is still reported. A task that ran longer than one
+    period gets a last line when it finishes or the display stops."""
+
+    def __init__(self, period_s: float | None = None, stream=None):
+        self.period_s = PLAIN_PERIOD_S if period_s is None else period_s
+        self.stream = stream
+        self._tasks: dict[int, dict] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def add_task(self, description: str, total: float | None = None, **_) -> int:
+        with self._lock:
+            task_id = len(self._tasks)
+            self._tasks[task_id] = {
+                "description": description, "total": total, "completed": 0.0,
+                "t0": time.monotonic(), "done": False,
+            }  # fmt: skip
+        return task_id
+
+    def update(self, task_id: int, *, completed: float | None = None, advance: float | None = None,
+               description: str | None = None, **_) -> None:  # fmt: skip
+        with self._lock:
+            t = self._tasks[task_id]
+            if description is not None:
+                t["description"] = description
+            if completed is not None:
+                t["completed"] = completed
+            if advance is not None:
+                t["completed"] += advance
+            finished = t["total"] is not None and t["completed"] >= t["total"] and not t["done"]
+        if finished:
+            self._finish(task_id)
+
+    def start(self) -> None:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._tick, daemon=True, name="rxcomm-progress")
+            self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+        for task_id in list(self._tasks):
+            self._finish(task_id)
+
+    def __enter__(self) -> PlainProgress:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def line(self, task_id: int) -> str:
+        t = self._tasks[task_id]
+        elapsed = time.monotonic() - t["t0"]
+        share = f" {100 * t['completed'] / t['total']:.0f} %" if t["total"] else ""
+        return f"{t['description']}:{share} {elapsed:.0f} s"
+
+    def _emit(self, text: str) -> None:
+        print(text, file=self.stream or sys.stderr, flush=True)
+
+    def _finish(self, task_id: int) -> None:
+        with self._lock:
+            t = self._tasks[task_id]
+            if t["done"]:
+                return
+            t["done"] = True
+            long = time.monotonic() - t["t0"] >= self.period_s
+        if long:
+            self._emit(self.line(task_id) + " (done)")
+
+    def _tick(self) -> None:
+        while not self._stop.wait(self.period_s):
+            with self._lock:
+                running = [k for k, t in self._tasks.items() if not t["done"]]
+            for task_id in running:
+                self._emit(self.line(task_id))
+
+
+class Phase:
+    """A phase without a known fraction (a solve): a spinner with the elapsed time on a terminal,
+    plain periodic lines otherwise. `update(text)` renames it (as rich's status does)."""
+
+    def __init__(self, description: str):
+        self.bar = progress()
+        if isinstance(self.bar, Progress):
+            self.bar.columns = (SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn())
+        self.task = self.bar.add_task(description, total=None)
+
+    def update(self, description: str) -> None:
+        self.bar.update(self.task, description=description)
+
+    def __enter__(self) -> Phase:
+        self.bar.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.bar.stop()
+
+
+def phase(description: str) -> Phase:
+    """`with console.phase("plan-ptp: solving"):` around a long call that reports no progress."""
+    return Phase(description)
 
 
 def summary_table(title: str, rows: dict[str, object]) -> None:

@@ -449,7 +449,7 @@ def run(
     if dynamics is not None:
         params = load_dynamics(dynamics, robot)
         inputs["dynamics"] = Path(dynamics)
-    with console.err.status(f"calibrate: fitting {robot.name} to {ms.n} poses"):
+    with console.phase(f"calibrate: fitting {robot.name} to {ms.n} poses"):
         res = calibrate(robot, ms, settings, tracker_to_base=t2b, dynamics=params)
     art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)
     output.parent.mkdir(parents=True, exist_ok=True)

@@ -274,7 +274,7 @@ def run(
                 "at one phase of the setpoint interpolation, which biases the inertias; record "
                 "identification runs with --interpolation-ratio 1"
             )
-    with console.err.status("identify: estimating"):
+    with console.phase("identify: estimating"):
         result = identify(robot, joint_log, opts, validation_log=val_log)
     est = result.estimate
     std = np.sqrt(np.maximum(np.diag(est.cov), 0.0))

@@ -143,7 +143,7 @@ def write_iso9283(robot: Robot, out_dir: Path, cell: Path | None, rpy_deg: str) 
         lo = list(ws.box.min_m)
         lo[2] = max(lo[2], ws.floor_z_m + ws.floor_clearance_m)
         box = Box(min_m=tuple(lo), max_m=ws.box.max_m)
-    with console.err.status("plan-cp: searching the largest reachable ISO 9283 cube"):
+    with console.phase("plan-cp: searching the largest reachable ISO 9283 cube"):
         cube = iso9283_cube(robot, tuple(rpy), workspace=box)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -301,9 +301,7 @@ def run(
     if dynamics is not None:
         inputs["dynamics"] = Path(dynamics)
     dyn = PlanDynamics.load(robot, dynamics, settings.coulomb_eps_rad_s)
-    with console.err.status(
-        f"plan-cp: {spec.name or path.name} ({settings.method}, N = {intervals})"
-    ) as status:
+    with console.phase(f"plan-cp: {spec.name or path.name} ({settings.method}, N = {intervals})") as status:
         plan = plan_cp(robot, cpath, dyn, settings, progress=lambda m: status.update(f"plan-cp: {m}"))
     summary = summary_of(plan, robot)
     summary["seconds"] = time.perf_counter() - t_all

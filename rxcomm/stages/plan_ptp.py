@@ -276,7 +276,7 @@ def run(
         "dynamics_model": "identified" if params is not None else "prior",
         "calibrated": calibration is not None,
     }
-    with console.err.status(f"plan-ptp: solving the OCP (N = {intervals})"):
+    with console.phase(f"plan-ptp: solving the OCP (N = {intervals})"):
         try:
             result = plan_ptp(robot, dyn, q_start, q_goal, options)
         except PtpNotConverged as e:

@@ -246,6 +246,15 @@ def run(
     total = intervals**robot.n
     with console.progress() as bar:
         task = bar.add_task("select-configs: streaming the joint grid", total=total)
+
+        selecting: list[int] = []
+
+        def grid_progress(done: int, grid_total: int) -> None:
+            bar.update(task, completed=done)
+            if done >= grid_total and not selecting:  # what follows reports no fraction: a phase
+                what = f"select-configs: selecting {n} poses ({restarts} restarts)"
+                selecting.append(bar.add_task(what, total=None))
+
         sel = select_measurement_poses(
             robot,
             cell_model,
@@ -256,7 +265,7 @@ def run(
             restarts=restarts,
             seed=seed,
             n_validation=n_validation,
-            progress=lambda done, _total: bar.update(task, completed=done),
+            progress=grid_progress,
         )
     seconds = time.perf_counter() - t0
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "cell": Path(cell)}
