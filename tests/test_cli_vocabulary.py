@@ -3,6 +3,7 @@ stages, deprecated spellings still work, every command's help shows an example."
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -97,9 +98,22 @@ def test_import_of_the_cli_and_top_level_help_load_no_heavy_library():
     assert "plan-ptp" in res.stdout  # the listing still names every command
 
 
-def test_completion_is_on():
+def test_completion_is_on_and_completes_commands_and_options():
     res = CliRunner().invoke(cli.app, ["--help"], terminal_width=200)
     assert "--install-completion" in res.output and "--show-completion" in res.output
+    exe = Path(sys.executable).with_name("rxcomm")
+    if not exe.exists():
+        pytest.skip("no rxcomm console script beside the interpreter")
+
+    def complete(words: str, cword: int) -> list[str]:
+        env = {"_RXCOMM_COMPLETE": "complete_bash", "COMP_WORDS": words, "COMP_CWORD": str(cword)}
+        done = subprocess.run([str(exe)], env={**os.environ, **env}, capture_output=True, text=True)
+        return done.stdout.split()
+
+    assert complete("rxcomm pl", 1) == ["plan-cp", "plan-ptp"]
+    assert complete("rxcomm select-configs --va", 2) == [
+        "--validation-poses"
+    ]  # hidden aliases are not offered
 
 
 @pytest.mark.parametrize(
