@@ -156,18 +156,18 @@ def test_other_inputs_rebuild_what_reads_them(built):
 
 def test_a_stamp_is_rewritten_only_when_its_text_changes(built):
     stamp = built / "build/.params/select-configs"
-    assert "-n 32 " in stamp.read_text()
+    assert "--poses 32 " in stamp.read_text()
     before = stamp.stat().st_mtime_ns
     assert _make(built, "build/.params/select-configs").returncode == 0
     assert stamp.stat().st_mtime_ns == before  # same options: untouched, nothing downstream rebuilds
     assert _make(built, "N_POSES=24", "build/.params/select-configs").returncode == 0
-    assert "-n 24 " in stamp.read_text()
+    assert "--poses 24 " in stamp.read_text()
     assert _make(built, "-q", "N_POSES=24", "build/report.md").returncode == 1  # now stale under 24
     assert _remade(built)[1] == {"select-configs"}  # and back to 32 rebuilds again
 
 
 def test_commission_ci_reuses_the_same_rules_in_its_own_dir(built):
-    assert "-n 16 " in (built / "build-ci/.params/select-configs").read_text()
+    assert "--poses 16 " in (built / "build-ci/.params/select-configs").read_text()
     assert _remade(built, goal="commission-ci", build="build-ci") == (set(), set())
     _newer(built / ROBOT / "truth.yaml")
     assert _remade(built, goal="commission-ci", build="build-ci")[0] == ON_CELL | AFTER_CELL
