@@ -140,12 +140,13 @@ class LazyStages(TyperGroup):
     _listing = False
 
     def list_commands(self, ctx: typer.Context) -> list[str]:
-        return list(STAGES)
+        # a command registered eagerly (`app.command(...)`) still works, only not lazily
+        return list(STAGES) + [c for c in super().list_commands(ctx) if c not in STAGES]
 
     def get_command(self, ctx: typer.Context, cmd_name: str) -> TyperCommand | None:
         stage = STAGES.get(cmd_name)
         if stage is None:
-            return None
+            return super().get_command(ctx, cmd_name)
         if self._listing:  # the group's own --help: a stand-in with the short help, no import
             return TyperCommand(cmd_name, help=stage.short_help)
         return stage_command(cmd_name)
