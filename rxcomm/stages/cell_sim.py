@@ -12,18 +12,19 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
 
 from rxcomm import console
-from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
-from rxcomm.cell.sim import SimSettings, SimulatedCell
-from rxcomm.cell.truth import load_truth
 from rxcomm.errors import InputError
 from rxcomm.gateway.net import is_loopback
 from rxcomm.options import parse_numbers, radians_text
+
+if TYPE_CHECKING:  # the cell (pinocchio, the plant) is imported where used: `--help` stays fast
+    from rxcomm.cell.server import CellServer
+    from rxcomm.cell.sim import SimulatedCell
 
 
 def command(
@@ -93,6 +94,10 @@ def run(
 ) -> dict[str, object]:
     """The stage as a function: serve until `stop` is set, Ctrl-C/SIGTERM, or `duration_s`; returns the
     facts printed at start-up, which `on_ready` also receives once the server listens."""
+    from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
+    from rxcomm.cell.sim import SimSettings, SimulatedCell
+    from rxcomm.cell.truth import load_truth
+
     if not is_loopback(host) and not allow_remote:
         raise InputError(f"{host} is not a loopback address: pass --allow-remote to serve it", field="--host")
     if duration_s is not None and not duration_s > 0:

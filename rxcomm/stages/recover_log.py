@@ -14,10 +14,11 @@ from typing import Annotated
 import typer
 
 from rxcomm import console
-from rxcomm.execution.log import recover_run_log
 
 
 def execute(part: Path, output: Path | None = None) -> Path:
+    from rxcomm.execution.log import recover_run_log  # here, not at the top: `--help` stays fast
+
     rec = recover_run_log(part, output)
     console.err.print(f"warning: {rec.warning()}")
     console.out.print(f"recovered run log → {rec.written}")

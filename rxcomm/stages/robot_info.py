@@ -1,19 +1,17 @@
-"""`rxcomm robot-info ROBOT_DIR`: what a commissioning engineer checks first about a robot description."""
+"""`rxcomm robot-info --robot DIR`: what a commissioning engineer checks first about a robot description."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
-import pinocchio as pin
 import typer
-from scipy.optimize import minimize_scalar
 
 from rxcomm import console
-from rxcomm.model.dynamics import RobotDynamics, prior_parameters
-from rxcomm.model.geometric_errors import identifiable_count
-from rxcomm.model.robot import Robot, load_robot
+
+if TYPE_CHECKING:  # the model (pinocchio, scipy) is imported where used: `--help` stays fast
+    from rxcomm.model.robot import Robot
 
 # A tracker target 50 mm off the TCP's z axis (in the TCP frame): position-only calibration needs one
 # off the J6 axis, or the J6 offset and the tool's in-axis terms are invisible.
@@ -26,6 +24,9 @@ def stretched_pose(robot: Robot) -> np.ndarray:
     For arms whose zero pose is upright (both samples) this is the arm stretched horizontally, the
     worst case for J2's gravity load.
     """
+    import pinocchio as pin
+    from scipy.optimize import minimize_scalar
+
     data = robot.create_data()
 
     def reach(q2: float) -> float:
@@ -46,6 +47,9 @@ def stretched_pose(robot: Robot) -> np.ndarray:
 
 def robot_facts(robot: Robot) -> dict[str, object]:
     """The figures `robot-info` prints, as a flat mapping (SI units)."""
+    from rxcomm.model.dynamics import RobotDynamics, prior_parameters
+    from rxcomm.model.geometric_errors import identifiable_count
+
     q = stretched_pose(robot)
     dyn = RobotDynamics(robot, prior_parameters(robot))
     g = dyn.gravity_torque(q, include_spring=False)
@@ -78,6 +82,8 @@ def command(
 
 @console.stage_command
 def run(robot_dir: Path) -> dict[str, object]:
+    from rxcomm.model.robot import load_robot
+
     robot = load_robot(robot_dir)
     facts = robot_facts(robot)
     out = console.out

@@ -14,20 +14,19 @@ from __future__ import annotations
 import time
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
 
 from rxcomm import console, plotting
-from rxcomm.calibration.pose_selection import Criterion, PoseSelection, select_measurement_poses
 from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs
-from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.model.geometric_errors import predict_poses
-from rxcomm.model.robot import Robot, load_robot, robot_files
-from rxcomm.schemas.cell import Cell
-from rxcomm.schemas.configs import ConfigPose, Configs
+
+if TYPE_CHECKING:  # the library (pinocchio, scipy) is imported where used: `--help` stays fast
+    from rxcomm.calibration.pose_selection import PoseSelection
+    from rxcomm.model.robot import Robot
+    from rxcomm.schemas.cell import Cell
+    from rxcomm.schemas.configs import Configs
 
 
 class CriterionOption(StrEnum):
@@ -37,6 +36,9 @@ class CriterionOption(StrEnum):
 
 
 def read_cell(path: Path) -> Cell:
+    from rxcomm.io.yaml_io import read_yaml_model
+    from rxcomm.schemas.cell import Cell
+
     return read_yaml_model(path, Cell)
 
 
@@ -48,6 +50,9 @@ def configs_artefact(
     seconds: float,
     measure_baseline: bool = False,
 ) -> Configs:
+    from rxcomm.model.geometric_errors import predict_poses
+    from rxcomm.schemas.configs import ConfigPose, Configs
+
     parts = [("fit", sel.q_selected), ("validation", sel.q_validation)]
     if measure_baseline:
         parts.append(("baseline", sel.baseline.q))
@@ -103,9 +108,9 @@ def configs_artefact(
 def plot_configs(robot: Robot, sel: PoseSelection, path: Path, title: str) -> Path:
     """PNG: the selected poses as stick figures (base frame) over the candidates' TCP cloud, the
     linear scan's TCPs beside them, and each joint's coverage by both sets."""
-    plt = plotting.pyplot()
+    from rxcomm.model.geometric_errors import _chain, predict_poses
 
-    from rxcomm.model.geometric_errors import _chain
+    plt = plotting.pyplot()
 
     fig = plt.figure(figsize=(12, 5.5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
@@ -220,6 +225,11 @@ def run(
     plot: bool = False,
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written to `output`."""
+    from rxcomm.calibration.pose_selection import Criterion, select_measurement_poses
+    from rxcomm.io.files import check_outputs
+    from rxcomm.io.yaml_io import write_yaml_artefact
+    from rxcomm.model.robot import load_robot, robot_files
+
     t0 = time.perf_counter()
     output = Path(output)
     for value, name, lo in ((n, "poses", 1), (intervals, "grid-intervals", 1), (restarts, "restarts", 1)):
