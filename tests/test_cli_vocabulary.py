@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -134,3 +135,20 @@ def test_deprecated_spelling_still_runs_the_command():
     res = CliRunner().invoke(cli.app, ["robot-info", str(ROOT / "samples" / "rx130l")])
     assert res.exit_code == 0, res.output
     assert "deprecated" in res.output and "rx130l" in res.output
+
+
+@pytest.mark.parametrize("goal", ["commission", "commission-ci"])
+def test_the_makefile_spells_every_option_as_docs_cli_md(tmp_path, goal):
+    """`make -n -B GOAL` prints every rxcomm command of the chain: each option must be its command's."""
+    if shutil.which("make") is None:
+        pytest.skip("no make")
+    printed = subprocess.run(
+        ["make", "-n", "-B", goal, f"BUILD={tmp_path / 'b'}"], cwd=ROOT, capture_output=True, text=True
+    ).stdout
+    printed = re.sub(r'\$\(\S*python -c "[^"]*"\)', "VALUE", printed)  # plan-ptp's states from cp.yaml
+    tree = command_tree()
+    commands = re.findall(r"bin/rxcomm ([a-z-]+)((?: (?!&&|>)\S+)*)", printed)
+    assert {name for name, _ in commands} >= {"select-configs", "calibrate", "identify", "plan-ptp", "run"}
+    for name, args in commands:
+        used = {a.partition("=")[0] for a in args.split() if a.startswith("-")}
+        assert used <= spellings(tree[name]), f"{name}: {used - spellings(tree[name])}"
