@@ -150,6 +150,7 @@ def test_stage_verdicts_against_the_targets():
     runs = {
         "run-ff.yaml": {"summary": {"outcome": "completed", "underruns": 0}},
         "run-ptp.yaml": {"summary": {"outcome": "stopped", "underruns": 2}},
+        "sim.yaml": {"summary": {"outcome": "completed", "underruns": "not applicable (virtual time)"}},
     }
     rows = {r.criterion.split(":")[0] + r.criterion[-12:]: r for r in targets.stage_verdicts(summaries, runs)}
     by = list(rows.values())
@@ -161,8 +162,8 @@ def test_stage_verdicts_against_the_targets():
     assert exc.verdict is Verdict.not_measured
     assert cp.verdict is Verdict.passed and "within the tolerance" in cp.note
     assert ptp.verdict is Verdict.passed
-    assert run.verdict is Verdict.failed and run.measured == "1 of 2 completed, 2 underruns"
-    assert run.note == "not completed: run-ptp.yaml"
+    assert run.verdict is Verdict.failed and run.measured == "2 of 3 completed, 2 underruns"
+    assert run.note == "not completed: run-ptp.yaml; underruns not applicable (virtual time) in 1 of 3"
     strict = targets.StageTargets(validation_r2_min=0.98)
     assert targets.identification_row(summaries["dynamics"], strict).verdict is Verdict.failed
 

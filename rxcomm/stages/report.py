@@ -134,9 +134,10 @@ def build_report(build: Path) -> tuple[Report, list[str]]:
     keys |= {"cp": "cp.yaml", "ptp": "ptp.yaml", "run-ff": "run-ff.yaml", "run-noff": "run-noff.yaml"}
     summaries = {k: (a.get(name) or {}).get("summary") for k, name in keys.items()}
     verdict = targets.stage_verdicts(summaries, runs, tol)
-    robot = (a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"] or {}).get("robot", "?")
+    robot = (a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"] or {}).get("robot")
     preamble = (
-        f"Robot `{robot}` commissioned against the simulated cell by rxcomm {__version__} on "
+        ("The robot (named by no artefact here)" if robot is None else f"Robot `{robot}`")
+        + f" commissioned against the simulated cell by rxcomm {__version__} on "
         f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC. Every figure is read from the artefacts in this directory "
         "(their envelopes hold the sha256 of every input). The verdict is against the stage targets "
         "(rxcomm/report_targets.py); the paper comparison closes the report."
