@@ -18,6 +18,9 @@ def pyplot() -> ModuleType:
 # A limit "binds" in a figure when its series reaches this fraction of the bound: drawn in colour and
 # named in the legend; the others are drawn faded, so the eye finds what sets the timing.
 BINDS = 0.9
+# matplotlib's tab10 without its grey, which is the faded lines' colour; then tab20's light shades
+BINDING_COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22"]
+BINDING_COLOURS += ["#17becf", "#aec7e8", "#ffbb78", "#98df8a", "#ff9896", "#c5b0d5", "#c49c94", "#f7b6d2"]
 
 
 def signed_ratios(ratios, raw):
@@ -46,7 +49,8 @@ def limit_panel(ax, t, ratios, columns, threshold: float = BINDS, what: str = "v
             peak = float(abs(r[:, j]).max())
             if peak >= threshold:
                 label = f"{name.replace('_', ' ')} {col} (peak {peak:.3f})"
-                ax.plot(t, r[:, j], lw=1.3, label=label, zorder=3)
+                colour = BINDING_COLOURS[len(binding) % len(BINDING_COLOURS)]
+                ax.plot(t, r[:, j], lw=1.3, label=label, zorder=3, color=colour)
                 binding.append(label)
             else:
                 ax.plot(t, r[:, j], color="0.6", lw=0.6, alpha=0.45, zorder=1)
