@@ -8,6 +8,7 @@ run, and the comparison with the paper. A missing artefact is a section "not mea
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated
@@ -21,7 +22,7 @@ from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_outputs
 from rxcomm.io.yaml_io import load_yaml, read_yaml_artefact
 from rxcomm.reporting import html, markdown
-from rxcomm.reporting.document import Report, Section
+from rxcomm.reporting.document import Report, Section, VerdictRow
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.dynamics import Dynamics
@@ -118,8 +119,9 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
     return [out.get(name) or rep.missing_section(title, [name]) for name, (_, title) in ARTEFACTS.items()]
 
 
-def build_report(build: Path) -> tuple[Report, list[str]]:
-    """(the report, names of the missing artefacts)."""
+def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Report, list[str]]:
+    """(the report, names of the missing artefacts). `acceptance`: criteria measured on the robot as a
+    whole (factory vs commissioned, issue 17), which open the verdict before the stage targets."""
     a = {name: _load(build / name, model) for name, (model, _) in ARTEFACTS.items()}
     missing = [name for name, v in a.items() if v is None]
     runs = run_logs(build)
@@ -133,7 +135,7 @@ def build_report(build: Path) -> tuple[Report, list[str]]:
     keys = {"calibration": "calibration.yaml", "dynamics": "dynamics.yaml", "excitation": "excitation.yaml"}
     keys |= {"cp": "cp.yaml", "ptp": "ptp.yaml", "run-ff": "run-ff.yaml", "run-noff": "run-noff.yaml"}
     summaries = {k: (a.get(name) or {}).get("summary") for k, name in keys.items()}
-    verdict = targets.stage_verdicts(summaries, runs, tol)
+    verdict = [*acceptance, *targets.stage_verdicts(summaries, runs, tol)]
     robot = (a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"] or {}).get("robot")
     preamble = (
         ("The robot (named by no artefact here)" if robot is None else f"Robot `{robot}`")
