@@ -164,6 +164,8 @@ def test_stage_verdicts_against_the_targets():
     assert ptp.verdict is Verdict.passed
     assert run.verdict is Verdict.failed and run.measured == "2 of 3 completed, 2 underruns"
     assert run.note == "not completed: run-ptp.yaml; underruns not applicable (virtual time) in 1 of 3"
+    virtual = {"a.yaml": runs["sim.yaml"]}
+    assert targets.runs_row(virtual).measured == "1 of 1 completed, underruns not applicable (virtual time)"
     strict = targets.StageTargets(validation_r2_min=0.98)
     assert targets.identification_row(summaries["dynamics"], strict).verdict is Verdict.failed
 
