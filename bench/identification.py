@@ -17,7 +17,9 @@ import numpy as np
 import rxcomm
 from bench.table import Row
 from rxcomm.identification.excitation import design_excitation
-from rxcomm.identification.fit import IdentifySettings, JointLog, identify, load_joint_log
+from rxcomm.identification.fit import identify
+from rxcomm.identification.logs import JointLog, load_joint_log
+from rxcomm.identification.settings import IdentifySettings
 from rxcomm.io.mcap_io import McapWriter
 from rxcomm.io.yaml_io import read_yaml_model
 from rxcomm.model.base_parameters import base_parameters

@@ -14,23 +14,19 @@ from typer.testing import CliRunner
 import rxcomm
 from rxcomm.cli import app
 from rxcomm.errors import InputError
-from rxcomm.identification.excitation import ExcitationProblem, FourierTrajectory, design_excitation
-from rxcomm.identification.fit import (
-    IdentifySettings,
-    JointLog,
+from rxcomm.identification.consistency import (
     _link_from_theta,
     _link_jacobian,
     _theta_from_link,
-    check_log,
-    holdout_mask,
-    identify,
     link_min_eigenvalues,
-    load_joint_log,
-    preprocess,
     pseudo_inertia,
-    regressor,
-    validate,
 )
+from rxcomm.identification.excitation import ExcitationProblem, FourierTrajectory, design_excitation
+from rxcomm.identification.fit import identify
+from rxcomm.identification.logs import JointLog, check_log, load_joint_log
+from rxcomm.identification.processing import preprocess, regressor
+from rxcomm.identification.settings import IdentifySettings
+from rxcomm.identification.validation import holdout_mask, validate
 from rxcomm.io.mcap_io import McapWriter
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.model.base_parameters import base_parameters, load_dynamics

@@ -2,7 +2,8 @@
 
 - ``excitation``: the Fourier-series exciting trajectory, optimised for the regressor's condition (§4.2);
 - ``fit``: joint logs → filtered, decimated regressor rows → base parameters by weighted least
-  squares, with validation and physical consistency (§4.1, §4.3).
+  squares, with validation and physical consistency (§4.1, §4.3); its steps in ``settings``, ``logs``,
+  ``processing``, ``estimation``, ``consistency`` and ``validation``.
 
 May import: `rxcomm.model`, `rxcomm.io`, `rxcomm.schemas`, `rxcomm.errors`. Independent of
 calibration and planning (see docs/architecture.md).

@@ -22,15 +22,10 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.identification.fit import (
-    Identification,
-    IdentifySettings,
-    Validation,
-    identify,
-    load_joint_log,
-    score,
-    write_torques_csv,
-)
+from rxcomm.identification.fit import Identification, identify, score
+from rxcomm.identification.logs import load_joint_log
+from rxcomm.identification.settings import IdentifySettings
+from rxcomm.identification.validation import Validation, write_torques_csv
 from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
