@@ -21,7 +21,9 @@ from rxcomm.identification.consistency import (
     link_min_eigenvalues,
     pseudo_inertia,
 )
-from rxcomm.identification.excitation import ExcitationProblem, FourierTrajectory, design_excitation
+from rxcomm.identification.excitation import design_excitation
+from rxcomm.identification.excitation_problem import ExcitationProblem
+from rxcomm.identification.excitation_trajectory import FourierTrajectory
 from rxcomm.identification.fit import identify
 from rxcomm.identification.logs import JointLog, check_log, load_joint_log
 from rxcomm.identification.processing import preprocess, regressor

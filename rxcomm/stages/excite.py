@@ -21,7 +21,8 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.identification.excitation import ExcitationDesign, design_excitation, region_points
+from rxcomm.identification.excitation import ExcitationDesign, design_excitation
+from rxcomm.identification.excitation_limits import region_points
 from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
