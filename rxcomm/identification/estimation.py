@@ -98,10 +98,12 @@ def estimate(
     settings: IdentifySettings,
     *,
     source: str | None = None,
+    w: np.ndarray | None = None,
 ) -> Estimate:
-    """OLS, then (method "wls") WLS on the processed samples; refuses poor excitation."""
+    """OLS, then (method "wls") WLS on the processed samples; refuses poor excitation. `w`: the base
+    regressor of `data` [M·n, n_base] (rows sample-major) when the caller has it already."""
     n, nb = robot.n, bset.n_base
-    w = bset.base_regressor(regressor(robot, data))
+    w = bset.base_regressor(regressor(robot, data)) if w is None else w
     y = data.tau.ravel()
     joint = np.tile(np.arange(n), len(data.t))
     keep = ~data.near_stick.ravel()

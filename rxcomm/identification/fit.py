@@ -23,15 +23,22 @@ from pathlib import Path
 
 import numpy as np
 
+from rxcomm.errors import InputError
 from rxcomm.identification.consistency import (
     PhysicalFit,
     drive_violations,
     link_min_eigenvalues,
     physical_fit,
 )
+from rxcomm.identification.cross_validation import (
+    CrossValidation,
+    CutoffChoice,
+    choose_cutoff,
+    cross_validate,
+)
 from rxcomm.identification.estimation import Estimate, estimate
 from rxcomm.identification.logs import JointLog, check_log
-from rxcomm.identification.processing import preprocess
+from rxcomm.identification.processing import preprocess, regressor
 from rxcomm.identification.settings import IdentifySettings
 from rxcomm.identification.validation import Validation, holdout_mask, nan_list, validate
 from rxcomm.model.base_parameters import (
@@ -69,6 +76,8 @@ class Identification:
     robot: Robot | None = None
     cutoff_hz: float = math.nan
     timings: dict[str, float] = field(default_factory=dict)
+    cross_validation: CrossValidation | None = None
+    cutoff_choice: CutoffChoice | None = None
 
     @property
     def friction_mode(self) -> str:
@@ -147,6 +156,12 @@ class Identification:
             "inconsistent_links": ", ".join(self.inconsistent_links()),
             "negative_drive_parameters": ", ".join(self.drive_violations),
             "consistency_distance_sigma": self.physical_fit.mahalanobis,
+            **(self.cross_validation.summary() if self.cross_validation else {"cv_folds": 0}),
+            **(
+                self.cutoff_choice.summary()
+                if self.cutoff_choice
+                else {"cutoff_choice": "given (--cutoff-hz)"}
+            ),
         }
 
 
@@ -174,9 +189,18 @@ def identify(
     timings["base_set"] = time.perf_counter() - t0
     tick = time.perf_counter()
     clean = check_log(log, robot, settings)
-    data = preprocess(clean, settings, robot)
+    choice = None
+    if settings.cutoff_hz == "auto":
+        choice = choose_cutoff(robot, bset, clean, settings)
+        settings, data = settings.with_cutoff(choice.cutoff_hz), choice.data
+        timings["choose_cutoff"] = time.perf_counter() - tick
+    else:
+        data = preprocess(clean, settings, robot)
+    w_all = bset.base_regressor(regressor(robot, data))  # once: the fit, the folds and the hold-out
+    fit_rows = np.ones(len(data.t), dtype=bool)
     if validation_log is None:
         held = holdout_mask(data.t, settings.holdout_fraction, settings.holdout_blocks)
+        fit_rows = ~held
         fit_data, val_data = data.select(~held), data.select(held)
         pct = 100 * settings.holdout_fraction
         if settings.holdout_blocks == 1:
@@ -192,8 +216,12 @@ def identify(
         val_source = f"log: {Path(validation_log.source).name or 'given'}"
     timings["preprocess"] = time.perf_counter() - tick
     tick = time.perf_counter()
-    est = estimate(robot, bset, fit_data, settings, source=log.source or None)
+    w_fit = w_all[np.repeat(fit_rows, robot.n)]
+    est = estimate(robot, bset, fit_data, settings, source=log.source or None, w=w_fit)
     timings["estimate"] = time.perf_counter() - tick
+    tick = time.perf_counter()
+    cv = cross_validate(robot, bset, data, settings, w=w_all) if settings.folds >= 2 else None
+    timings["cross_validation"] = time.perf_counter() - tick
     tick = time.perf_counter()
     closest = parameters_from_base(robot, bset, est.p_b, prior)
     phys = physical_fit(robot, bset, est, prior)
@@ -221,8 +249,10 @@ def identify(
         source_hz=data.source_hz,
         seconds=time.perf_counter() - t0,
         robot=robot,
-        cutoff_hz=settings.cutoff_hz,
+        cutoff_hz=settings.cutoff,
         timings=timings,
+        cross_validation=cv,
+        cutoff_choice=choice,
     )
 
 
@@ -232,6 +262,11 @@ def score(
     """An identified model checked on another log without refitting (e.g. last month's model against
     today's recording): the same processing and figures as `identify`'s validation."""
     settings = settings or IdentifySettings()
+    if settings.cutoff_hz == "auto":
+        raise InputError(
+            "a model is scored at its own cut-off (dynamics.yaml summary.cutoff_hz): give a number, not auto",
+            field="cutoff_hz",
+        )
     if settings.friction is not None and settings.friction != robot.friction_mode:
         robot = robot.with_friction(settings.friction)
     data = preprocess(check_log(log, robot, settings), settings, robot)

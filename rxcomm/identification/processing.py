@@ -65,7 +65,7 @@ def preprocess(log: JointLog, settings: IdentifySettings, robot: Robot | None = 
     the motors' filtered Coulomb shapes too (motor friction columns)."""
     step = float(np.median(np.diff(log.t)))
     fs = 1.0 / step
-    fc = settings.cutoff_hz
+    fc = settings.cutoff
     if fc >= 0.45 * fs:
         raise InputError(
             f"cutoff_hz {fc} is not below the log's Nyquist frequency ({fs / 2:.1f} Hz)",
@@ -100,7 +100,7 @@ def preprocess(log: JointLog, settings: IdentifySettings, robot: Robot | None = 
     near_stick = maximum_filter1d(slow, size=2 * int(round(guard * fs)) + 1, axis=0)
     trim = 2.0 / fc if settings.trim_s is None else settings.trim_s
     k0 = int(math.ceil(trim / step))
-    stride = max(1, int(round(fs / settings.decimate_hz)))
+    stride = max(1, int(round(fs / settings.decimate)))
     idx = np.arange(k0, len(log.t) - k0, stride)
     if len(idx) < 10:
         raise InputError(

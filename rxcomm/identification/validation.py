@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -67,6 +66,25 @@ def friction_band_nm(robot: Robot, params: DynamicParameters) -> np.ndarray:
     return band
 
 
+def joint_scores(
+    measured: np.ndarray, predicted: np.ndarray, rows: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per joint on its scored rows (`rows` [M, n] boolean): (RMS error N·m, NRMSE = RMS / (max − min)
+    of the measured torque, R²); NaN for a joint with fewer than `MIN_SCORED_ROWS` rows."""
+    n = measured.shape[1]
+    rms, nrmse, r2 = (np.full(n, np.nan) for _ in range(3))
+    for j in range(n):
+        k = rows[:, j]
+        if k.sum() >= MIN_SCORED_ROWS:
+            m = measured[k, j]
+            e = m - predicted[k, j]
+            rms[j] = math.sqrt(float(np.mean(e**2)))
+            nrmse[j] = rms[j] / max(float(m.max() - m.min()), 1e-12)
+            sst = float(np.sum((m - m.mean()) ** 2))
+            r2[j] = 1.0 - float(np.sum(e**2)) / sst if sst > 0 else np.nan
+    return rms, nrmse, r2
+
+
 def validate(
     robot: Robot, params: DynamicParameters, data: Processed, source: str, min_speed_rad_s: float = 0.05
 ) -> Validation:
@@ -83,7 +101,6 @@ def validate(
     err = data.tau - pred
     moving = np.abs(data.qd) >= min_speed_rad_s
     n = robot.n
-    rms, nrmse, r2 = (np.full(n, np.nan) for _ in range(3))
     still_rms, in_band = np.full(n, np.nan), np.full(n, np.nan)
     still = ~moving
     # the prediction without the Coulomb terms, for the stiction band
@@ -92,14 +109,8 @@ def validate(
         m_c = data.motor_coulomb * params.motor_coulomb_nm
         free = free - m_c @ robot.joint_to_motor
     band = friction_band_nm(robot, params)
+    rms, nrmse, r2 = joint_scores(data.tau, pred, moving)
     for j in range(n):
-        k = moving[:, j]
-        if k.sum() >= MIN_SCORED_ROWS:
-            e, m = err[k, j], data.tau[k, j]
-            rms[j] = math.sqrt(float(np.mean(e**2)))
-            nrmse[j] = rms[j] / max(float(m.max() - m.min()), 1e-12)
-            sst = float(np.sum((m - m.mean()) ** 2))
-            r2[j] = 1.0 - float(np.sum(e**2)) / sst if sst > 0 else np.nan
         if still[:, j].any():
             s_ = still[:, j]
             still_rms[j] = math.sqrt(float(np.mean(err[s_, j] ** 2)))
@@ -127,19 +138,3 @@ def holdout_mask(t: np.ndarray, fraction: float, blocks: int) -> np.ndarray:
     phase = ((t - t0) / span * blocks) % 1.0
     last = (t - t0) >= span * (1.0 - 1e-12)
     return (phase >= 1.0 - fraction - 1e-9) | last
-
-
-def write_torques_csv(path: str | Path, joint_names: tuple[str, ...], val: Validation) -> Path:
-    """The validation rows as CSV: time_s, then per joint the measured and predicted torque (N·m, both
-    through the same low-pass) and whether the joint moved (scored) on that row."""
-    path = Path(path)
-    n = len(joint_names)
-    header = ["time_s"]
-    header += [f"tau{i + 1}_measured_nm" for i in range(n)] + [f"tau{i + 1}_predicted_nm" for i in range(n)]
-    header += [f"moving{i + 1}" for i in range(n)]
-    table = np.column_stack([val.t, val.measured, val.predicted, val.moving.astype(float)])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", encoding="utf-8") as f:
-        f.write(f"# {val.source}; joints {', '.join(joint_names)}\n" + ",".join(header) + "\n")
-        np.savetxt(f, table, delimiter=",", fmt="%.10g")
-    return path
