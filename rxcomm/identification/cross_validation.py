@@ -130,10 +130,14 @@ def cross_validate(
     rms, nrmse, r2 = joint_scores(test.tau, np.nan_to_num(pred), rows)
     # The fit on all rows, scored in-sample on the same selection (test is data unless choosing)
     fit_rms = np.full(n, np.nan)
-    if test is data:
-        full = estimate(robot, bset, data, settings, w=w)
-        fit_pred = (w @ full.p_b).reshape(-1, n)
-        fit_rms = joint_scores(data.tau, fit_pred, scored & in_span[:, None])[0]
+    if test is data and folds_scored:
+        try:
+            full = estimate(robot, bset, data, settings, w=w)
+        except InputError:  # e.g. a cut-off candidate of choose_cutoff that the log cannot support
+            full = None
+        if full is not None:
+            fit_pred = (w @ full.p_b).reshape(-1, n)
+            fit_rms = joint_scores(data.tau, fit_pred, scored & in_span[:, None])[0]
     return CrossValidation(
         folds=k,
         folds_scored=folds_scored,
