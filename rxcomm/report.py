@@ -239,6 +239,12 @@ def _per_joint(
     return f"[{text}]" + (f" {unit}" if unit else "")
 
 
+def _cutoff_choice(s: Mapping) -> str:
+    """ " (auto: why)" for a cut-off chosen from the data; nothing for one given."""
+    choice = str(s.get("cutoff_choice") or "")
+    return f" ({choice})" if choice.startswith("auto") else ""
+
+
 def dynamics_section(s: Mapping, image: str | None) -> Section:
     cutoff = s.get("cutoff_hz")
     rows = s.get("rows_per_parameter")
@@ -263,8 +269,15 @@ def dynamics_section(s: Mapping, image: str | None) -> Section:
                 _per_joint(s.get("validation_standstill_in_band_fraction"), none="no standstill"),
             ),
             Figure(
+                "fit RMS error per joint beside the cross-validated held-out RMS (contiguous folds)",
+                f"{_per_joint(s.get('fit_rms_nm'), unit='N·m')} / "
+                + (
+                    _per_joint(s.get("cv_rms_nm"), unit="N·m") if s.get("cv_folds_scored") else "not measured"
+                ),
+            ),
+            Figure(
                 "low-pass cut-off; fit rows per base parameter",
-                f"{_f(cutoff, unit='Hz')}; {_f(rows)}",
+                f"{_f(cutoff, unit='Hz')}{_cutoff_choice(s)}; {_f(rows)}",
             ),
             Figure("compute time", _f(s["seconds"], unit="s")),
         ],
