@@ -12,10 +12,11 @@ from typer.testing import CliRunner
 from rxcomm.cli import app
 from rxcomm.errors import InputError
 from rxcomm.identification.cross_validation import choose_cutoff, cross_validate, fold_of
+from rxcomm.identification.estimation import JointGrams, estimate, estimate_from_grams
 from rxcomm.identification.excitation_problem import ExcitationProblem
 from rxcomm.identification.fit import identify, score
 from rxcomm.identification.logs import JointLog, check_log
-from rxcomm.identification.processing import preprocess
+from rxcomm.identification.processing import preprocess, regressor
 from rxcomm.identification.settings import IdentifySettings
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.model.base_parameters import base_parameters
@@ -70,6 +71,21 @@ def test_held_out_error_is_the_fit_error_when_the_model_is_right(rx130l, bset_rx
     assert cv.rms_nm.sum() >= cv.fit_rms_nm.sum()
     assert np.all(cv.rms_nm <= 1.3 * cv.fit_rms_nm), (cv.rms_nm, cv.fit_rms_nm)
     assert np.all(cv.r2 > 0.999)
+
+
+@pytest.mark.parametrize("method", ["wls", "ols"])
+def test_the_folds_estimate_from_gram_matrices_is_estimate_on_those_rows(rx130l, bset_rx, noisy_log, method):
+    s = IdentifySettings(method=method)
+    data = preprocess(check_log(noisy_log, rx130l, s), s, rx130l)
+    w = bset_rx.base_regressor(regressor(rx130l, data))
+    train = (data.t < 5.0) | (data.t > 9.0)
+    rows = np.repeat(train, 6) & ~data.near_stick.ravel()
+    grams = JointGrams.of_rows(w[rows], data.tau.ravel()[rows], np.tile(np.arange(6), len(data.t))[rows], 6)
+    direct = estimate(rx130l, bset_rx, data.select(train), s)
+    std = np.sqrt(np.diag(direct.cov))
+    assert np.all(np.abs(estimate_from_grams(grams, s) - direct.p_b) < 1e-5 * std)  # equal within rounding
+    few = JointGrams.of_rows(w[:30], data.tau.ravel()[:30], np.tile(np.arange(6), 5), 6)
+    assert estimate_from_grams(few, s) is None  # fewer rows than parameters: refused, as estimate does
 
 
 def test_held_out_error_exposes_a_missing_friction_model(rx130l, noisy_log):

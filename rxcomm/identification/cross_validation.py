@@ -8,7 +8,7 @@ the base parameters fitted (same method, `estimation.estimate`) on the other blo
 scored are the ones the fit itself would use (moving, outside the stick guard), so the held-out
 error beside the in-sample error of the fit on all rows (`fit_rms_nm`, same rows) says how much of
 the fit is noise fitted: ≈ 1 means the model generalises within the log. A fold whose complement
-does not excite every base parameter (`InputError` from `estimate`) is not scored.
+does not excite every base parameter (where `estimate` would refuse the rows) is not scored.
 
 **Cut-off from the data** (`choose_cutoff`, `--cutoff-hz auto`). Each cut-off of the grid processes
 the log (decimation 2 × cutoff unless `decimate_hz` is set) and is cross-validated as above, but
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rxcomm.errors import InputError
-from rxcomm.identification.estimation import estimate
+from rxcomm.identification.estimation import JointGrams, estimate_from_grams
 from rxcomm.identification.logs import JointLog
 from rxcomm.identification.processing import Processed, preprocess, regressor
 from rxcomm.identification.settings import IdentifySettings
@@ -80,11 +80,6 @@ def fold_of(t: np.ndarray, folds: int, t0: float, t1: float) -> np.ndarray:
     return np.where((t < t0) | (t > t1), -1, k)
 
 
-def _rows(mask: np.ndarray, n: int) -> np.ndarray:
-    """Sample mask [M] → regressor row mask [M·n] (rows sample-major)."""
-    return np.repeat(mask, n)
-
-
 def cross_validate(
     robot: Robot,
     bset: BaseParameterSet,
@@ -100,7 +95,9 @@ def cross_validate(
 
     `w`: the base regressor of `data` if computed already. `test` (with `w_test`): score the held-out
     folds on these rows instead of `data`'s own (the same log processed otherwise: `choose_cutoff`),
-    folds cut on `span` (default: `test`'s time span)."""
+    folds cut on `span` (default: `test`'s time span). The rows are passed once: their Gram matrices
+    per time segment (fold cores and the gaps beside each fold edge) and joint are summed per fold
+    (`estimation.estimate_from_grams`, the same estimate as `estimate` on those rows)."""
     n, k = robot.n, settings.folds
     test = data if test is None else test
     if w is None:
@@ -113,31 +110,40 @@ def cross_validate(
     in_span = (test.t >= t0) & (test.t <= t1)
     pred = np.full(test.tau.shape, np.nan)
     folds_scored = 0
+    edges = t0 + (t1 - t0) * np.arange(max(k, 1) + 1) / max(k, 1)
+    # time segments between the fold edges and the edges ± gap: each fold's training set is a union
+    breaks = np.unique(np.concatenate([edges, edges - gap, edges + gap]))
+    seg = np.searchsorted(breaks, data.t, side="right")  # segment s spans [breaks[s-1], breaks[s])
+    keep = ~data.near_stick.ravel()
+    joint = np.tile(np.arange(n), len(data.t))
+    seg_rows = np.repeat(seg, n)
+    y = data.tau.ravel()
+    grams = [
+        JointGrams.of_rows(w[m], y[m], joint[m], n)
+        for m in (keep & (seg_rows == s_) for s_ in range(len(breaks) + 1))
+    ]
+    lo_b = np.concatenate([[-np.inf], breaks])  # segment s's bounds
+    hi_b = np.concatenate([breaks, [np.inf]])
     if k >= 2:
         fold_test = fold_of(test.t, k, t0, t1)
-        edges = t0 + (t1 - t0) * np.arange(k + 1) / k
         for f in range(k):
             lo, hi = edges[f] - gap, edges[f + 1] + gap
-            train = (data.t < lo) | (data.t > hi)
-            try:
-                est = estimate(robot, bset, data.select(train), settings, w=w[_rows(train, n)])
-            except InputError:  # the other folds do not excite every base parameter: not scored
+            out = (lo_b >= lo - 1e-12) & (hi_b <= hi + 1e-12)  # segments inside the held-out block + gaps
+            p_b = estimate_from_grams(
+                JointGrams.total([g for g, o in zip(grams, out, strict=True) if not o]), settings
+            )
+            if p_b is None:  # the other folds do not excite every base parameter: not scored
                 continue
             held = fold_test == f
-            pred[held] = (w_test[_rows(held, n)] @ est.p_b).reshape(-1, n)
+            pred[held] = (w_test[np.repeat(held, n)] @ p_b).reshape(-1, n)
             folds_scored += 1
     rows = scored & in_span[:, None] & np.isfinite(pred)
     rms, nrmse, r2 = joint_scores(test.tau, np.nan_to_num(pred), rows)
     # The fit on all rows, scored in-sample on the same selection (test is data unless choosing)
     fit_rms = np.full(n, np.nan)
-    if test is data and folds_scored:
-        try:
-            full = estimate(robot, bset, data, settings, w=w)
-        except InputError:  # e.g. a cut-off candidate of choose_cutoff that the log cannot support
-            full = None
-        if full is not None:
-            fit_pred = (w @ full.p_b).reshape(-1, n)
-            fit_rms = joint_scores(data.tau, fit_pred, scored & in_span[:, None])[0]
+    p_all = estimate_from_grams(JointGrams.total(grams), settings) if test is data and folds_scored else None
+    if p_all is not None:
+        fit_rms = joint_scores(data.tau, (w @ p_all).reshape(-1, n), scored & in_span[:, None])[0]
     return CrossValidation(
         folds=k,
         folds_scored=folds_scored,

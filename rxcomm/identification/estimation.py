@@ -161,3 +161,61 @@ def estimate(
         residual_rms_nm=rms,
         p_ols=p_ols,
     )
+
+
+# ------------------------------------------------------------------------------------------------
+# The same estimate from Gram matrices (cross-validation: one pass over the rows for every fold)
+
+
+@dataclass(frozen=True, eq=False)
+class JointGrams:
+    """Sufficient statistics of some regressor rows, per joint j: `g` [n, nb, nb] = W_jᵀW_j, `b` [n, nb]
+    = W_jᵀy_j, `c` [n] = y_jᵀy_j, `m` [n] rows. Sums of disjoint row sets add."""
+
+    g: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    m: np.ndarray
+
+    @classmethod
+    def of_rows(cls, w: np.ndarray, y: np.ndarray, joint: np.ndarray, n: int) -> JointGrams:
+        nb = w.shape[1]
+        g, b = np.zeros((n, nb, nb)), np.zeros((n, nb))
+        for j in range(n):
+            k = joint == j
+            wj = w[k]
+            g[j], b[j] = wj.T @ wj, wj.T @ y[k]
+        return cls(g, b, np.bincount(joint, weights=y * y, minlength=n), np.bincount(joint, minlength=n))
+
+    @classmethod
+    def total(cls, parts: list[JointGrams]) -> JointGrams:
+        return cls(*(np.sum([getattr(p, f) for p in parts], axis=0) for f in ("g", "b", "c", "m")))
+
+
+def _solve_gram(g: np.ndarray, b: np.ndarray, max_cond: float) -> np.ndarray | None:
+    """p from the normal equations g·p = b on unit-norm columns; None if cond (unit columns) > max_cond."""
+    norms = np.sqrt(np.maximum(np.diag(g), 0.0))
+    if np.any(norms <= 0):
+        return None
+    gn = g / np.outer(norms, norms)
+    lam = sla.eigvalsh(gn)
+    if lam[0] <= 0 or math.sqrt(lam[-1] / lam[0]) > max_cond:
+        return None
+    return sla.solve(gn, b / norms, assume_a="pos") / norms
+
+
+def estimate_from_grams(grams: JointGrams, settings: IdentifySettings) -> np.ndarray | None:
+    """`estimate`'s base parameters (OLS, then per-joint WLS with σ_j² = ‖r_j‖²/(m_j − p)) from the
+    rows' Gram matrices; None where `estimate` refuses the rows (poor excitation, too few rows)."""
+    nb = grams.b.shape[1]
+    if grams.m.sum() <= nb:
+        return None
+    p = _solve_gram(grams.g.sum(axis=0), grams.b.sum(axis=0), settings.max_cond)
+    if p is None or settings.method == "ols":
+        return p
+    ss = grams.c - 2.0 * grams.b @ p + np.einsum("i,jik,k->j", p, grams.g, p)
+    sigma = np.sqrt(np.maximum(ss, 0.0) / np.maximum(grams.m - nb, 1))
+    sig2 = np.maximum(sigma, 1e-9 * max(sigma.max(), 1e-12)) ** 2
+    return _solve_gram(
+        np.tensordot(1.0 / sig2, grams.g, axes=1), (grams.b / sig2[:, None]).sum(axis=0), settings.max_cond
+    )
