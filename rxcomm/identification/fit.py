@@ -9,7 +9,10 @@
 - `estimation`: OLS then per-joint WLS on the base parameters, covariance, excitation check;
 - `consistency`: pseudo-inertia eigenvalues and the nearest physically consistent estimate;
 - `validation`: the plain prediction error per joint on moving rows, standstill apart, a joint that
-  did not move "not scored"; the interleaved hold-out when no validation log is given.
+  did not move "not scored"; the interleaved hold-out when no validation log is given;
+- `cross_validation`: blocked k-fold cross-validation in time (the held-out error beside the fit's,
+  every identification), and the cut-off chosen by it (`cutoff_hz` "auto");
+- `export`: the base parameters ± σ and the validation torques as CSV.
 
 `score` checks an identified model on a new log with the same processing and figures.
 """
@@ -194,6 +197,7 @@ def identify(
         choice = choose_cutoff(robot, bset, clean, settings)
         settings, data = settings.with_cutoff(choice.cutoff_hz), choice.data
         timings["choose_cutoff"] = time.perf_counter() - tick
+        tick = time.perf_counter()
     else:
         data = preprocess(clean, settings, robot)
     w_all = bset.base_regressor(regressor(robot, data))  # once: the fit, the folds and the hold-out
