@@ -14,6 +14,7 @@ from rxcomm.errors import InputError
 from rxcomm.identification.cross_validation import choose_cutoff, cross_validate, fold_of
 from rxcomm.identification.estimation import JointGrams, estimate, estimate_from_grams
 from rxcomm.identification.excitation_problem import ExcitationProblem
+from rxcomm.identification.export import export_dynamics_csv
 from rxcomm.identification.fit import identify, score
 from rxcomm.identification.logs import JointLog, check_log
 from rxcomm.identification.processing import preprocess, regressor
@@ -143,13 +144,14 @@ def test_params_out_csv_and_scoring_an_auto_model(tmp_path, rx130l, noisy_log):
     art = read_yaml_artefact(out, Dynamics)
     assert art.settings["cutoff_hz"] == "auto" and art.summary["cutoff_hz"] in (5.0, 10.0, 20.0, 40.0)
     with open(table, encoding="utf-8") as f:
-        assert f.readline().startswith("# base dynamic parameters ± 1 sigma; rx130l")
+        assert f.readline().startswith("# base dynamic parameters ± 1 sigma of rx130l (dynamics.yaml); wls")
         rows = list(csv.DictReader(f))
     assert [r["name"] for r in rows] == [b.name for b in art.base_parameters]
     for r, b in zip(rows, art.base_parameters, strict=True):
-        assert float(r["value"]) == pytest.approx(b.value, rel=1e-9)
+        assert float(r["value"]) == b.value  # 17 digits: exact
         assert float(r["std"]) == pytest.approx(b.relative_std * abs(b.value), rel=1e-6)
         assert r["definition"] == b.label
+    assert export_dynamics_csv(out, tmp_path / "again.csv").read_text() == table.read_text()
     units = {r["name"]: r["unit"] for r in rows}
     assert units["joint_2.mcx"] == "kg·m" and units["spring.kL0"] == "N"
     assert units["joint_6.fc_motor"] == "N·m (motor side)"

@@ -1,17 +1,21 @@
-"""Identification results as CSV for other tools (`identify --params-out`, `--torques-out`).
+"""Identification results as CSV for other tools (`identify --params-out`, `--torques-csv`).
 
-Plain comma-separated tables with one header line after a `#` comment line that says what and from
-where; numbers to 10 significant digits; NaN where nothing was measured.
+Comma-separated tables: a `#` comment line (what, from where, units), one header line, one row per
+item. The parameter table is written from the dynamics.yaml artefact itself (`export_dynamics_csv`
+has the `(source, out) -> out` form of an `rxcomm export` entry), so an old model exports as a new one.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
 from rxcomm.identification.validation import Validation
-from rxcomm.model.base_parameters import BaseParameterSet
+from rxcomm.io.files import atomic_write_text
+from rxcomm.io.yaml_io import read_yaml_artefact
+from rxcomm.schemas.dynamics import Dynamics
 
 # SI unit of each full parameter kind (the last part of its name; `rxcomm.model.dynamics`)
 PARAMETER_UNITS = {
@@ -35,23 +39,30 @@ def parameter_unit(full_name: str) -> str:
     return PARAMETER_UNITS.get(full_name.rsplit(".", 1)[-1], "")
 
 
-def write_parameters_csv(
-    path: str | Path, bset: BaseParameterSet, p_b: np.ndarray, std: np.ndarray, source: str
-) -> Path:
-    """The base parameters as CSV: name, value, std (1σ, same unit), relative_std (σ/|value|), unit
-    (that of the independent parameter it is kept as) and its definition (the regrouping)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", encoding="utf-8") as f:
-        f.write(f"# base dynamic parameters ± 1 sigma; {source}\n")
-        f.write("name,value,std,relative_std,unit,definition\n")
-        for i, name in enumerate(bset.names):
-            v, s = float(p_b[i]), float(std[i])
-            rel = s / abs(v) if v != 0 else float("inf")
-            unit = parameter_unit(bset.full_names[int(bset.independent[i])])
-            label = bset.labels[i].replace('"', "'")
-            f.write(f'{name},{v:.10g},{s:.10g},{rel:.6g},{unit},"{label}"\n')
-    return path
+def write_parameters_csv(art: Dynamics, path: str | Path, source: str = "") -> Path:
+    """The base parameters of a dynamics.yaml as CSV: name, value, std (1σ, same unit; empty where
+    not measured), relative_std (σ/|value|), unit (that of the full parameter it is kept as) and its
+    definition (the regrouping). 17 significant digits: a float64 reads back exactly."""
+    lines = [
+        f"# base dynamic parameters ± 1 sigma of {art.robot}{f' ({source})' if source else ''}; "
+        f"{art.summary.get('method', '')}; units SI, joint side unless noted",
+        "name,value,std,relative_std,unit,definition",
+    ]
+    for b in art.base_parameters:
+        rel = b.relative_std
+        known = rel is not None and math.isfinite(rel)
+        std = f"{rel * abs(b.value):.17g}" if known else ""
+        label = b.label.replace('"', "'")
+        lines.append(
+            f"{b.name},{b.value:.17g},{std},{f'{rel:.17g}' if known else ''},{parameter_unit(b.independent)},"
+            f'"{label}"'
+        )
+    return atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def export_dynamics_csv(source: Path, out: Path) -> Path:
+    """`rxcomm export dynamics.yaml`'s library call (source, out) → out: `write_parameters_csv`."""
+    return write_parameters_csv(read_yaml_artefact(source, Dynamics), out, Path(source).name)
 
 
 def write_torques_csv(path: str | Path, joint_names: tuple[str, ...], val: Validation) -> Path:

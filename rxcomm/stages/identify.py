@@ -385,9 +385,7 @@ def run(
         path = write_torques_csv(torques_csv, robot.joint_names, result.validation)
         console.out.print(f"torques: {path}")
     if params_csv is not None:
-        source = f"{robot.name}, identified from {Path(log).name} ({summary['method']})"
-        path = write_parameters_csv(params_csv, result.bset, result.p_b, std, source)
-        console.out.print(f"parameters: {path}")
+        console.out.print(f"parameters: {write_parameters_csv(art, params_csv, output.name)}")
     shown = console_rows(result, summary)
     console.summary_table(f"identify → {output}", shown)
     for w in result.warnings(opts):
