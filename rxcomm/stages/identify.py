@@ -87,6 +87,7 @@ def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
 CutoffOption = Annotated[
     str,
     typer.Option(
+        metavar="HZ|auto",
         help="Low-pass cut-off of positions and torques, Hz, or auto: the one of 5, 10, 20, 40 Hz whose "
         "fit predicts held-out folds best."
     ),
