@@ -108,7 +108,8 @@ class Identification:
                 f"{self.estimate.n_rows} fit rows for {self.bset.n_base} base parameters "
                 f"({rpp:.1f} per parameter, fewer than {settings.min_rows_per_parameter:g}): the standard "
                 f"deviations are large; a higher cut-off and sample rate keep more rows, e.g. --cutoff-hz "
-                f"{fc:.0f} --decimate-hz {2 * fc:.0f}, or record a longer log"
+                f"{fc:.0f} --decimate-hz {2 * fc:.0f} (or --cutoff-hz auto: the cut-off the held-out folds "
+                "prefer), or record a longer log"
             )
         big = [self.bset.names[i] for i in np.flatnonzero(self.estimate.relative_std > 1.0)]
         if big:
