@@ -233,7 +233,12 @@ def test_mcap_round_trip_types_timestamps_and_foxglove_conventions(tmp_path: Pat
     with open(path, "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        assert summary is not None and summary.statistics.message_count == n + 5
+        assert summary is not None
+        counts = {
+            ch.topic: summary.statistics.channel_message_counts[i] for i, ch in summary.channels.items()
+        }
+        # per-sample messages, and beside each all-numeric topic one column block (< 2500 samples)
+        assert counts == {"/joints": n, "/event": 2, "/scalar": 3, "/columns/joints": 1, "/columns/scalar": 1}
         schema = next(s for s in summary.schemas.values() if s.name == "rxcomm.joints")
         assert schema.encoding == "jsonschema"
         props = json.loads(schema.data)["properties"]
@@ -241,7 +246,13 @@ def test_mcap_round_trip_types_timestamps_and_foxglove_conventions(tmp_path: Pat
         assert {ch.message_encoding for ch in summary.channels.values()} == {"json"}
         _, _, msg = next(reader.iter_messages(topics=["/joints"]))
         body = json.loads(msg.data)
-        assert body["timestamp"] == {"sec": 3, "nsec": 0} and len(body["q"]) == 6
+        # epoch time stamps: the writer's time origin (when it opened) + the sample time
+        assert (
+            abs(body["timestamp"]["sec"] + body["timestamp"]["nsec"] * 1e-9 - (c.time_origin_ns / 1e9 + 3))
+            < 1e-6
+        )
+        assert abs(c.time_origin_ns / 1e9 - time.time()) < 60 and len(body["q"]) == 6
+        assert msg.log_time == c.time_origin_ns + 3 * 10**9
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
         assert json.loads(meta[ENVELOPE_RECORD]["kind"]) == "rxcomm/Demo"
 
