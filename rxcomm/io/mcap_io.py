@@ -97,6 +97,7 @@ class _Channel:
     constants_json: str  # ',"joint_names":[...]' or ''
     dtypes: dict[str, str] | None  # column dtypes when the channel has a column channel
     columns_id: int = 0
+    raw: bool = False  # a well-known schema: messages are written as given
     pending: list[tuple[np.ndarray, dict[str, np.ndarray]]] = field(default_factory=list)
     rows: list[tuple[int, Mapping[str, Any]]] = field(default_factory=list)
 
@@ -166,6 +167,7 @@ class McapWriter:
         if topic in self._channels:
             raise ValueError(f"channel {topic!r} already added")
         consts = dict(constants or {})
+        given = schema
         if "timestamp" in fields and schema is None:
             raise ValueError("'timestamp' is added by the writer")
         if schema is None:
@@ -189,7 +191,9 @@ class McapWriter:
             "," + json.dumps(k) + ":" + json.dumps(to_plain(v), separators=(",", ":"))
             for k, v in consts.items()
         )
-        ch = _Channel(channel_id, tuple(fields), consts_json, dtypes if numeric else None)  # type: ignore[arg-type]
+        raw = given is not None
+        numeric = numeric and not raw
+        ch = _Channel(channel_id, tuple(fields), consts_json, dtypes if numeric else None, raw=raw)  # type: ignore[arg-type]
         if numeric:
             descriptions = {k: str(s.get("description", "")) for k, s in fields.items()}
             cid = self._w.register_schema(
@@ -209,11 +213,17 @@ class McapWriter:
 
     def write(self, topic: str, t_s: float, msg: Mapping[str, Any]) -> None:
         """Write one message at time ``t_s`` (s from the origin, >= 0); numpy values are converted,
-        NaN/inf become null."""
+        NaN/inf become null. On a channel with a given ``schema`` the message is written as it is
+        (its stamps are the caller's: ``time_origin_ns`` + t)."""
         ch = self._channel(topic)
         if unknown := set(msg) - set(ch.names):
             raise ValueError(f"{topic}: fields {sorted(unknown)} are not in the channel schema")
         ns = self.time_origin_ns + time_ns(float(t_s))
+        if ch.raw:  # a well-known schema carries its own stamps
+            self._add(
+                ch.id, ns, json.dumps(finite_or_none(to_plain(dict(msg))), separators=(",", ":")).encode()
+            )
+            return
         plain = to_plain(dict(msg))
         # Keys in schema order, whatever the caller's dict order: every message has the same layout.
         values = {k: plain[k] for k in ch.names if k in plain}

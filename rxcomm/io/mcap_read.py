@@ -9,6 +9,7 @@ in file order, from the per-sample messages, which are never behind the blocks.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import struct
 from collections.abc import Iterable
@@ -173,10 +174,11 @@ def _number_fields(schema: Schema | None) -> set[str]:
 def _column(values: list[Any], file: Path, name: str, number: bool) -> np.ndarray:
     try:
         arr = np.asarray(values, dtype=float if number else None)
-        if arr.dtype == object:  # nulls among numbers
-            arr = np.asarray(values, dtype=float)
     except (ValueError, TypeError) as e:
         raise InputError(f"values are ragged or mixed: {e}", file=file, field=name) from e
+    if arr.dtype == object:  # nulls among numbers -> NaN; structured values (Foxglove messages) stay
+        with contextlib.suppress(ValueError, TypeError):
+            arr = np.asarray(values, dtype=float)
     return arr
 
 

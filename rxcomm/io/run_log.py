@@ -32,7 +32,7 @@ def read_run_log(path: str | Path, fields: Iterable[str] = tuple(JOINT_FIELDS)) 
     """Read a finished run log MCAP (also a stopped run's ``.mcap.part``) that has the joint `fields`
     (default: all the contract lists); InputError names file and field."""
     path = Path(path)
-    contents = read_mcap(path)
+    contents = read_mcap(path, topics=(JOINTS_TOPIC, GATEWAY_TOPIC))  # not the 3D panel's channels
     env = contents.envelope
     if env.get("kind") != RunLog.KIND:
         raise InputError(
