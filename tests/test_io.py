@@ -243,7 +243,11 @@ def test_mcap_round_trip_types_timestamps_and_foxglove_conventions(tmp_path: Pat
         assert schema.encoding == "jsonschema"
         props = json.loads(schema.data)["properties"]
         assert props["timestamp"]["title"] == "time" and props["q"]["maxItems"] == 6
-        assert {ch.message_encoding for ch in summary.channels.values()} == {"json"}
+        encodings = {ch.topic: ch.message_encoding for ch in summary.channels.values()}
+        assert encodings == {"/joints": "json", "/event": "json", "/scalar": "json"} | {
+            "/columns/joints": "protobuf",
+            "/columns/scalar": "protobuf",
+        }
         _, _, msg = next(reader.iter_messages(topics=["/joints"]))
         body = json.loads(msg.data)
         # epoch time stamps: the writer's time origin (when it opened) + the sample time

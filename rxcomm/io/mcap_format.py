@@ -2,10 +2,10 @@
 
 A file holds, per logical topic, the messages Foxglove plots (``jsonschema`` + ``json``, one message
 per sample, starting with ``"timestamp": {"sec", "nsec"}``, schema titled ``time``) and, for topics
-whose fields are all numeric, a *column channel* beside them: one message per block of samples whose
-columns are little-endian arrays in base64 (``contentEncoding: base64``, still JSON that Foxglove
-opens). The column channel's metadata names the topic it mirrors (``rxcomm/columns_of``); its blocks
-are written to chunks of their own, so a reader that wants arrays seeks to those chunks through the
+whose fields are all numeric, a *column channel* beside them: one protobuf message per block of
+samples whose columns are the little-endian arrays as bytes (a schema Foxglove decodes too). The
+column channel's metadata names the topic it mirrors (``rxcomm/columns_of``); its blocks are
+written to chunks of their own, so a reader that wants arrays seeks to those chunks through the
 index and never parses the per-sample JSON (docs/logs.md has the measurement behind this choice).
 
 Time: log times and stamps are epoch nanoseconds, ``time_origin_ns`` (the run's wall clock at start,
@@ -15,7 +15,6 @@ readers give times in s from it. Files from before the origin existed read with 
 
 from __future__ import annotations
 
-import base64
 import json
 import math
 from collections.abc import Mapping
@@ -43,37 +42,11 @@ TIME_SCHEMA: dict[str, Any] = {
     "required": ["sec", "nsec"],
 }
 _DTYPES = {"number": "<f8", "integer": "<i8", "boolean": "|b1"}
-_ARRAY_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "properties": {
-        "dtype": {"type": "string", "description": "numpy dtype: <f8, <i8 or |b1"},
-        "shape": {"type": "array", "items": {"type": "integer"}},
-        "data": {"type": "string", "contentEncoding": "base64", "description": "C-order bytes"},
-    },
-    "required": ["dtype", "shape", "data"],
-}
 
 
 def columns_topic(topic: str) -> str:
     """The column channel beside ``topic``: ``/run/joints`` -> ``/columns/run/joints``."""
     return "/columns/" + topic.lstrip("/")
-
-
-def columns_schema(fields: Mapping[str, str]) -> dict[str, Any]:
-    """JSON schema of a column block; ``fields`` maps name -> description."""
-    cols = {k: {**_ARRAY_SCHEMA, "description": d} for k, d in fields.items()}
-    log_time = {**_ARRAY_SCHEMA, "description": "int64 log time of each sample, ns since the epoch"}
-    return {
-        "type": "object",
-        "title": COLUMNS_SCHEMA_TITLE,
-        "properties": {
-            "timestamp": TIME_SCHEMA,
-            "n": {"type": "integer", "minimum": 0, "description": "samples in this block"},
-            "log_time_ns": log_time,
-            "columns": {"type": "object", "properties": cols},
-        },
-        "required": ["timestamp", "n", "log_time_ns", "columns"],
-    }
 
 
 def column_dtype(field_schema: Mapping[str, Any]) -> str | None:
@@ -84,32 +57,135 @@ def column_dtype(field_schema: Mapping[str, Any]) -> str | None:
     return _DTYPES.get(kind) if isinstance(kind, str) else None
 
 
-def _array(a: np.ndarray) -> dict[str, Any]:
-    a = np.ascontiguousarray(a)
-    return {"dtype": a.dtype.str, "shape": list(a.shape), "data": base64.b64encode(a.data).decode()}
+# ---------------------------------------------------------------- column blocks (protobuf)
+#
+# A block is the protobuf message (proto3, package rxcomm) that Foxglove decodes from the schema's
+# FileDescriptorSet:
+#   message Column  { string name = 1; string dtype = 2; repeated uint32 shape = 3; bytes data = 4; }
+#   message Columns { uint32 n = 1; repeated sfixed64 log_time_ns = 2; repeated Column columns = 3; }
+# Packed sfixed64 and bytes are the arrays' little-endian bytes as they are: encoding is a join, decoding
+# a np.frombuffer per column, with no per-value work. Encoded here by hand: no protobuf dependency.
+
+COLUMNS_ENCODING = "protobuf"
 
 
-def _unarray(d: Mapping[str, Any]) -> np.ndarray:
-    return np.frombuffer(base64.b64decode(d["data"]), dtype=np.dtype(d["dtype"])).reshape(d["shape"])
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while True:
+        b = n & 0x7F
+        n >>= 7
+        if n:
+            out.append(b | 0x80)
+        else:
+            out.append(b)
+            return bytes(out)
+
+
+def _ld(number: int, payload: bytes) -> bytes:
+    """A length-delimited field (strings, bytes, sub-messages, packed repeated)."""
+    return _varint(number << 3 | 2) + _varint(len(payload)) + payload
+
+
+def _vi(number: int, value: int) -> bytes:
+    return _varint(number << 3) + _varint(value)
+
+
+def _read_varint(buf: memoryview, i: int) -> tuple[int, int]:
+    shift = n = 0
+    while True:
+        b = buf[i]
+        i += 1
+        n |= (b & 0x7F) << shift
+        if not b & 0x80:
+            return n, i
+        shift += 7
+
+
+def _fields(buf: memoryview) -> list[tuple[int, int | memoryview]]:
+    """(field number, varint value or length-delimited payload) of a protobuf message."""
+    out: list[tuple[int, int | memoryview]] = []
+    i = 0
+    while i < len(buf):
+        key, i = _read_varint(buf, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            value, i = _read_varint(buf, i)
+            out.append((number, value))
+        elif wire == 2:
+            size, i = _read_varint(buf, i)
+            if i + size > len(buf):
+                raise ValueError("truncated field")
+            out.append((number, buf[i : i + size]))
+            i += size
+        else:
+            raise ValueError(f"unexpected wire type {wire}")
+    return out
+
+
+def _field_descriptor(name: str, number: int, label: int, kind: int, type_name: str = "") -> bytes:
+    # FieldDescriptorProto: name 1, number 3, label 4 (1 optional, 3 repeated), type 5, type_name 6
+    body = _ld(1, name.encode()) + _vi(3, number) + _vi(4, label) + _vi(5, kind)
+    return body + (_ld(6, type_name.encode()) if type_name else b"")
+
+
+def _columns_descriptor_set() -> bytes:
+    string, bytes_, uint32, sfixed64, message = 9, 12, 13, 16, 11
+    column = _ld(1, b"Column") + b"".join(
+        _ld(2, f)
+        for f in (
+            _field_descriptor("name", 1, 1, string),
+            _field_descriptor("dtype", 2, 1, string),
+            _field_descriptor("shape", 3, 3, uint32),
+            _field_descriptor("data", 4, 1, bytes_),
+        )
+    )
+    columns = _ld(1, COLUMNS_SCHEMA_TITLE.split(".")[-1].encode()) + b"".join(
+        _ld(2, f)
+        for f in (
+            _field_descriptor("n", 1, 1, uint32),
+            _field_descriptor("log_time_ns", 2, 3, sfixed64),
+            _field_descriptor("columns", 3, 3, message, ".rxcomm.Column"),
+        )
+    )
+    # FileDescriptorProto: name 1, package 2, message_type 4, syntax 12; FileDescriptorSet: file 1
+    file = _ld(1, b"rxcomm/columns.proto") + _ld(2, b"rxcomm") + _ld(4, column) + _ld(4, columns)
+    return _ld(1, file + _ld(12, b"proto3"))
+
+
+COLUMNS_DESCRIPTOR_SET = _columns_descriptor_set()
 
 
 def encode_block(log_ns: np.ndarray, columns: Mapping[str, np.ndarray]) -> bytes:
     """One column-channel message: the samples' log times and each column, already in its dtype."""
-    ns = int(log_ns[0]) if len(log_ns) else 0
-    body = {
-        "timestamp": {"sec": ns // NS, "nsec": ns % NS},
-        "n": len(log_ns),
-        "log_time_ns": _array(np.asarray(log_ns, dtype="<i8")),
-        "columns": {k: _array(v) for k, v in columns.items()},
-    }
-    return json.dumps(body, separators=(",", ":")).encode()
+    parts = [_vi(1, len(log_ns)), _ld(2, np.ascontiguousarray(log_ns, dtype="<i8").tobytes())]
+    for name, a in columns.items():
+        a = np.ascontiguousarray(a)
+        shape = b"".join(_varint(int(d)) for d in a.shape)
+        col = _ld(1, name.encode()) + _ld(2, a.dtype.str.encode()) + _ld(3, shape) + _ld(4, a.tobytes())
+        parts.append(_ld(3, col))
+    return b"".join(parts)
 
 
 def decode_block(data: bytes) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """(log times ns [n], columns) of one column-channel message; ValueError/KeyError if malformed."""
-    body = json.loads(data)
-    ns = _unarray(body["log_time_ns"])
-    cols = {k: _unarray(v) for k, v in body["columns"].items()}
+    """(log times ns [n], columns) of one column-channel message; ValueError if malformed."""
+    ns = np.zeros(0, dtype="<i8")
+    cols: dict[str, np.ndarray] = {}
+    for number, value in _fields(memoryview(data)):
+        if number == 2 and isinstance(value, memoryview):
+            ns = np.frombuffer(value, dtype="<i8")
+        elif number == 3 and isinstance(value, memoryview):
+            col = dict(_fields(value))
+            shape_buf = col.get(3, memoryview(b""))
+            shape, i = [], 0
+            while isinstance(shape_buf, memoryview) and i < len(shape_buf):
+                d, i = _read_varint(shape_buf, i)
+                shape.append(d)
+            name, dtype, raw = (
+                bytes(col[k]) if isinstance(col.get(k), memoryview) else None for k in (1, 2, 4)
+            )
+            if name is None or dtype is None or raw is None:
+                raise ValueError("column without name, dtype or data")
+            cols[name.decode()] = np.frombuffer(raw, dtype=np.dtype(dtype.decode())).reshape(shape)
     for k, c in cols.items():
         if c.shape[:1] != ns.shape:
             raise ValueError(f"column {k} has {c.shape[:1]} rows for {ns.shape[0]} time stamps")

@@ -2,7 +2,7 @@
 writer left.
 
 A finished file is read through its index: a topic with a complete column channel comes from its
-blocks (base64 arrays, no per-sample JSON parsed), any other from its messages. A file without a
+blocks (protobuf, arrays as bytes, no per-sample JSON parsed), any other from its messages. A file without a
 usable index (a ``.part`` of a killed writer, through :func:`recover_mcap`) is read record by record
 in file order, from the per-sample messages, which are never behind the blocks.
 """
@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import struct
+import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from io import BytesIO
@@ -21,9 +22,9 @@ from typing import IO, Any
 import numpy as np
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Metadata, Schema
+from mcap.records import Channel, Chunk, Metadata, Schema
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import StreamReader
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
@@ -288,8 +289,61 @@ def _summary(f: IO[bytes]) -> tuple[SeekingReader, Summary] | None:
     return reader, summary
 
 
+_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, length
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_OP_CHUNK, _OP_MESSAGE = 0x06, 0x05
+
+
+def _chunk_messages(f: IO[bytes], offset: int, channel_ids: set[int]) -> list[tuple[int, int, memoryview]]:
+    """(channel id, log time, data) of the messages of ``channel_ids`` in the chunk at ``offset``;
+    an uncompressed chunk (column blocks) is sliced from one read, with no per-record copies.
+    CRC-checked."""
+    f.seek(offset)
+    op, length = _RECORD_HEAD.unpack(f.read(_RECORD_HEAD.size))
+    if op != _OP_CHUNK:
+        raise McapError(f"no chunk record at byte {offset}")
+    body = memoryview(f.read(length))
+    if len(body) != length:
+        raise EndOfFile()
+    _, _, size, crc, clen = _CHUNK_HEAD.unpack_from(body)
+    i = _CHUNK_HEAD.size
+    compression = bytes(body[i : i + clen]).decode()
+    i += clen
+    (n,) = struct.unpack_from("<Q", body, i)
+    records = body[i + 8 : i + 8 + n]
+    if compression:  # zstd/lz4 (per-sample chunks, files of other writers): through the mcap package
+        start, end, size, crc, _ = _CHUNK_HEAD.unpack_from(body)
+        chunk = Chunk(
+            compression=compression,
+            data=bytes(records),
+            message_end_time=end,
+            message_start_time=start,
+            uncompressed_crc=crc,
+            uncompressed_size=size,
+        )
+        return [
+            (r.channel_id, r.log_time, memoryview(r.data))
+            for r in breakup_chunk(chunk, validate_crc=True)
+            if isinstance(r, McapMessage) and r.channel_id in channel_ids
+        ]
+    if crc and zlib.crc32(records) != crc:
+        raise McapError(f"chunk at byte {offset}: CRC mismatch")
+    out = []
+    j = 0
+    while j < len(records):
+        op, length = _RECORD_HEAD.unpack_from(records, j)
+        j += _RECORD_HEAD.size
+        if op == _OP_MESSAGE:
+            cid, _, log_time, _ = _MESSAGE_HEAD.unpack_from(records, j)
+            if cid in channel_ids:
+                out.append((cid, log_time, records[j + _MESSAGE_HEAD.size : j + length]))
+        j += length
+    return out
+
+
 def _read_indexed(
-    reader: SeekingReader, summary: Summary, path: Path, topics: Iterable[str] | None
+    f: IO[bytes], reader: SeekingReader, summary: Summary, path: Path, topics: Iterable[str] | None
 ) -> McapContents:
     metadata, envelope, origin = _metadata(reader.iter_metadata(), path, need_envelope=True)
     columns = {c.metadata[COLUMNS_OF]: c for c in summary.channels.values() if COLUMNS_OF in c.metadata}
@@ -299,9 +353,14 @@ def _read_indexed(
 
     def messages(names: list[str]) -> dict[str, list[McapMessage]]:
         got: dict[str, list[McapMessage]] = {n: [] for n in names}
-        if names and any(counts.get(c.id, 0) for c in summary.channels.values() if c.topic in got):
-            for _, ch, msg in reader.iter_messages(topics=names, log_time_order=False):
-                got[ch.topic].append(msg)
+        ids = {c.id for c in summary.channels.values() if c.topic in got}
+        for ci in summary.chunk_indexes:
+            if ids & set(ci.message_index_offsets):
+                for cid, log_time, data in _chunk_messages(f, ci.chunk_start_offset, ids):
+                    msg = McapMessage(
+                        channel_id=cid, sequence=0, log_time=log_time, publish_time=log_time, data=data
+                    )  # type: ignore[arg-type]
+                    got[summary.channels[cid].topic].append(msg)
         return got
 
     out: dict[str, TopicData] = {}
@@ -338,16 +397,17 @@ def read_mcap_envelope(path: str | Path) -> dict[str, Any]:
     raise InputError("no rxcomm envelope metadata record; not an rxcomm artefact", file=path)
 
 
-def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> McapContents:
+def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, columns: bool = True) -> McapContents:
     """Read a finished rxcomm MCAP (all topics, or only ``topics``; column channels are never topics
-    of their own); anything unfinished or unreadable is an InputError."""
+    of their own); anything unfinished or unreadable is an InputError. ``columns=False`` reads the
+    per-sample messages instead of the column blocks (slow; to cross-check the two)."""
     path = Path(path)
     topics = None if topics is None else list(topics)
     with _open(path) as f:
-        indexed = _summary(f)
+        indexed = _summary(f) if columns else None
         if indexed is not None:
             try:
-                return _read_indexed(*indexed, path, topics)
+                return _read_indexed(f, *indexed, path, topics)
             except (EndOfFile, McapError, struct.error) as e:
                 raise InputError(f"unreadable MCAP: {e or type(e).__name__}", file=path) from e
     return _decode(_scan(path, strict=True), path, need_envelope=True, topics=topics)
