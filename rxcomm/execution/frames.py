@@ -4,6 +4,7 @@ Each URDF link (and the TCP frame of drives.yaml) is given in its parent link, t
 itself has, so Foxglove's URDF layer draws every link at its logged place. The actual robot uses the
 URDF's link names; the commanded one the same tree with every frame prefixed ``demand/`` (its root at
 the actual root), so a second URDF layer with that frame prefix shows it in the same 3D view.
+``FoxgloveFrames`` writes these channels (and the TCP poses, the URDF) into a run log as it is recorded.
 """
 
 from __future__ import annotations
@@ -13,7 +14,26 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from rxcomm.io.foxglove import (
+    FRAME_TRANSFORMS,
+    FRAME_TRANSFORMS_SCHEMA,
+    POSE_IN_FRAME,
+    POSE_IN_FRAME_SCHEMA,
+    ROBOT_DESCRIPTION_TOPIC,
+    STRING_SCHEMA,
+    frame_transforms,
+    pose_in_frame,
+)
+from rxcomm.io.mcap_io import McapWriter
 from rxcomm.model.robot import Robot
+from rxcomm.schemas.run_log import (
+    FOXGLOVE_RATE_HZ,
+    TCP_DEMAND_TOPIC,
+    TCP_TOPIC,
+    TF_DEMAND_TOPIC,
+    TF_TOPIC,
+    RunLogTopic,
+)
 
 DEMAND_PREFIX = "demand/"
 
@@ -77,3 +97,60 @@ def tcp_poses(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         f = data.oMf[robot.tcp_frame_id]
         pos[r], rot[r] = f.translation, pin.Quaternion(f.rotation).coeffs()
     return pos, rot
+
+
+class FoxgloveFrames:
+    """The 3D panel's channels of a run log: FK of every k-th sample (k: at most FOXGLOVE_RATE_HZ)."""
+
+    def __init__(self, w: McapWriter, robot: Robot, sample_s: float) -> None:
+        self.w, self.robot, self.sample_s = w, robot, sample_s
+        self.stride = max(1, round(1.0 / (FOXGLOVE_RATE_HZ * sample_s)))
+        self.tree = link_tree(robot)
+        self.n = 0
+        for topic in (TF_TOPIC, TF_DEMAND_TOPIC):
+            w.add_channel(topic, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
+        for topic in (TCP_TOPIC, TCP_DEMAND_TOPIC):
+            fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
+            w.add_channel(topic, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
+        # The URDF itself, so the 3D panel's URDF layers (source: topic) need no file of their own.
+        w.add_channel(ROBOT_DESCRIPTION_TOPIC, "std_msgs/String", {"data": {}}, schema=STRING_SCHEMA)
+        w.write(ROBOT_DESCRIPTION_TOPIC, 0.0, {"data": robot.urdf_path.read_text()})
+
+    def write(self, first: int, q_demand: np.ndarray, q_actual: np.ndarray) -> None:
+        """Rows ``first…`` of the joint log; writes those whose index is a multiple of the stride."""
+        rows = np.arange(first, first + len(q_actual))
+        pick = (rows % self.stride == 0) & np.all(np.isfinite(q_actual), axis=1)
+        if not pick.any():
+            return
+        t = rows[pick] * self.sample_s
+        ns = self.w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
+        tree, root = self.tree, self.tree.root
+        demand_pairs = list(tree.prefixed(DEMAND_PREFIX))
+        for q, tf_topic, tcp_topic, pairs in (
+            (q_actual[pick], TF_TOPIC, TCP_TOPIC, list(tree.pairs)),
+            (q_demand[pick], TF_DEMAND_TOPIC, TCP_DEMAND_TOPIC, demand_pairs),
+        ):
+            trans, rot = link_transforms(self.robot, tree, q)
+            if tf_topic == TF_DEMAND_TOPIC:  # the prefixed root at the actual root
+                trans = np.concatenate([np.zeros((len(q), 1, 3)), trans], axis=1)
+                rot = np.concatenate([np.tile([0.0, 0.0, 0.0, 1.0], (len(q), 1, 1)), rot], axis=1)
+            pos, ori = tcp_poses(self.robot, q)
+            for i in range(len(q)):
+                stamp_ns = int(ns[i])
+                self.w.write(tf_topic, t[i], frame_transforms(stamp_ns, pairs, trans[i], rot[i]))
+                self.w.write(tcp_topic, t[i], pose_in_frame(stamp_ns, root, pos[i], ori[i]))
+        self.n += int(pick.sum())
+
+    def topics(self) -> list[RunLogTopic]:
+        period = self.stride * self.sample_s
+        tf = {"transforms": "foxglove.FrameTransform per link in its parent link (m, quaternion x-y-z-w)"}
+        tcp = {"pose": f"TCP pose in {self.tree.root} (m, quaternion x-y-z-w)"}
+        return [
+            RunLogTopic(topic=TF_TOPIC, period_s=period, n_messages=self.n, fields=tf),
+            RunLogTopic(topic=TF_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tf),
+            RunLogTopic(topic=TCP_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
+            RunLogTopic(topic=TCP_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
+            RunLogTopic(
+                topic=ROBOT_DESCRIPTION_TOPIC, period_s=None, n_messages=1, fields={"data": "the URDF (XML)"}
+            ),
+        ]

@@ -21,20 +21,10 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.errors import InputError
-from rxcomm.execution.frames import DEMAND_PREFIX, link_transforms, link_tree, tcp_poses
+from rxcomm.execution.frames import FoxgloveFrames
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.session import NOT_APPLICABLE_VIRTUAL, RunResult, StreamLog, timing_figures
 from rxcomm.io.files import part_path
-from rxcomm.io.foxglove import (
-    FRAME_TRANSFORMS,
-    FRAME_TRANSFORMS_SCHEMA,
-    POSE_IN_FRAME,
-    POSE_IN_FRAME_SCHEMA,
-    ROBOT_DESCRIPTION_TOPIC,
-    STRING_SCHEMA,
-    frame_transforms,
-    pose_in_frame,
-)
 from rxcomm.io.mcap_io import McapWriter, number_field, recover_mcap, vector_field
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
@@ -42,15 +32,10 @@ from rxcomm.model.kinematics import frame_placement
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.run_log import (
-    FOXGLOVE_RATE_HZ,
     GATEWAY_FIELDS,
     GATEWAY_TOPIC,
     JOINT_FIELDS,
     JOINTS_TOPIC,
-    TCP_DEMAND_TOPIC,
-    TCP_TOPIC,
-    TF_DEMAND_TOPIC,
-    TF_TOPIC,
     RunLog,
     RunLogTopic,
 )
@@ -188,7 +173,7 @@ class RunLogWriter:
         self.n_joint = 0  # /run/joints rows written
         self.n_gw = 0
         self._tcp: list[np.ndarray] = []
-        self._foxglove: _FoxgloveFrames | None = None
+        self._foxglove: FoxgloveFrames | None = None
 
     @property
     def part_path(self) -> Path:
@@ -214,7 +199,7 @@ class RunLogWriter:
             names = {"joint_names": list(self.robot.joint_names)}
             w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n), constants=names)
             w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
-            self._foxglove = _FoxgloveFrames(w, self.robot, plan.sample_s)
+            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s)
             w.flush()
         except BaseException:
             w.abort()
@@ -340,63 +325,6 @@ def write_run_log(
         path, robot, inputs=inputs, settings=settings, feedforward=feedforward, embedded_cell=embedded_cell
     )
     return w.close(result)
-
-
-class _FoxgloveFrames:
-    """The 3D panel's channels of a run log: FK of every k-th sample (k: at most FOXGLOVE_RATE_HZ)."""
-
-    def __init__(self, w: McapWriter, robot: Robot, sample_s: float) -> None:
-        self.w, self.robot, self.sample_s = w, robot, sample_s
-        self.stride = max(1, round(1.0 / (FOXGLOVE_RATE_HZ * sample_s)))
-        self.tree = link_tree(robot)
-        self.n = 0
-        for topic in (TF_TOPIC, TF_DEMAND_TOPIC):
-            w.add_channel(topic, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
-        for topic in (TCP_TOPIC, TCP_DEMAND_TOPIC):
-            fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
-            w.add_channel(topic, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
-        # The URDF itself, so the 3D panel's URDF layers (source: topic) need no file of their own.
-        w.add_channel(ROBOT_DESCRIPTION_TOPIC, "std_msgs/String", {"data": {}}, schema=STRING_SCHEMA)
-        w.write(ROBOT_DESCRIPTION_TOPIC, 0.0, {"data": robot.urdf_path.read_text()})
-
-    def write(self, first: int, q_demand: np.ndarray, q_actual: np.ndarray) -> None:
-        """Rows ``first…`` of the joint log; writes those whose index is a multiple of the stride."""
-        rows = np.arange(first, first + len(q_actual))
-        pick = (rows % self.stride == 0) & np.all(np.isfinite(q_actual), axis=1)
-        if not pick.any():
-            return
-        t = rows[pick] * self.sample_s
-        ns = self.w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
-        tree, root = self.tree, self.tree.root
-        demand_pairs = list(tree.prefixed(DEMAND_PREFIX))
-        for q, tf_topic, tcp_topic, pairs in (
-            (q_actual[pick], TF_TOPIC, TCP_TOPIC, list(tree.pairs)),
-            (q_demand[pick], TF_DEMAND_TOPIC, TCP_DEMAND_TOPIC, demand_pairs),
-        ):
-            trans, rot = link_transforms(self.robot, tree, q)
-            if tf_topic == TF_DEMAND_TOPIC:  # the prefixed root at the actual root
-                trans = np.concatenate([np.zeros((len(q), 1, 3)), trans], axis=1)
-                rot = np.concatenate([np.tile([0.0, 0.0, 0.0, 1.0], (len(q), 1, 1)), rot], axis=1)
-            pos, ori = tcp_poses(self.robot, q)
-            for i in range(len(q)):
-                stamp_ns = int(ns[i])
-                self.w.write(tf_topic, t[i], frame_transforms(stamp_ns, pairs, trans[i], rot[i]))
-                self.w.write(tcp_topic, t[i], pose_in_frame(stamp_ns, root, pos[i], ori[i]))
-        self.n += int(pick.sum())
-
-    def topics(self) -> list[RunLogTopic]:
-        period = self.stride * self.sample_s
-        tf = {"transforms": "foxglove.FrameTransform per link in its parent link (m, quaternion x-y-z-w)"}
-        tcp = {"pose": f"TCP pose in {self.tree.root} (m, quaternion x-y-z-w)"}
-        return [
-            RunLogTopic(topic=TF_TOPIC, period_s=period, n_messages=self.n, fields=tf),
-            RunLogTopic(topic=TF_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tf),
-            RunLogTopic(topic=TCP_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
-            RunLogTopic(topic=TCP_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
-            RunLogTopic(
-                topic=ROBOT_DESCRIPTION_TOPIC, period_s=None, n_messages=1, fields={"data": "the URDF (XML)"}
-            ),
-        ]
 
 
 def _joint_schema(n: int) -> dict[str, dict[str, Any]]:
