@@ -498,3 +498,69 @@ def test_write_summary_yaml_beside_log(tmp_path: Path) -> None:
     art = _demo(tmp_path)
     assert write_summary_yaml(tmp_path / "run-log.mcap", art) == tmp_path / "run-log.yaml"
     assert read_yaml_artefact(tmp_path / "run-log.yaml", Demo) == art
+
+
+def test_column_blocks_equal_the_messages_nan_rows_and_blocks_of_2500(tmp_path: Path) -> None:
+    """The reader's blocks give what the per-sample JSON gives: NaN (null) rows from write(), integer and
+    boolean columns, more samples than one block holds."""
+    path = tmp_path / "mixed.mcap"
+    n = 6000  # three blocks
+    t = np.arange(n) / 2500.0
+    q = np.random.default_rng(3).standard_normal((n, 6))
+    with McapWriter(path, _env(tmp_path), flush_period_s=0.3) as w:
+        w.write_arrays("/a", t, {"q": q, "k": np.arange(n)}, digits=17)
+        w.add_channel("/b", "rxcomm.B", {"x": number_field("m"), "ok": {"type": "boolean"}})
+        for i in range(50):
+            w.write("/b", i * 0.01, {"x": float("nan") if i % 7 == 0 else i * 0.5, "ok": i % 2 == 0})
+    fast = read_mcap(path)
+    slow = read_mcap(path, columns=False)
+    for topic in ("/a", "/b"):
+        a, b = fast.topics[topic], slow.topics[topic]
+        assert np.array_equal(a.t, b.t) and set(a.fields) == set(b.fields)
+        for k in a.fields:
+            assert a[k].dtype == b[k].dtype and np.array_equal(
+                a[k], b[k], equal_nan=a[k].dtype.kind == "f"
+            ), k
+    assert np.isnan(fast.topics["/b"].x[::7]).all() and fast.topics["/b"].ok.dtype == bool
+    with open(path, "rb") as f:
+        s = make_reader(f).get_summary()
+        blocks = next(
+            s.statistics.channel_message_counts[i] for i, c in s.channels.items() if c.topic == "/columns/a"
+        )
+    assert blocks >= 3
+
+
+def test_a_log_from_before_the_time_origin_and_columns_still_reads(tmp_path: Path) -> None:
+    """A run log as rxcomm wrote it before (no rxcomm/time record, no column channel, no tcp_speed_m_s):
+    identify's fields read, t from 0; the default reader refuses it naming the missing field."""
+    from mcap.writer import Writer
+
+    from rxcomm.io.mcap_format import encode_metadata, envelope_values
+    from rxcomm.io.run_log import read_run_log
+    from rxcomm.schemas.run_log import RunLog
+
+    path = tmp_path / "old.mcap"
+    env = RunLog.envelope({}, {}, {"underruns": 0, "max_lag_rad": [0.0] * 6, "rms_lag_rad": [0.0] * 6,
+                                   "max_tcp_error_m": 0.0, "duration_s": 0.4})  # fmt: skip
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="rxcomm")
+        w.add_metadata("rxcomm/envelope", encode_metadata(envelope_values(env)))
+        vec = {"type": "array", "items": {"type": "number"}}
+        props = {"q_actual": vec, "tau_actual": vec}
+        sid = w.register_schema("rxcomm.RunJoints", "jsonschema", json.dumps({"properties": props}).encode())
+        cid = w.register_channel("/run/joints", "json", sid)
+        for i in range(1001):
+            body = {
+                "timestamp": {"sec": 0, "nsec": i * 400_000},
+                "q_actual": [i * 1e-3] * 6,
+                "tau_actual": [1] * 6,
+            }
+            w.add_message(cid, i * 400_000, json.dumps(body).encode(), i * 400_000)
+        w.finish()
+    log = read_run_log(path, fields=("q_actual", "tau_actual"))
+    assert log.joints.t[0] == 0.0 and abs(log.joints.t[-1] - 0.4) < 1e-12
+    assert log.joints.tau_actual.dtype == np.float64 and log.joints.q_actual[-1, 0] == 1.0
+    with pytest.raises(InputError) as ei:
+        read_run_log(path)
+    assert ei.value.field == "/run/joints.q_demand"  # the first field of the contract it lacks
