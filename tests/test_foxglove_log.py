@@ -141,3 +141,34 @@ def test_shipped_layout_parses_and_names_channels_a_run_log_has(run_log):
     assert topics <= channels, topics - channels
     for field in ("following_error", "tau_actual", "tcp_speed_m_s"):
         assert f"/run/joints.{field}" in panels, field
+
+
+def test_tracker_poses_are_pose_in_frame_in_the_tracker_frame(tmp_path, rx130l):
+    from rxcomm.execution.frames import FoxgloveFrames
+    from rxcomm.io.mcap_io import McapWriter
+    from rxcomm.schemas.trajectory import TrajectorySummary
+
+    path = tmp_path / "x.mcap"
+    t = np.arange(5) * 0.004
+    pos = np.column_stack([1.0 + t, np.zeros(5), 0.5 * np.ones(5)])
+    wxyz = np.tile([np.cos(0.2), 0.0, 0.0, np.sin(0.2)], (5, 1))  # 0.4 rad about z
+    with McapWriter(path, TrajectorySummary.envelope({}, {}, {})) as w:
+        frames = FoxgloveFrames(w, rx130l, 0.0004)
+        frames.tracker(t, pos, wxyz)
+        origin = w.time_origin_ns
+    assert frames.topics()[-1].topic == "/run/tracker_pose" and frames.topics()[-1].n_messages == 5
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        msgs = [
+            (s.name, m.log_time, json.loads(m.data))
+            for s, _, m in reader.iter_messages(["/run/tracker_pose"])
+        ]
+    assert [m[0] for m in msgs] == ["foxglove.PoseInFrame"] * 5
+    name, log_ns, last = msgs[-1]
+    assert log_ns == origin + 16_000_000 and last["frame_id"] == "tracker"
+    assert last["timestamp"] == {"sec": log_ns // 10**9, "nsec": log_ns % 10**9}
+    assert last["pose"]["position"] == {"x": 1.016, "y": 0.0, "z": 0.5}
+    o = last["pose"]["orientation"]
+    assert (
+        (o["x"], o["y"]) == (0.0, 0.0) and np.isclose(o["z"], np.sin(0.2)) and np.isclose(o["w"], np.cos(0.2))
+    )

@@ -19,7 +19,6 @@ from rxcomm.io.foxglove import (
     FRAME_TRANSFORMS_SCHEMA,
     POSE_IN_FRAME,
     POSE_IN_FRAME_SCHEMA,
-    ROBOT_DESCRIPTION_TOPIC,
     STRING_SCHEMA,
     frame_transforms,
     pose_in_frame,
@@ -28,10 +27,12 @@ from rxcomm.io.mcap_io import McapWriter
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.run_log import (
     FOXGLOVE_RATE_HZ,
+    ROBOT_DESCRIPTION_TOPIC,
     TCP_DEMAND_TOPIC,
     TCP_TOPIC,
     TF_DEMAND_TOPIC,
     TF_TOPIC,
+    TRACKER_POSE_TOPIC,
     RunLogTopic,
 )
 
@@ -107,6 +108,7 @@ class FoxgloveFrames:
         self.stride = max(1, round(1.0 / (FOXGLOVE_RATE_HZ * sample_s)))
         self.tree = link_tree(robot)
         self.n = 0
+        self.n_tracker = 0
         for topic in (TF_TOPIC, TF_DEMAND_TOPIC):
             w.add_channel(topic, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
         for topic in (TCP_TOPIC, TCP_DEMAND_TOPIC):
@@ -141,6 +143,22 @@ class FoxgloveFrames:
                 self.w.write(tcp_topic, t[i], pose_in_frame(stamp_ns, root, pos[i], ori[i]))
         self.n += int(pick.sum())
 
+    def tracker(self, t_s: np.ndarray, position_m: np.ndarray, quaternion_wxyz: np.ndarray) -> None:
+        """The tracker's TCP as ``/run/tracker_pose`` (foxglove.PoseInFrame in frame ``tracker``), at
+        log times ``t_s`` (s from the start, the joint log's axis), every sample. Once per log."""
+        if self.n_tracker:
+            raise ValueError("tracker poses already written")
+        fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
+        self.w.add_channel(TRACKER_POSE_TOPIC, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
+        t = np.asarray(t_s, dtype=float)
+        ns = self.w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
+        xyzw = np.asarray(quaternion_wxyz, dtype=float)[:, [1, 2, 3, 0]]
+        for i in range(len(t)):
+            self.w.write(
+                TRACKER_POSE_TOPIC, t[i], pose_in_frame(int(ns[i]), "tracker", position_m[i], xyzw[i])
+            )
+        self.n_tracker = len(t)
+
     def topics(self) -> list[RunLogTopic]:
         period = self.stride * self.sample_s
         tf = {"transforms": "foxglove.FrameTransform per link in its parent link (m, quaternion x-y-z-w)"}
@@ -153,4 +171,15 @@ class FoxgloveFrames:
             RunLogTopic(
                 topic=ROBOT_DESCRIPTION_TOPIC, period_s=None, n_messages=1, fields={"data": "the URDF (XML)"}
             ),
-        ]
+        ] + (
+            [
+                RunLogTopic(
+                    topic=TRACKER_POSE_TOPIC,
+                    period_s=None,
+                    n_messages=self.n_tracker,
+                    fields={"pose": "the tracker's TCP pose in frame tracker (m, quaternion x-y-z-w)"},
+                )
+            ]
+            if self.n_tracker
+            else []
+        )

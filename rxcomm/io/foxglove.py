@@ -64,7 +64,6 @@ POSE_IN_FRAME_SCHEMA: dict[str, Any] = {
 }
 
 
-ROBOT_DESCRIPTION_TOPIC = "/robot_description"  # the URDF as text, where ROS tools look for it
 STRING_SCHEMA: dict[str, Any] = {
     "title": "std_msgs/String",
     "type": "object",

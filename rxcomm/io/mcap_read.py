@@ -397,20 +397,35 @@ def read_mcap_envelope(path: str | Path) -> dict[str, Any]:
     raise InputError("no rxcomm envelope metadata record; not an rxcomm artefact", file=path)
 
 
-def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, columns: bool = True) -> McapContents:
-    """Read a finished rxcomm MCAP (all topics, or only ``topics``; column channels are never topics
-    of their own); anything unfinished or unreadable is an InputError. ``columns=False`` reads the
-    per-sample messages instead of the column blocks (slow; to cross-check the two)."""
+def read_mcap(
+    path: str | Path,
+    topics: Iterable[str] | None = None,
+    *,
+    exclude: Iterable[str] = (),
+    columns: bool = True,
+) -> McapContents:
+    """Read a finished rxcomm MCAP (all topics, or only ``topics``, less ``exclude``; column channels are
+    never topics of their own); anything unfinished or unreadable is an InputError. ``columns=False``
+    reads the per-sample messages instead of the column blocks (slow; to cross-check the two)."""
     path = Path(path)
     topics = None if topics is None else list(topics)
     with _open(path) as f:
         indexed = _summary(f) if columns else None
+        if indexed is not None and exclude:
+            skip = set(exclude)
+            names = [c.topic for c in indexed[1].channels.values() if COLUMNS_OF not in c.metadata]
+            topics = [t for t in (names if topics is None else topics) if t not in skip]
         if indexed is not None:
             try:
                 return _read_indexed(f, *indexed, path, topics)
             except (EndOfFile, McapError, struct.error) as e:
                 raise InputError(f"unreadable MCAP: {e or type(e).__name__}", file=path) from e
-    return _decode(_scan(path, strict=True), path, need_envelope=True, topics=topics)
+    raw = _scan(path, strict=True)
+    if exclude:
+        skip = set(exclude)
+        names = [c.topic for c in raw.channels.values() if COLUMNS_OF not in c.metadata]
+        topics = [t for t in (names if topics is None else topics) if t not in skip]
+    return _decode(raw, path, need_envelope=True, topics=topics)
 
 
 def recover_mcap(part_path: str | Path, out_path: str | Path | None = None) -> McapContents:

@@ -17,9 +17,10 @@ joint side, SI):
 For Foxglove's 3D panel, at most ``FOXGLOVE_RATE_HZ`` (every k-th joint sample): ``/run/tf`` and
 ``/run/tf_demand`` (``foxglove.FrameTransforms``: FK of q_actual with the URDF's link names, FK of
 q_demand with the links prefixed ``demand/``) and ``/run/tcp`` and ``/run/tcp_demand``
-(``foxglove.PoseInFrame``: the TCP in the root link's frame). Every ``/run/joints`` message repeats
-the ``joint_names`` (a channel constant). Times are epoch time: the run's wall clock at its start
-+ the sample time (readers give s from the start).
+(``foxglove.PoseInFrame``: the TCP in the root link's frame), ``/robot_description`` (the URDF) and,
+with a tracker, ``/run/tracker_pose`` (PoseInFrame in frame ``tracker``). Every ``/run/joints``
+message repeats the ``joint_names`` (a channel constant). Times are epoch time: the run's wall
+clock at its start + the sample time (readers give s from the start).
 
 A run that ends in a stop keeps its log as ``NAME.mcap.part`` (finished, readable; its envelope
 summary says ``outcome`` and ``stop_reason``) and writes no ``NAME.yaml``.
@@ -40,6 +41,17 @@ TF_TOPIC = "/run/tf"
 TF_DEMAND_TOPIC = "/run/tf_demand"
 TCP_TOPIC = "/run/tcp"
 TCP_DEMAND_TOPIC = "/run/tcp_demand"
+ROBOT_DESCRIPTION_TOPIC = "/robot_description"  # the URDF text, for the 3D panel's URDF layers
+TRACKER_POSE_TOPIC = "/run/tracker_pose"  # foxglove.PoseInFrame of the tracker's TCP, frame "tracker"
+# Views for Foxglove, derived from the data channels: readers of the data skip them.
+FOXGLOVE_VIEW_TOPICS = (
+    TF_TOPIC,
+    TF_DEMAND_TOPIC,
+    TCP_TOPIC,
+    TCP_DEMAND_TOPIC,
+    ROBOT_DESCRIPTION_TOPIC,
+    TRACKER_POSE_TOPIC,
+)
 FOXGLOVE_RATE_HZ = 50.0  # the 3D view's rate: enough to watch, 50x fewer FK calls than 2.5 kHz
 JOINT_FIELDS = {
     "q_demand": "rad, position setpoint reached in this cycle",
