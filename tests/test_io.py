@@ -527,6 +527,12 @@ def test_column_blocks_equal_the_messages_nan_rows_and_blocks_of_2500(tmp_path: 
         blocks = next(
             s.statistics.channel_message_counts[i] for i, c in s.channels.items() if c.topic == "/columns/a"
         )
+        columns = {i for i, c in s.channels.items() if c.topic.startswith("/columns/")}
+        for ci in s.chunk_indexes:  # blocks in chunks of their own, uncompressed; the JSON in zstd chunks
+            ids = set(ci.message_index_offsets)
+            assert (ids <= columns and ci.compression == "") or (
+                not ids & columns and ci.compression == "zstd"
+            )
     assert blocks >= 3
 
 
