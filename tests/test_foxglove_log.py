@@ -172,3 +172,14 @@ def test_tracker_poses_are_pose_in_frame_in_the_tracker_frame(tmp_path, rx130l):
     assert (
         (o["x"], o["y"]) == (0.0, 0.0) and np.isclose(o["z"], np.sin(0.2)) and np.isclose(o["w"], np.cos(0.2))
     )
+
+
+def test_frame_transforms_template_is_the_json_of_the_message():
+    from rxcomm.io.foxglove import frame_transforms, frame_transforms_json, frame_transforms_template
+
+    pairs = [("base_link", "link_1"), ("link_1", 'odd"%name')]
+    rng = np.random.default_rng(2)
+    trans, rot = rng.standard_normal((2, 3)), rng.standard_normal((2, 4))
+    ns = 1_796_000_000_123_456_789
+    text = frame_transforms_json(frame_transforms_template(pairs), ns, trans, rot)
+    assert json.loads(text) == frame_transforms(ns, pairs, trans, rot)

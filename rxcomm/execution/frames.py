@@ -20,7 +20,8 @@ from rxcomm.io.foxglove import (
     POSE_IN_FRAME,
     POSE_IN_FRAME_SCHEMA,
     STRING_SCHEMA,
-    frame_transforms,
+    frame_transforms_json,
+    frame_transforms_template,
     pose_in_frame,
 )
 from rxcomm.io.mcap_io import McapWriter
@@ -109,6 +110,7 @@ class FoxgloveFrames:
         self.tree = link_tree(robot)
         self.n = 0
         self.n_tracker = 0
+        self._templates: dict[str, str] = {}
         for topic in (TF_TOPIC, TF_DEMAND_TOPIC):
             w.add_channel(topic, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
         for topic in (TCP_TOPIC, TCP_DEMAND_TOPIC):
@@ -137,9 +139,10 @@ class FoxgloveFrames:
                 trans = np.concatenate([np.zeros((len(q), 1, 3)), trans], axis=1)
                 rot = np.concatenate([np.tile([0.0, 0.0, 0.0, 1.0], (len(q), 1, 1)), rot], axis=1)
             pos, ori = tcp_poses(self.robot, q)
+            template = self._templates.setdefault(tf_topic, frame_transforms_template(pairs))
             for i in range(len(q)):
                 stamp_ns = int(ns[i])
-                self.w.write(tf_topic, t[i], frame_transforms(stamp_ns, pairs, trans[i], rot[i]))
+                self.w.write_json(tf_topic, t[i], frame_transforms_json(template, stamp_ns, trans[i], rot[i]))
                 self.w.write(tcp_topic, t[i], pose_in_frame(stamp_ns, root, pos[i], ori[i]))
         self.n += int(pick.sum())
 

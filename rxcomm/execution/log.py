@@ -55,17 +55,24 @@ def tcp_errors(robot: Robot, q_demand: np.ndarray, q_actual: np.ndarray) -> np.n
     return out
 
 
-def tcp_speeds(robot: Robot, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-    """Per sample |v| of the TCP (m/s) at joint positions ``q`` and velocities ``qd``, nominal kinematics."""
-    data = robot.create_data()
-    out = np.zeros(len(q))
-    for i in range(len(q)):
-        pin.forwardKinematics(robot.model, data, q[i], qd[i])
-        v = pin.getFrameVelocity(
-            robot.model, data, robot.tcp_frame_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-        )
-        out[i] = float(np.linalg.norm(v.linear))
-    return out
+def tcp_error_and_speed(
+    robot: Robot, q_demand: np.ndarray, qd_demand: np.ndarray, q_actual: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample (m) ``tcp_errors`` and (m/s) the planned TCP speed |v(q_demand, qd_demand)|, with one
+    kinematics pass per side (the demand pass carries the velocity): the writer does this while the
+    robot moves, so it counts."""
+    model, data, fid = robot.model, robot.create_data(), robot.tcp_frame_id
+    err = np.full(len(q_demand), np.nan)
+    speed = np.zeros(len(q_demand))
+    frame = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    for i in range(len(q_demand)):
+        pin.forwardKinematics(model, data, q_demand[i], qd_demand[i])
+        speed[i] = float(np.linalg.norm(pin.getFrameVelocity(model, data, fid, frame).linear))
+        if np.all(np.isfinite(q_actual[i])):
+            p_d = pin.updateFramePlacement(model, data, fid).translation.copy()
+            pin.forwardKinematics(model, data, q_actual[i])
+            err[i] = float(np.linalg.norm(p_d - pin.updateFramePlacement(model, data, fid).translation))
+    return err, speed
 
 
 def _nanmax(a: np.ndarray, axis: int | None = None) -> Any:
@@ -128,6 +135,7 @@ def joint_columns(robot: Robot, log: StreamLog, tcp_error: np.ndarray | None = N
     """The ``/run/joints`` columns of a stream log (one row per trace record)."""
     m = log.n_records
     p = log.plan
+    tcp, speed = tcp_error_and_speed(robot, p.q[:m], p.qd[:m], log.q_actual)
     return {
         "q_demand": p.q[:m],
         "qd_demand": p.qd[:m],
@@ -136,8 +144,8 @@ def joint_columns(robot: Robot, log: StreamLog, tcp_error: np.ndarray | None = N
         "tau_actual": log.tau_actual,
         "tau_ff": p.tau_ff[:m],
         "following_error": log.following_error,
-        "tcp_error_m": tcp_errors(robot, p.q[:m], log.q_actual) if tcp_error is None else tcp_error,
-        "tcp_speed_m_s": tcp_speeds(robot, p.q[:m], p.qd[:m]),
+        "tcp_error_m": tcp if tcp_error is None else tcp_error,
+        "tcp_speed_m_s": speed,
     }
 
 
@@ -216,7 +224,7 @@ class RunLogWriter:
             return
         p = self._plan
         sl = slice(first, first + m)
-        tcp = tcp_errors(self.robot, p.q[sl], q_actual)
+        tcp, speed = tcp_error_and_speed(self.robot, p.q[sl], p.qd[sl], q_actual)
         cols = {
             "q_demand": p.q[sl],
             "qd_demand": p.qd[sl],
@@ -226,7 +234,7 @@ class RunLogWriter:
             "tau_ff": p.tau_ff[sl],
             "following_error": p.q[sl] - q_actual,
             "tcp_error_m": tcp,
-            "tcp_speed_m_s": tcp_speeds(self.robot, p.q[sl], p.qd[sl]),
+            "tcp_speed_m_s": speed,
         }
         self._w.write_arrays(JOINTS_TOPIC, np.arange(first, first + m) * p.sample_s, cols, digits=10)
         assert self._foxglove is not None

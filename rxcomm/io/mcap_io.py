@@ -240,6 +240,13 @@ class McapWriter:
             ch.rows.append((ns, plain))
         self._add(ch.id, ns, body.encode())
 
+    def write_json(self, topic: str, t_s: float, data: bytes) -> None:
+        """Write one message already encoded as JSON on a channel with a given ``schema``."""
+        ch = self._channel(topic)
+        if not ch.raw:
+            raise ValueError(f"{topic}: write_json is for channels with a given schema")
+        self._add(ch.id, self.time_origin_ns + time_ns(float(t_s)), data)
+
     def write_arrays(
         self,
         topic: str,
