@@ -10,8 +10,10 @@ from rxcomm.io.csv_export import read_csv_table, read_run_log_csv, read_trajecto
 from rxcomm.io.run_log import read_run_log
 from rxcomm.io.trajectory import Trajectory, load_trajectory_mcap
 
+from .test_cross_validation import bset_rx, noisy_log, truth_rx  # noqa: F401 - identify's fixture log
 from .test_foxglove_log import run_log  # noqa: F401 - the module's run-log fixture
-from .test_run import DQ, Q0, save_plan
+from .test_identification import write_run_log as write_log
+from .test_run import DQ, Q0, ROBOT_DIR, save_plan
 
 runner = CliRunner()
 
@@ -72,3 +74,23 @@ def test_export_refuses_what_it_cannot_export(tmp_path):
     assert r.exit_code == 2 and "rxcomm/Configs" in r.output and "has no export" in r.output
     r = runner.invoke(app, ["export", str(tmp_path / "missing.mcap")])
     assert r.exit_code == 2 and "missing.mcap" in r.output
+
+
+def test_identified_dynamics_export_is_identify_s_parameter_table(tmp_path, rx130l, noisy_log):  # noqa: F811
+    log = write_log(tmp_path / "excite-log.mcap", noisy_log.t, noisy_log.q, noisy_log.tau)
+    out, table = tmp_path / "dynamics.yaml", tmp_path / "params.csv"
+    args = [
+        "identify",
+        "--robot",
+        str(ROBOT_DIR),
+        "--log",
+        str(log),
+        "-o",
+        str(out),
+        "--params-out",
+        str(table),
+    ]
+    assert runner.invoke(app, args).exit_code == 0
+    r = runner.invoke(app, ["export", str(out)])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "dynamics.csv").read_text() == table.read_text()

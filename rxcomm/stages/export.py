@@ -3,7 +3,8 @@
 The artefact says what it is (its envelope ``kind``, in the MCAP's metadata or the YAML); ``EXPORTERS``
 maps each kind to the library call that writes its export. A trajectory (``plan-cp``, ``plan-ptp``,
 ``excite --trajectory-out``) becomes the controller CSV (t, q, q̇, q̈, τ_ff per joint); a run log (also
-a stopped run's ``.mcap.part``) its ``/run/joints`` as CSV. Other kinds plug in here with one entry.
+a stopped run's ``.mcap.part``) its ``/run/joints`` as CSV; a ``dynamics.yaml`` its base parameters ± σ
+(``identify --params-out``'s table). Other kinds plug in here with one entry.
 """
 
 from __future__ import annotations
@@ -16,9 +17,11 @@ import typer
 
 from rxcomm import console
 from rxcomm.errors import InputError
+from rxcomm.identification.export import export_dynamics_csv
 from rxcomm.io.csv_export import export_run_log_csv, export_trajectory_csv
 from rxcomm.io.mcap_io import read_mcap_envelope
 from rxcomm.io.yaml_io import load_yaml
+from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.run_log import RunLog
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -26,6 +29,7 @@ from rxcomm.schemas.trajectory import TrajectorySummary
 EXPORTERS: dict[str, tuple[str, str, Callable[[Path, Path], Path]]] = {
     TrajectorySummary.KIND: ("controller trajectory CSV", ".csv", export_trajectory_csv),
     RunLog.KIND: ("run log CSV", ".csv", export_run_log_csv),
+    Dynamics.KIND: ("identified parameters ± σ CSV", ".csv", export_dynamics_csv),
 }
 
 
@@ -74,7 +78,7 @@ def command(
     ] = None,
 ) -> None:
     """Export an artefact for another tool, by its kind: a trajectory as the controller CSV (t, q, q̇, q̈,
-    τ_ff per joint), a run log as CSV. Exit 2 if the file is no artefact or its kind has no export.
+    τ_ff per joint), a run log as CSV, identified dynamics as the parameter table ± σ. Exit 2 if the file is no artefact or its kind has no export.
 
     Example: rxcomm export build/cp.mcap -o cp.csv
     """
