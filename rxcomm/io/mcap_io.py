@@ -157,7 +157,6 @@ class McapWriter:
         fields: Mapping[str, Mapping[str, Any]],
         *,
         constants: Mapping[str, Any] | None = None,
-        schema_encoding: str = "jsonschema",
         schema: Mapping[str, Any] | None = None,
     ) -> None:
         """Register ``topic`` with a JSON schema: the ``timestamp`` plus ``fields`` (name -> JSON schema,
@@ -181,20 +180,19 @@ class McapWriter:
                 "required": ["timestamp", *consts, *fields],
             }
         schema_id = self._w.register_schema(
-            name=schema_title, encoding=schema_encoding, data=json.dumps(schema, sort_keys=False).encode()
+            name=schema_title, encoding="jsonschema", data=json.dumps(schema, sort_keys=False).encode()
         )
         meta = {CONSTANTS: json.dumps(to_plain(consts), separators=(",", ":"))} if consts else {}
         channel_id = self._w.register_channel(
             topic=topic, message_encoding="json", schema_id=schema_id, metadata=meta
         )
+        raw = given is not None  # a well-known schema: no column channel, messages as given
         dtypes = {k: column_dtype(s) for k, s in fields.items()}
-        numeric = bool(dtypes) and all(dtypes.values()) and "timestamp" not in fields
+        numeric = bool(dtypes) and all(dtypes.values()) and not raw
         consts_json = "".join(
             "," + json.dumps(k) + ":" + json.dumps(to_plain(v), separators=(",", ":"))
             for k, v in consts.items()
         )
-        raw = given is not None
-        numeric = numeric and not raw
         ch = _Channel(channel_id, tuple(fields), consts_json, dtypes if numeric else None, raw=raw)  # type: ignore[arg-type]
         if numeric:
             if self._columns_schema_id is None:

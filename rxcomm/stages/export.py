@@ -78,7 +78,8 @@ def command(
     ] = None,
 ) -> None:
     """Export an artefact for another tool, by its kind: a trajectory as the controller CSV (t, q, q̇, q̈,
-    τ_ff per joint), a run log as CSV, identified dynamics as the parameter table ± σ. Exit 2 if the file is no artefact or its kind has no export.
+    τ_ff per joint), a run log as CSV, identified dynamics as the parameter table ± σ. Exit 2 if the
+    file is no artefact or its kind has no export.
 
     Example: rxcomm export build/cp.mcap -o cp.csv
     """
