@@ -430,8 +430,15 @@ def _traj_envelope(tmp_path: Path, **summary: object) -> dict:
 def test_trajectory_mcap_round_trip_and_summary_yaml(tmp_path: Path) -> None:
     traj = _traj()
     out = tmp_path / "cp.mcap"
-    summary = save_trajectory_mcap(out, traj, _traj_envelope(tmp_path))
+    names = [f"joint_{j + 1}" for j in range(6)]
+    summary = save_trajectory_mcap(out, traj, _traj_envelope(tmp_path), names)
     assert sorted(os.listdir(tmp_path)) == ["cp.mcap", "cp.yaml", "path.yaml"]
+    td = read_mcap(out).topics["/trajectory"]
+    assert td.constants == {"joint_names": names} and "joint_names" not in td.fields
+    with open(out, "rb") as f:  # in every message Foxglove shows, epoch-stamped from the plan's creation
+        _, _, msg = next(make_reader(f).iter_messages(topics=["/trajectory"]))
+    body = json.loads(msg.data)
+    assert body["joint_names"] == names and abs(body["timestamp"]["sec"] - time.time()) < 600
     back, env = load_trajectory_mcap(out)
     assert np.max(np.abs(back.t - traj.t)) <= 0.5e-9  # MCAP log times have ns resolution
     for name in ("q", "qd", "qdd", "tau_ff"):
