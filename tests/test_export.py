@@ -94,3 +94,14 @@ def test_identified_dynamics_export_is_identify_s_parameter_table(tmp_path, rx13
     r = runner.invoke(app, ["export", str(out)])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "dynamics.csv").read_text() == table.read_text()
+
+
+def test_every_exporter_names_a_real_kind_and_library_call():
+    from rxcomm.schemas.dynamics import Dynamics
+    from rxcomm.schemas.run_log import RunLog
+    from rxcomm.schemas.trajectory import TrajectorySummary
+    from rxcomm.stages.export import EXPORTERS, exporter
+
+    assert set(EXPORTERS) == {TrajectorySummary.KIND, RunLog.KIND, Dynamics.KIND}
+    for kind in EXPORTERS:
+        assert callable(exporter(kind)), kind

@@ -9,6 +9,7 @@ a stopped run's ``.mcap.part``) its ``/run/joints`` as CSV; a ``dynamics.yaml`` 
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
@@ -17,25 +18,33 @@ import typer
 
 from rxcomm import console
 from rxcomm.errors import InputError
-from rxcomm.identification.export import export_dynamics_csv
-from rxcomm.io.csv_export import export_run_log_csv, export_trajectory_csv
-from rxcomm.io.mcap_io import read_mcap_envelope
-from rxcomm.io.yaml_io import load_yaml
-from rxcomm.schemas.dynamics import Dynamics
-from rxcomm.schemas.run_log import RunLog
-from rxcomm.schemas.trajectory import TrajectorySummary
 
-# kind -> (what the export is, default suffix, library call(source, out))
-EXPORTERS: dict[str, tuple[str, str, Callable[[Path, Path], Path]]] = {
-    TrajectorySummary.KIND: ("controller trajectory CSV", ".csv", export_trajectory_csv),
-    RunLog.KIND: ("run log CSV", ".csv", export_run_log_csv),
-    Dynamics.KIND: ("identified parameters ± σ CSV", ".csv", export_dynamics_csv),
+# kind -> (what the export is, default suffix, "module:function" of the library call (source, out) -> out).
+# Named, not imported: `rxcomm --help` loads this module and must stay light (the library is loaded
+# for the one kind exported).
+EXPORTERS: dict[str, tuple[str, str, str]] = {
+    "rxcomm/Trajectory": ("controller trajectory CSV", ".csv", "rxcomm.io.csv_export:export_trajectory_csv"),
+    "rxcomm/RunLog": ("run log CSV", ".csv", "rxcomm.io.csv_export:export_run_log_csv"),
+    "rxcomm/Dynamics": (
+        "identified parameters ± σ CSV",
+        ".csv",
+        "rxcomm.identification.export:export_dynamics_csv",
+    ),
 }
+
+
+def exporter(kind: str) -> Callable[[Path, Path], Path]:
+    """The library call that exports ``kind`` (KeyError if none)."""
+    module, name = EXPORTERS[kind][2].split(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def artefact_kind(path: Path) -> tuple[str, Path]:
     """(kind, the file holding the data): an MCAP's envelope, or a YAML's ``kind`` (a summary YAML
     beside an MCAP stands for that MCAP)."""
+    from rxcomm.io.mcap_io import read_mcap_envelope
+    from rxcomm.io.yaml_io import load_yaml
+
     if path.suffix == ".yaml":
         doc = load_yaml(path)
         kind = doc.get("kind") if isinstance(doc, dict) else None
@@ -62,8 +71,8 @@ def execute(artefact: Path, output: Path | None = None) -> Path:
             file=artefact,
             field="kind",
         )
-    what, suffix, export = EXPORTERS[kind]
-    out = export(source, output or default_output(source, suffix))
+    what, suffix, _ = EXPORTERS[kind]
+    out = exporter(kind)(source, output or default_output(source, suffix))
     console.out.print(f"{what} → {out}")
     return out
 
