@@ -108,6 +108,11 @@ STAGES: dict[str, Stage] = {
         "Recover the run log of a killed `run` from its NAME.mcap.part, saying what was lost.",
         "rxcomm recover-log build/run-ff.mcap.part",
     ),
+    "export": Stage(
+        "export",
+        "Export an artefact for another tool, by its kind",
+        "rxcomm export build/cp.mcap -o cp.csv",
+    ),
 }
 
 # Commands whose old form took a positional argument that is now an option (docs/cli.md).
@@ -168,7 +173,8 @@ def stage_command(name: str) -> TyperCommand:
         stage = STAGES[name]
         module = importlib.import_module(f"rxcomm.stages.{stage.module}")
         single = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
-        single.command(name, epilog=f"Example:  {stage.example}")(module.command)
+        shown = "Example:" in (module.command.__doc__ or "")  # the stage's help has its own already
+        single.command(name, epilog=None if shown else f"Example:  {stage.example}")(module.command)
         cmd = typer.main.get_command(single)
         parse = cmd.parse_args
 
