@@ -9,17 +9,14 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rxcomm.calibration.fit import (
-    CalibrateSettings,
-    MeasurementSet,
-    _fit,
-    _Problem,
-    calibrate,
-    calibrated_urdf_text,
-    load_calibration,
-    read_measurements,
-)
+from rxcomm.calibration.fit import calibrate
+from rxcomm.calibration.lm import fit_problem
+from rxcomm.calibration.loading import load_calibration
+from rxcomm.calibration.measurements import MeasurementSet, read_measurements
 from rxcomm.calibration.pose_selection import select_measurement_poses
+from rxcomm.calibration.residuals import Problem
+from rxcomm.calibration.settings import CalibrateSettings
+from rxcomm.calibration.urdf import calibrated_urdf_text
 from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.cli import app
 from rxcomm.errors import InputError
@@ -107,7 +104,7 @@ def test_identifiable_parameters_recovered_within_3_sigma(campaign):
         role=("fit",) * 200,
     )
     idx = np.array(res.identifiable.indices)
-    proj = _fit(robot, exact, t2b, idx, 5e-5, 1e-4, None, CalibrateSettings())
+    proj = fit_problem(robot, exact, t2b, idx, 5e-5, 1e-4, None, CalibrateSettings())
     assert proj.residual_scale < 1e-9  # the reduced model reproduces the truth exactly
     z = (res.fit.errors.values[idx] - proj.errors.values[idx]) / res.fit.std[idx]
     assert np.max(np.abs(z)) < 3.0, dict(zip(res.identifiable.names, np.round(z, 2), strict=True))
@@ -169,7 +166,7 @@ def test_lm_jacobian_equals_finite_differences(rx130l):
     tracker = SimulatedTracker(rx130l, truth, np.random.default_rng(0))
     ms = _measure(tracker, random_poses(rx130l, 4, np.random.default_rng(1)), ["fit"] * 4)
     idx = np.arange(48)
-    prob = _Problem(rx130l, ms.q, ms.position_m, ms.rotation, t2b, 5e-5, 1e-4, idx, None)
+    prob = Problem(rx130l, ms.q, ms.position_m, ms.rotation, t2b, 5e-5, 1e-4, idx, None)
     x = np.random.default_rng(2).normal(0, 1e-3, 48)
     jac = prob.jacobian(x)
     h = 1e-7

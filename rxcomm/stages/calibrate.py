@@ -1,8 +1,8 @@
 """`rxcomm calibrate`: geometric calibration from tracker measurements (paper §3.1–3.2, architecture §7).
 
 Reads the robot and a measurements file (a `rxcomm/Measurements` artefact written by `run`, or a
-tracker CSV — see `rxcomm.calibration.fit.CSV_HELP`), fits the identifiable geometric error parameters
-and writes `calibration.yaml` (kind `rxcomm/Calibration`: parameters ± σ, what was dropped and why,
+tracker CSV — see `rxcomm.calibration.measurements.CSV_HELP`), fits the identifiable geometric error
+parameters and writes `calibration.yaml` (kind `rxcomm/Calibration`: parameters ± σ, what was dropped and why,
 the paper's Table 2 before/after on fitted and held-out poses, the base + tool baseline, and — when
 the file has `baseline` poses — the same calibration from those, judged on the same held-out poses)
 and, with `--urdf-out`, a calibrated URDF (load it with `load_robot(ROBOT_DIR, urdf=...)`).
@@ -18,14 +18,11 @@ import numpy as np
 import typer
 
 from rxcomm import console
-from rxcomm.calibration.fit import (
-    CalibrateSettings,
-    CalibrationResult,
-    FitResult,
-    calibrate,
-    read_measurements,
-    write_calibrated_urdf,
-)
+from rxcomm.calibration.fit import CalibrationResult, calibrate
+from rxcomm.calibration.lm import FitResult
+from rxcomm.calibration.measurements import read_measurements
+from rxcomm.calibration.settings import CalibrateSettings
+from rxcomm.calibration.urdf import write_calibrated_urdf
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
@@ -124,29 +121,20 @@ def _compliance(robot: Robot, fit: FitResult) -> list[ComplianceEstimate]:
     ]
 
 
-def calibration_artefact(
-    robot: Robot,
-    res: CalibrationResult,
-    inputs: dict[str, Path],
-    urdf_out: Path | None,
-    noise_source: str | None = None,
-) -> Calibration:
-    """`noise_source`: where a given σ came from (option, cell); None: the result's own source."""
+def _error_tables(res: CalibrationResult) -> list[ErrorTable]:
     tables = []
     for (pose_set, model), st in res.tables.items():
-        rows = []
-        for k, (q, unit) in enumerate(QUANTITIES):
-            if unit == "rad" and st.max_orientation_error_rad is None:
-                continue
-            rows.append(
-                ErrorRow(
-                    quantity=q,
-                    unit=unit,
-                    max_abs=float(st.max_abs[k]),
-                    peak_to_peak=float(st.peak_to_peak[k]),
-                    rms=float(st.rms[k]),
-                )
+        rows = [
+            ErrorRow(
+                quantity=q,
+                unit=unit,
+                max_abs=float(st.max_abs[k]),
+                peak_to_peak=float(st.peak_to_peak[k]),
+                rms=float(st.rms[k]),
             )
+            for k, (q, unit) in enumerate(QUANTITIES)
+            if unit != "rad" or st.max_orientation_error_rad is not None
+        ]
         tables.append(
             ErrorTable(
                 pose_set=pose_set,
@@ -158,12 +146,16 @@ def calibration_artefact(
                 rows=rows,
             )
         )
+    return tables
+
+
+def _summary(robot: Robot, res: CalibrationResult, torque_model: str, source: str) -> dict[str, object]:
+    """The artefact's summary: the figures make commission and the report read."""
 
     def stat(pose_set: str, model: str, attr: str):
         st = res.tables.get((pose_set, model))
         return None if st is None else getattr(st, attr)
 
-    source = res.noise.source if res.noise.source != "settings" else (noise_source or "option")
     summary = {
         "n_identifiable": len(res.identifiable),
         "fit_max_position_error_m": stat("fit", "calibrated", "max_position_error_m"),
@@ -183,7 +175,7 @@ def calibration_artefact(
         "tracker_orientation_sigma_rad": res.noise.orientation_sigma_rad,
         "tracker_sigma_source": source,
         "n_undetermined": len(res.undetermined),
-        "compliance_torque_model": "identified" if "dynamics" in inputs else "prior",
+        "compliance_torque_model": torque_model,
         "heldout_rms_position_error_m": stat("heldout", "calibrated", "rms_position_error_m"),
         "n_fit": int(res.fit_idx.size),
         "n_heldout": int(res.heldout_idx.size),
@@ -201,9 +193,8 @@ def calibration_artefact(
             None if est.stiffness_nm_per_rad is None else est.std * est.stiffness_nm_per_rad**2
         )
     base = res.baseline
-    baseline_fit = None
-    ids = list(res.identifiable.indices)
     if base is not None:
+        ids = list(res.identifiable.indices)
         summary |= {
             "n_baseline_poses": base.n_poses,
             "baseline_poses_heldout_max_position_error_m": stat(
@@ -221,14 +212,34 @@ def calibration_artefact(
             if base.fit is None
             else float(np.median(base.fit.std[ids] / res.fit.std[ids])),
         }
-        baseline_fit = BaselineFit(
-            n_poses=base.n_poses,
-            parameters=[] if base.fit is None else _estimates(robot, base.fit),
-            fit_poses=base.fit_idx.tolist(),
-            outlier_poses=base.outlier_idx.tolist(),
-            worse_p_value=base.worse_p_value,
-            note=base.note,
-        )
+    return summary
+
+
+def _baseline_fit(robot: Robot, res: CalibrationResult) -> BaselineFit | None:
+    base = res.baseline
+    if base is None:
+        return None
+    return BaselineFit(
+        n_poses=base.n_poses,
+        parameters=[] if base.fit is None else _estimates(robot, base.fit),
+        fit_poses=base.fit_idx.tolist(),
+        outlier_poses=base.outlier_idx.tolist(),
+        worse_p_value=base.worse_p_value,
+        note=base.note,
+    )
+
+
+def calibration_artefact(
+    robot: Robot,
+    res: CalibrationResult,
+    inputs: dict[str, Path],
+    urdf_out: Path | None,
+    noise_source: str | None = None,
+) -> Calibration:
+    """`noise_source`: where a given σ came from (option, cell); None: the result's own source."""
+    source = res.noise.source if res.noise.source != "settings" else (noise_source or "option")
+    torque_model = "identified" if "dynamics" in inputs else "prior"
+    summary = _summary(robot, res, torque_model, source)
     xyz, rpy = se3_to_xyz_rpy(res.tracker_to_base)
     frames = {n for n in parameter_names(robot) if n.startswith(("base.", "tool."))}
     return Calibration(
@@ -241,11 +252,11 @@ def calibration_artefact(
         parameters=_estimates(robot, res.fit),
         dropped=[DroppedParameter(name=n, reason=r) for n, r in res.identifiable.dropped],
         frames_only_parameters=_estimates(robot, res.frames_only, frames),
-        error_tables=tables,
+        error_tables=_error_tables(res),
         fit_poses=res.fit_idx.tolist(),
         heldout_poses=res.heldout_idx.tolist(),
         outlier_poses=res.outlier_idx.tolist(),
-        baseline_fit=baseline_fit,
+        baseline_fit=_baseline_fit(robot, res),
         calibrated_urdf=None if urdf_out is None else str(urdf_out),
         tracker_noise=TrackerNoise(
             position_sigma_m=res.noise.position_sigma_m,

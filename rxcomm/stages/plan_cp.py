@@ -19,7 +19,7 @@ import typer
 from rich.markup import escape
 
 from rxcomm import console, plotting
-from rxcomm.calibration.fit import load_calibrated_robot
+from rxcomm.calibration.loading import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap

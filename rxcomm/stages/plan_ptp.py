@@ -16,7 +16,7 @@ import numpy as np
 import typer
 
 from rxcomm import console, plotting
-from rxcomm.calibration.fit import load_calibrated_robot
+from rxcomm.calibration.loading import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
