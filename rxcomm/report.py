@@ -141,7 +141,8 @@ def baseline_pose_figures(s: Mapping) -> list[Figure]:
     ]
 
 
-def calibration_section(s: Mapping, tables: Sequence[Mapping]) -> Section:
+def calibration_section(s: Mapping, tables: Sequence[Mapping], prior: Mapping | None = None) -> Section:
+    """`prior`: the summary of the same calibration with the prior model's holding torques, if made."""
     return Section(
         "Geometric calibration (paper §3.1–3.4, Table 2)",
         [
@@ -162,7 +163,7 @@ def calibration_section(s: Mapping, tables: Sequence[Mapping]) -> Section:
                 _f(s["frames_only_heldout_max_position_error_m"], 1e3, unit="mm"),
             ),
             *baseline_pose_figures(s),
-            *model_figures(s),
+            *model_figures(s, prior),
             Figure("compute time", _f(s["seconds"], unit="s")),
         ],
         table=calibration_table(tables),
@@ -171,8 +172,9 @@ def calibration_section(s: Mapping, tables: Sequence[Mapping]) -> Section:
     )
 
 
-def model_figures(s: Mapping) -> list[Figure]:
-    """The tracker noise used, the model the data chose, the rigid model beside it, the stiffness."""
+def model_figures(s: Mapping, prior: Mapping | None = None) -> list[Figure]:
+    """The tracker noise used, the model the data chose, the rigid model beside it, the stiffness
+    (and, from `prior`, the stiffness the prior model's holding torques give)."""
     out = []
     if "tracker_position_sigma_m" in s:
         ori = s.get("tracker_orientation_sigma_rad")
@@ -196,12 +198,21 @@ def model_figures(s: Mapping) -> list[Figure]:
         if key.startswith("stiffness_") and key.endswith("_nm_per_rad") and "_std_" not in key:
             joint = key[len("stiffness_") : -len("_nm_per_rad")]
             std = s.get(f"stiffness_{joint}_std_nm_per_rad")
+            torques = s.get("compliance_torque_model", "prior")
             out.append(
                 Figure(
-                    f"{joint} stiffness (from gravity sag)",
+                    f"{joint} stiffness (from gravity sag, {torques} holding torques)",
                     f"{_f(value, 1e-6)} ± {_f(std, 1e-6)} MN·m/rad",
                 )
             )
+            if prior is not None and torques != "prior":
+                p, p_std = prior.get(key), prior.get(f"stiffness_{joint}_std_nm_per_rad")
+                out.append(
+                    Figure(
+                        f"{joint} stiffness, same measurements, prior holding torques",
+                        "not measured" if p is None else f"{_f(p, 1e-6)} ± {_f(p_std, 1e-6)} MN·m/rad",
+                    )
+                )
     return out
 
 

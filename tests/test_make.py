@@ -25,6 +25,7 @@ ALL = {
     "robot-info.txt",
     "configs.yaml",
     "calib-meas.yaml",
+    "calibration-prior.yaml",
     "calibration.yaml",
     "excitation.yaml",
     "excite-log.mcap",
@@ -49,12 +50,20 @@ ON_CELL = {
 }
 # ... and those downstream of their outputs. select-configs, excite, the validation plan and robot-info
 # never see the cell.
-AFTER_CELL = {"calibration.yaml", "dynamics.yaml", "cp.mcap", "ptp.mcap", "report.md"}
+AFTER_CELL = {
+    "calibration-prior.yaml",
+    "calibration.yaml",
+    "dynamics.yaml",
+    "cp.mcap",
+    "ptp.mcap",
+    "report.md",
+}
 # select-configs and what follows the pose set: measurement, calibration, the planners on the
 # calibrated robot, their runs, the report. Excitation, identification's logs and robot-info do not.
 AFTER_POSES = {
     "configs.yaml",
     "calib-meas.yaml",
+    "calibration-prior.yaml",
     "calibration.yaml",
     "cp.mcap",
     "ptp.mcap",
@@ -150,7 +159,8 @@ def test_other_inputs_rebuild_what_reads_them(built):
     # cell.yaml: select-configs, calibrate, excite and the simulated cell (its tracker's field of view).
     not_cell = {"robot-info.txt", "validation-plan.mcap"}
     assert _remade(built, "-W", str(ROBOT / "cell.yaml"))[0] == ALL - not_cell
-    excite = {"excitation.yaml", "excite-log.mcap", "dynamics.yaml"} | AFTER_CP_PATH
+    # The planners' calibration bends the joints with the identified torques: it follows identify.
+    excite = {"excitation.yaml", "excite-log.mcap", "dynamics.yaml", "calibration.yaml"} | AFTER_CP_PATH
     assert _remade(built, "EXCITE_OPTS=--starts 3") == (excite, {"excite"})
 
 
@@ -171,3 +181,12 @@ def test_commission_ci_reuses_the_same_rules_in_its_own_dir(built):
     assert _remade(built, goal="commission-ci", build="build-ci") == (set(), set())
     _newer(built / ROBOT / "truth.yaml")
     assert _remade(built, goal="commission-ci", build="build-ci")[0] == ON_CELL | AFTER_CELL
+
+
+def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(built):
+    # The planners' calibration follows identify (its torques bend the joints); nothing upstream of
+    # it, identification included, reads a calibration, and the prior-torque pass feeds the report only.
+    after_cal = {"cp.mcap", "ptp.mcap", "run-noff.mcap", "run-ff.mcap", "run-ptp.mcap", "report.md"}
+    assert _remade(built, "-W", "build/calibration.yaml")[0] == after_cal
+    assert _remade(built, "-W", "build/calibration-prior.yaml")[0] == {"report.md"}
+    assert _remade(built, "-W", "build/dynamics.yaml")[0] == after_cal | {"calibration.yaml"}

@@ -80,3 +80,24 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
     assert "[0.2, 0.1, 0.1, not scored, 0.4, 1.2] %" in text
     assert "0.9999, 0.9989]" in text and "no standstill" in text and "10 Hz; 12.4" in text
     assert "0 %" not in text and "0.00 %" not in text
+
+
+def test_stiffness_from_identified_torques_is_shown_beside_the_prior_torques():
+    s = {
+        "n_identifiable": 30,
+        "nominal_heldout_max_position_error_m": 1e-2,
+        "heldout_max_position_error_m": 1.5e-4,
+        "heldout_max_orientation_error_rad": 3e-4,
+        "frames_only_heldout_max_position_error_m": 5e-3,
+        "seconds": 0.1,
+        "compliance_torque_model": "identified",
+        "stiffness_J3_nm_per_rad": 4.3e5,
+        "stiffness_J3_std_nm_per_rad": 4e4,
+    }
+    prior = {"stiffness_J3_nm_per_rad": 5.6e5, "stiffness_J3_std_nm_per_rad": 5e4}
+    text = rep.render("t", "p", [rep.calibration_section(s, [], prior)])
+    assert "J3 stiffness (from gravity sag, identified holding torques) | 0.43 ± 0.04 MN·m/rad" in text
+    assert "J3 stiffness, same measurements, prior holding torques | 0.56 ± 0.05 MN·m/rad" in text
+    # A prior pass without a stiffness (its model chose no compliance) says so, never 0.
+    text = rep.render("t", "p", [rep.calibration_section(s, [], {})])
+    assert "prior holding torques | not measured" in text

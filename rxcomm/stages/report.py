@@ -55,7 +55,10 @@ def build_report(build: Path) -> tuple[str, list[str]]:
         )
     cal = need("calibration.yaml", Calibration)
     if cal:
-        sections.append(rep.calibration_section(cal["summary"], cal["error_tables"]))
+        # The prior-torque pass of the same measurements (optional: not every chain makes it).
+        prior = _load(build / "calibration-prior.yaml", Calibration)
+        prior_summary = None if prior is None else prior["summary"]
+        sections.append(rep.calibration_section(cal["summary"], cal["error_tables"], prior_summary))
     exc = need("excitation.yaml", Excitation)
     if exc:
         sections.append(rep.excitation_section(exc["summary"], _img(build, "excitation.png")))
