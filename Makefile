@@ -110,7 +110,9 @@ CALPRIOR_ARGS = --robot $(ROBOT) --cell $(CELL)
 $(B)/calibration-prior.yaml: $(B)/calib-meas.yaml $(ROBOT_FILES) $(CELL) \
 		$(call params,calibrate-prior,$(CALPRIOR_ARGS))
 	$(RX) calibrate --measurements $< $(CALPRIOR_ARGS) -o $@
-CAL_ARGS = --robot $(ROBOT) --cell $(CELL) --dynamics $(B)/dynamics.yaml --urdf-out $(B)/calibrated.urdf
+# Beside it: calibrated.urdf (with the TCP frame) and mdh.yaml + mdh.csv (MDH, zero offsets).
+CAL_ARGS = --robot $(ROBOT) --cell $(CELL) --dynamics $(B)/dynamics.yaml --urdf-out $(B)/calibrated.urdf \
+	--mdh-out $(B)/mdh.yaml
 $(B)/calibration.yaml: $(B)/calib-meas.yaml $(B)/dynamics.yaml $(ROBOT_FILES) $(CELL) \
 		$(call params,calibrate,$(CAL_ARGS))
 	$(RX) calibrate --measurements $< $(CAL_ARGS) -o $@

@@ -26,6 +26,7 @@ from rxcomm.model.kinematics import cardan_xyz, inverse_kinematics, tcp_placemen
 from rxcomm.model.robot import load_robot
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.kinematics import Kinematics
 from rxcomm.schemas.measurements import MeasuredPose, Measurements
 from rxcomm.schemas.truth import CellTruth
 
@@ -249,10 +250,19 @@ def test_stage_load_calibration_and_ik_honour_it(tmp_path, rx_meas):
             str(out),
             "--urdf-out",
             str(urdf),
+            "--mdh-out",
+            str(tmp_path / "mdh.yaml"),
         ],
     )
     assert r.exit_code == 0, r.output
     assert time.perf_counter() - t0 < 10
+    # The MDH export is written with its CSV, and the residual it states is in the calibration's summary.
+    kin = read_yaml_artefact(tmp_path / "mdh.yaml", Kinematics)
+    assert (tmp_path / "mdh.csv").read_text().startswith("# Craig modified DH")
+    assert read_yaml_artefact(out, Calibration).summary["mdh_max_position_residual_m"] == (
+        kin.mdh.max_position_residual_m
+    )
+    assert "MDH + zero offsets" in r.output
     art = read_yaml_artefact(out, Calibration)
     assert art.summary["n_identifiable"] == 30 and art.tracker_to_base_source == "measurements"
     assert art.tracker_noise.source == "measurements" and art.tracker_noise.position_sigma_m == 5e-5

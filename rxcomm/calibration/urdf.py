@@ -1,6 +1,9 @@
 """The calibrated URDF: the geometric errors folded into the joint origins (base error into the
 first joint's origin, so the URDF root stays the nominal base frame of the cell; tool error into the
-fixed joint carrying the TCP's parent frame, so drives.yaml's TCP stays valid)."""
+fixed joint carrying the TCP's parent frame, so drives.yaml's TCP stays valid), and the TCP as a
+named fixed frame (link `tcp`, joint `tcp_joint` on drives.yaml's tcp), so that any URDF tool
+(RViz, Foxglove, MoveIt) reaches the calibrated TCP by FK without drives.yaml. Joint compliance is
+not in a URDF: it stays in calibration.yaml."""
 
 from __future__ import annotations
 
@@ -13,7 +16,7 @@ import pinocchio as pin
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text
 from rxcomm.model.geometric_errors import ErrorModel, placement_to_se3, se3_to_xyz_rpy
-from rxcomm.model.robot import Robot
+from rxcomm.model.robot import TCP_FRAME, Robot
 
 
 def _origin(joint: ET.Element) -> pin.SE3:
@@ -64,9 +67,30 @@ def calibrated_urdf_text(robot: Robot, errors: ErrorModel) -> str:
         f = placement_to_se3(robot.drives.tcp.xyz_m, robot.drives.tcp.rpy_rad)
         el = carrier[0]
         _set_origin(el, _origin(el) * f * pin.exp6(tool) * f.inverse())
-    root.insert(0, ET.Comment(" calibrated by rxcomm: geometric errors folded into the joint origins "))
+    tcp_name = _add_tcp_frame(root, robot)
+    root.insert(
+        0,
+        ET.Comment(
+            " calibrated by rxcomm: geometric errors folded into the joint origins; link "
+            f"{tcp_name!r} is the TCP "
+        ),
+    )
     ET.indent(root)
     return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+
+
+def _add_tcp_frame(root: ET.Element, robot: Robot) -> str:
+    """A fixed link at drives.yaml's TCP on its parent frame (whose carrier joint holds the tool
+    error); named `tcp`, unless the URDF already has a link of that name. Returns the name."""
+    links = {el.get("name") for el in root.iter("link")}
+    name = TCP_FRAME if TCP_FRAME not in links else f"{TCP_FRAME}_calibrated"
+    tcp = robot.drives.tcp
+    ET.SubElement(root, "link", name=name)
+    joint = ET.SubElement(root, "joint", name=f"{name}_joint", type="fixed")
+    ET.SubElement(joint, "parent", link=tcp.parent_frame)
+    ET.SubElement(joint, "child", link=name)
+    _set_origin(joint, placement_to_se3(tcp.xyz_m, tcp.rpy_rad))
+    return name
 
 
 def write_calibrated_urdf(robot: Robot, errors: ErrorModel, path: str | Path) -> Path:

@@ -16,6 +16,7 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.configs:Configs",
     "rxcomm.schemas.measurements:Measurements",
     "rxcomm.schemas.calibration:Calibration",
+    "rxcomm.schemas.kinematics:Kinematics",
     "rxcomm.schemas.run_log:RunLog",
     "rxcomm.schemas.excitation:Excitation",
     "rxcomm.schemas.path:PathSpec",

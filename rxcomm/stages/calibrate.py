@@ -15,9 +15,11 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
+import pinocchio as pin
 import typer
 
 from rxcomm import console
+from rxcomm.calibration.exports import kinematics_artefact, write_kinematics
 from rxcomm.calibration.fit import CalibrationResult, calibrate
 from rxcomm.calibration.lm import FitResult
 from rxcomm.calibration.measurements import read_measurements
@@ -337,7 +339,16 @@ def command(
     ],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output calibration.yaml.")],
     urdf_out: Annotated[
-        Path | None, typer.Option("--urdf-out", help="Also write the calibrated URDF here.")
+        Path | None,
+        typer.Option("--urdf-out", help="Also write the calibrated URDF here (with the TCP as link 'tcp')."),
+    ] = None,
+    mdh_out: Annotated[
+        Path | None,
+        typer.Option(
+            "--mdh-out",
+            help="Also write the calibrated kinematics as modified DH parameters and joint zero offsets "
+            "here (YAML, and a CSV beside it), with the residual MDH cannot express.",
+        ),
     ] = None,
     cell: Annotated[
         Path | None,
@@ -377,6 +388,7 @@ def command(
         measurements,
         output,
         urdf_out=urdf_out,
+        mdh_out=mdh_out,
         cell=cell,
         holdout=holdout,
         loss=loss.value,
@@ -389,6 +401,47 @@ def command(
     )
 
 
+def _cell_and_noise(
+    cell: Path | None, tracker_sigma: str | None, inputs: dict[str, Path]
+) -> tuple[pin.SE3 | None, dict[str, float], str | None]:
+    """(the cell's tracker_to_base guess, noise settings, where the noise came from): the cell's
+    tracker, overridden by `--tracker-sigma`; None: the measurements' or estimated."""
+    t2b, overrides, source = None, {}, None
+    if cell is not None:
+        tr = read_yaml_model(cell, Cell).tracker
+        t2b = placement_to_se3(tr.tracker_to_base.xyz_m, tr.tracker_to_base.rpy_rad)
+        overrides = {
+            "position_sigma_m": tr.position_sigma_m,
+            "orientation_sigma_rad": tr.orientation_sigma_rad,
+        }
+        inputs["cell"] = Path(cell)
+        source = "cell"
+    sp, so = _parse_sigma(tracker_sigma)
+    if sp is not None:
+        overrides, source = {"position_sigma_m": sp, "orientation_sigma_rad": so}, "option"
+    return t2b, {k: v for k, v in overrides.items() if v is not None}, source
+
+
+def _write_exports(
+    robot: Robot, res: CalibrationResult, inputs: dict[str, Path], urdf_out: Path | None, mdh_out: Path | None
+) -> dict[str, object]:
+    """The calibrated URDF (with the TCP frame) and the MDH + zero-offset tables; returns the MDH
+    residuals for the calibration's summary."""
+    if urdf_out is not None:
+        Path(urdf_out).parent.mkdir(parents=True, exist_ok=True)
+        write_calibrated_urdf(robot, res.fit.errors, urdf_out)
+    if mdh_out is None:
+        return {}
+    Path(mdh_out).parent.mkdir(parents=True, exist_ok=True)
+    with console.err.status("calibrate: fitting the MDH tables"):
+        kin = kinematics_artefact(robot, res.fit.errors, inputs)
+    _, csv_path = write_kinematics(mdh_out, kin)
+    console.out.print(f"  MDH + zero offsets → {mdh_out}, {csv_path}")
+    for note in kin.notes:
+        console.out.print(f"  [yellow]note:[/yellow] {note}")
+    return {k: v for k, v in kin.summary.items() if k.startswith("mdh_")}
+
+
 @console.stage_command
 def run(
     robot_dir: Path,
@@ -396,6 +449,7 @@ def run(
     output: Path,
     *,
     urdf_out: Path | None = None,
+    mdh_out: Path | None = None,
     cell: Path | None = None,
     holdout: float | None = None,
     loss: str = "linear",
@@ -409,7 +463,7 @@ def run(
     """The stage as a function (tests call it): returns the summary written to `output`."""
     output = Path(output)
     check_outputs(
-        {"output": output, "urdf-out": urdf_out},
+        {"output": output, "urdf-out": urdf_out, "mdh-out": mdh_out},
         {"measurements": measurements, "cell": cell, **robot_files(robot_dir)},
     )
     robot = load_robot(robot_dir)
@@ -419,24 +473,7 @@ def run(
         "drives": robot.drives_path,
         "measurements": Path(measurements),
     }
-    t2b = None
-    overrides: dict[str, float] = {}
-    noise_source = None
-    if cell is not None:
-        cell_model = read_yaml_model(cell, Cell)
-        tr = cell_model.tracker
-        t2b = placement_to_se3(tr.tracker_to_base.xyz_m, tr.tracker_to_base.rpy_rad)
-        overrides = {
-            "position_sigma_m": tr.position_sigma_m,
-            "orientation_sigma_rad": tr.orientation_sigma_rad,
-        }
-        inputs["cell"] = Path(cell)
-        noise_source = "cell"
-    sp, so = _parse_sigma(tracker_sigma)
-    if sp is not None:
-        overrides = {"position_sigma_m": sp, "orientation_sigma_rad": so}
-        noise_source = "option"
-    overrides = {k: v for k, v in overrides.items() if v is not None}
+    t2b, overrides, noise_source = _cell_and_noise(cell, tracker_sigma, inputs)
     settings = settings_from_options(
         CalibrateSettings,
         dict(
@@ -456,11 +493,10 @@ def run(
         inputs["dynamics"] = Path(dynamics)
     with console.err.status(f"calibrate: fitting {robot.name} to {ms.n} poses"):
         res = calibrate(robot, ms, settings, tracker_to_base=t2b, dynamics=params)
-    art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)
     output.parent.mkdir(parents=True, exist_ok=True)
-    if urdf_out is not None:
-        Path(urdf_out).parent.mkdir(parents=True, exist_ok=True)
-        write_calibrated_urdf(robot, res.fit.errors, urdf_out)
+    exported = _write_exports(robot, res, inputs, urdf_out, mdh_out)
+    art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)
+    art = art.model_copy(update={"summary": {**art.summary, **exported}})
     write_yaml_artefact(output, art)
     console.summary_table(f"calibrate → {output}", art.summary)
     print_table(res)
