@@ -7,7 +7,8 @@
   (weighted residual, Table 2), ``lm`` (Levenberg–Marquardt, covariance, outliers, noise,
   cross-validation), ``selection`` (candidate models), ``compliance`` (holding torques),
   ``plausibility`` (checks and notes), ``settings``;
-- ``urdf``, ``exports``: the calibrated URDF with the TCP frame, MDH parameters and zero offsets;
+- ``artefact``: the Calibration artefact from a result; ``urdf``, ``exports``: the calibrated URDF with
+  the TCP frame, MDH parameters and zero offsets;
   ``loading``: a calibration artefact back as an error model or a calibrated robot.
 
 May import: `rxcomm.model`, `rxcomm.io`, `rxcomm.schemas`, `rxcomm.errors`. Independent of
