@@ -213,6 +213,15 @@ def model_figures(s: Mapping, prior: Mapping | None = None) -> list[Figure]:
                         "not measured" if p is None else f"{_f(p, 1e-6)} ± {_f(p_std, 1e-6)} MN·m/rad",
                     )
                 )
+    if s.get("mdh_max_position_residual_m") is not None:
+        out.append(
+            Figure(
+                "what the plain MDH export cannot express (max over sampled poses)",
+                f"{_f(s['mdh_max_position_residual_m'], 1e3, unit='mm')}, "
+                f"{_f(s.get('mdh_max_orientation_residual_rad'), 1e3, unit='mrad')}; with Hayati's β "
+                f"{_f(s.get('mdh_beta_max_position_residual_m'), 1e3, unit='mm')}",
+            )
+        )
     return out
 
 

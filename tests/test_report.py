@@ -95,7 +95,13 @@ def test_stiffness_from_identified_torques_is_shown_beside_the_prior_torques():
         "stiffness_J3_std_nm_per_rad": 4e4,
     }
     prior = {"stiffness_J3_nm_per_rad": 5.6e5, "stiffness_J3_std_nm_per_rad": 5e4}
+    s |= {
+        "mdh_max_position_residual_m": 1.47e-3,
+        "mdh_max_orientation_residual_rad": 1.39e-3,
+        "mdh_beta_max_position_residual_m": 1.4e-15,
+    }
     text = rep.render("t", "p", [rep.calibration_section(s, [], prior)])
+    assert "cannot express (max over sampled poses) | 1.47 mm, 1.39 mrad; with Hayati's β 1.4e-12 mm" in text
     assert "J3 stiffness (from gravity sag, identified holding torques) | 0.43 ± 0.04 MN·m/rad" in text
     assert "J3 stiffness, same measurements, prior holding torques | 0.56 ± 0.05 MN·m/rad" in text
     # A prior pass without a stiffness (its model chose no compliance) says so, never 0.
