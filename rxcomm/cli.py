@@ -15,6 +15,7 @@ from rxcomm.stages import (
     calibrate,
     cell_sim,
     excite,
+    export,
     identify,
     plan_cp,
     plan_ptp,
@@ -62,6 +63,7 @@ app.command("plan-cp")(plan_cp.command)
 app.command("plan-ptp")(plan_ptp.command)
 app.command("report")(report.command)
 app.command("recover-log")(recover_log.command)
+app.command("export")(export.command)
 
 
 def main() -> None:
