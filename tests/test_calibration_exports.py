@@ -135,3 +135,16 @@ def test_yaml_and_csv_round_trip(tmp_path, calibrated):
     assert [r["joint"] for r in mdh] == list(robot.joint_names)
     assert float(mdh[2]["a_m"]) == art.mdh.joints[2].a_m
     assert float(mdh[1]["zero_offset_rad"]) == art.zero_offsets[1].offset_rad
+
+
+def test_rxcomm_export_of_the_kinematics_yaml_is_the_csv_beside_it(tmp_path, calibrated):
+    from typer.testing import CliRunner
+
+    from rxcomm.cli import app
+
+    _, _, art = calibrated
+    y, c = write_kinematics(tmp_path / "mdh.yaml", art)
+    out = tmp_path / "again.csv"
+    r = CliRunner().invoke(app, ["export", str(y), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert out.read_text() == c.read_text()

@@ -126,6 +126,8 @@ def kinematics_csv(art: Kinematics) -> str:
     """The table as CSV: `#` lines state the convention, base, tool and residuals; one row per joint
     and form (mdh, mdh_beta, nominal) with the zero offset on the mdh rows."""
     buf = io.StringIO()
+    sources = ", ".join(f"{k} sha256 {v}" for k, v in art.inputs.items()) or "none recorded"
+    buf.write(f"# {art.kind} of robot {art.robot} (rxcomm {art.rxcomm_version}); inputs: {sources}\n")
     buf.write(f"# {art.convention}\n")
     for key, form in (("mdh", art.mdh), ("mdh_beta", art.mdh_beta), ("nominal", art.nominal)):
         for frame in ("base", "tool"):
@@ -144,6 +146,14 @@ def kinematics_csv(art: Kinematics) -> str:
             extra = ["", ""] if z is None else [repr(z.offset_rad), repr(z.offset_deg)]
             w.writerow([key, j.joint, *(repr(getattr(j, f)) for f in FIELDS), *extra])
     return buf.getvalue()
+
+
+def export_kinematics_csv(source: Path, out: Path) -> Path:
+    """`rxcomm export mdh.yaml`: the CSV of a `rxcomm/Kinematics` artefact (what `--mdh-out` writes
+    beside it)."""
+    from rxcomm.io.yaml_io import read_yaml_artefact
+
+    return atomic_write_text(out, kinematics_csv(read_yaml_artefact(source, Kinematics)))
 
 
 def write_kinematics(path: str | Path, art: Kinematics) -> tuple[Path, Path]:
