@@ -1,0 +1,105 @@
+"""Catalogue limits (rxcomm.model.catalogue): safe at densely sampled poses, tight at the worst one."""
+
+import itertools
+from dataclasses import replace
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from rxcomm.errors import InfeasibleError
+from rxcomm.model.catalogue import catalogue_limits, payload_parameters, worst_case_terms
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters
+from rxcomm.schemas.drives import RatedPayload
+
+
+@pytest.fixture(scope="module")
+def catalogues(robot):
+    return catalogue_limits(robot, n_poses=1500, seed=1)
+
+
+def test_payload_adds_mass_at_the_flange(rx130l):
+    prior, loaded = prior_parameters(rx130l), payload_parameters(rx130l)
+    pl = rx130l.drives.rated_payload
+    assert loaded.inertial[-1][0] - prior.inertial[-1][0] == pytest.approx(pl.mass_kg)
+    # the first moment moves by m·c of the payload, expressed in the last joint's frame
+    flange = rx130l.model.frames[rx130l.flange_frame_id].placement
+    c = flange.act(np.array(pl.com_m))
+    np.testing.assert_allclose(loaded.inertial[-1][1:4] - prior.inertial[-1][1:4], pl.mass_kg * c, atol=1e-12)
+    # holding torque of J2 grows by the payload's weight times its horizontal lever
+    q = np.array([0.0, np.pi / 2, 0.0, 0.0, 0.0, 0.0])
+    d = pin.Model(rx130l.model).createData()
+    pin.framesForwardKinematics(rx130l.model, d, q)
+    lever = d.oMf[rx130l.flange_frame_id].act(np.array(pl.com_m)) - d.oMi[2].translation
+    g_prior = RobotDynamics(rx130l, prior).gravity_torque(q)
+    g_loaded = RobotDynamics(rx130l, loaded).gravity_torque(q)
+    assert abs(g_loaded[1] - g_prior[1]) == pytest.approx(pl.mass_kg * 9.81 * np.hypot(*lever[:2]), rel=1e-3)
+
+
+def test_catalogue_limits_hold_at_dense_poses(robot, catalogues):
+    """Random states within the catalogue box at poses never sampled: the prior model with the rated
+    payload stays within every peak torque (the bound is conservative; the sample is dense)."""
+    c = catalogues
+    assert np.all(c.v_max <= robot.v_max + 1e-12) and np.all(c.a_max <= robot.a_max + 1e-12)
+    assert np.all(c.v_max > 0) and np.all(c.a_max > 0)
+    rd = RobotDynamics(robot, payload_parameters(robot))
+    rng = np.random.default_rng(99)
+    n = 20000
+    q = rng.uniform(robot.q_min, robot.q_max, (n, robot.n))
+    qd = rng.choice([-1.0, 1.0], (n, robot.n)) * c.v_max * rng.uniform(0.8, 1.0, (n, robot.n))
+    qdd = rng.choice([-1.0, 1.0], (n, robot.n)) * c.a_max
+    tau = rd.inverse_dynamics(q, qd, qdd)
+    ratio = np.abs(tau) / robot.tau_max
+    print(f"\n{robot.name}: k = {c.time_scale.min():.3f}, max |τ|/peak at 20000 fresh states {ratio.max():.3f}")
+    assert ratio.max() <= 1.0
+    # and the bound itself, at 4000 fresh poses, exceeds the peak torque by at most 2 %
+    q2 = rng.uniform(robot.q_min, robot.q_max, (4000, robot.n))
+    bound = worst_case_terms(robot, payload_parameters(robot), q2).bound(c.v_max, c.a_max)
+    assert (bound / robot.tau_max).max() <= 1.02
+
+
+def test_catalogue_limits_are_tight(robot, catalogues):
+    """At the worst pose the bound equals a peak torque, and a real state (speeds at the box's vertex,
+    accelerations signed with the mass row) comes within a few percent of it."""
+    c = catalogues
+    k = int(np.argmin(c.time_scale))
+    j = robot.joint_names.index(c.bound_by[k])
+    q = c.worst_pose_rad[k]
+    params = payload_parameters(robot)
+    wc = worst_case_terms(robot, params, q[None])
+    assert wc.bound(c.v_max, c.a_max)[0, j] == pytest.approx(robot.tau_max[j], rel=1e-4)
+    rd = RobotDynamics(robot, params)
+    m_row = rd.mass_matrix(q)[j]
+    best = 0.0
+    for signs in itertools.product([-1.0, 1.0], repeat=robot.n):
+        qd = np.array(signs) * c.v_max
+        h = rd.inverse_dynamics(q, qd, np.zeros(robot.n))[j]
+        qdd = np.sign(h) * np.sign(m_row) * c.a_max
+        best = max(best, abs(rd.inverse_dynamics(q, qd, qdd)[j]))
+    print(f"\n{robot.name}: worst pose {np.round(q, 3)}, {c.bound_by[k]} reaches {best / robot.tau_max[j]:.3f}")
+    assert 0.9 * robot.tau_max[j] <= best <= robot.tau_max[j] * (1 + 1e-9)
+
+
+def test_catalogue_states_how_it_was_computed(rx130l):
+    c = catalogue_limits(rx130l, n_poses=200)
+    d = c.as_dict()
+    assert d["n_poses"] == 200 and d["payload_kg"] == rx130l.drives.rated_payload.mass_kg
+    assert [j["name"] for j in d["joints"]] == list(rx130l.joint_names)
+    for j, k in zip(d["joints"], range(rx130l.n), strict=True):
+        assert j["velocity_max_rad_s"] == pytest.approx(c.time_scale[k] * rx130l.v_max[k])
+        assert j["acceleration_max_rad_s2"] == pytest.approx(c.time_scale[k] ** 2 * rx130l.a_max[k])
+        assert len(j["worst_pose_rad"]) == rx130l.n
+
+
+def test_heavier_payload_slows_the_catalogue_and_too_heavy_is_refused(m900):
+    light = catalogue_limits(m900, n_poses=300)
+    heavy_robot = replace(
+        m900, drives=m900.drives.model_copy(update={"rated_payload": RatedPayload(mass_kg=8.0)})
+    )
+    heavy = catalogue_limits(heavy_robot, n_poses=300)
+    assert np.all(heavy.a_max < light.a_max)
+    too_heavy = replace(
+        m900, drives=m900.drives.model_copy(update={"rated_payload": RatedPayload(mass_kg=40.0)})
+    )
+    with pytest.raises(InfeasibleError, match="to hold the rated payload"):
+        catalogue_limits(too_heavy, n_poses=300)
