@@ -26,6 +26,7 @@ from rxcomm.io.files import part_path
 from rxcomm.io.mcap_io import McapWriter, number_field, recover_mcap, vector_field
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
+from rxcomm.model.energy import motion_energy
 from rxcomm.model.kinematics import frame_placement
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.plain import sha256_file
@@ -79,10 +80,21 @@ def run_summary(robot: Robot, result: RunResult, tcp_error: np.ndarray | None = 
             "max_tcp_error_m": _nanmax(tcp),
             "rms_tcp_error_m": float(np.sqrt(np.nanmean(tcp**2))),
             "duration_s": (log.n_records - 1) * log.plan.sample_s,
+            # from the measured torques and encoder positions of the recorded motion (approach excluded)
+            **motion_energy(
+                robot, np.arange(log.n_records) * log.plan.sample_s, log.q_actual, log.tau_actual
+            ),
         }
     else:
         # Nothing was recorded (stopped before the first trace record): not measured, not zero.
-        out |= {"max_lag_rad": None, "rms_lag_rad": None, "max_tcp_error_m": None, "duration_s": 0.0}
+        out |= {
+            "max_lag_rad": None,
+            "rms_lag_rad": None,
+            "max_tcp_error_m": None,
+            "duration_s": 0.0,
+            "tau_squared_integral_nm2_s": None,
+            "electrical_energy_j": None,
+        }
     out |= {
         "outcome": result.outcome,
         "stop_reason": None if result.error is None else str(result.error),
