@@ -27,9 +27,10 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
-from rxcomm.planning.cp import CpPlan, CpSettings, PlanDynamics, path_deviation_m, plan_cp
+from rxcomm.planning.cp import CpPlan, CpSettings, path_deviation_m, plan_cp
 from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
 from rxcomm.planning.paths import load_path
+from rxcomm.planning.timing import PlanDynamics
 from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.trajectory import TrajectorySummary
 

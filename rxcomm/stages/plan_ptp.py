@@ -22,18 +22,12 @@ from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.model.base_parameters import load_dynamics
+from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.kinematics import solve_pose_ik
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
-from rxcomm.planning.ptp import (
-    PtpDynamics,
-    PtpLimits,
-    PtpNotConverged,
-    PtpOptions,
-    PtpResult,
-    kinematic_fallback,
-    plan_ptp,
-)
+from rxcomm.planning.ptp import PtpNotConverged, PtpResult, kinematic_fallback, plan_ptp
+from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -235,15 +229,7 @@ def run(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {"dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
     )
-    robot = load_robot(robot_dir)
-    inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
-    if calibration is not None:
-        robot = load_calibrated_robot(robot, calibration)
-        inputs["calibration"] = Path(calibration)
-    params = None
-    if dynamics is not None:
-        params = load_dynamics(dynamics, robot)
-        inputs["dynamics"] = Path(dynamics)
+    robot, params, inputs = _planning_model(robot_dir, calibration, dynamics)
     options = settings_from_options(
         PtpOptions,
         dict(
@@ -286,16 +272,27 @@ def run(
     save_trajectory_mcap(output, result.trajectory, env)
     if plot:
         limits = PtpLimits.from_robot(robot, acceleration=acceleration_limits)
-        png = plot_ptp(
-            result.trajectory,
-            limits,
-            robot.joint_names,
-            output.with_suffix(".png"),
-            f"PtP {result.duration_s:.3f} s (k1 = {k1:g}, k2 = {k2:g}): normalised torques and velocities",
-        )
+        title = f"PtP {result.duration_s:.3f} s (k1 = {k1:g}, k2 = {k2:g}): normalised torques and velocities"
+        png = plot_ptp(result.trajectory, limits, robot.joint_names, output.with_suffix(".png"), title)
         console.out.print(f"plot: {png}")
     console.summary_table(f"plan-ptp → {output}", summary)
     return summary
+
+
+def _planning_model(
+    robot_dir: Path, calibration: Path | None, dynamics: Path | None
+) -> tuple[Robot, DynamicParameters | None, dict[str, Path]]:
+    """The robot (calibrated if given), the identified parameters (None: the prior) and the input files."""
+    robot = load_robot(robot_dir)
+    inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
+    if calibration is not None:
+        robot = load_calibrated_robot(robot, calibration)
+        inputs["calibration"] = Path(calibration)
+    params = None
+    if dynamics is not None:
+        params = load_dynamics(dynamics, robot)
+        inputs["dynamics"] = Path(dynamics)
+    return robot, params, inputs
 
 
 def _write_fallback(robot, dyn, q_start, q_goal, options, output, inputs, settings, error) -> None:
