@@ -19,4 +19,5 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.run_log:RunLog",
     "rxcomm.schemas.excitation:Excitation",
     "rxcomm.schemas.path:PathSpec",
+    "rxcomm.schemas.iso9283:Iso9283",
 ]
