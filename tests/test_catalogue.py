@@ -50,7 +50,9 @@ def test_catalogue_limits_hold_at_dense_poses(robot, catalogues):
     qdd = rng.choice([-1.0, 1.0], (n, robot.n)) * c.a_max
     tau = rd.inverse_dynamics(q, qd, qdd)
     ratio = np.abs(tau) / robot.tau_max
-    print(f"\n{robot.name}: k = {c.time_scale.min():.3f}, max |τ|/peak at 20000 fresh states {ratio.max():.3f}")
+    print(
+        f"\n{robot.name}: k = {c.time_scale.min():.3f}, max |τ|/peak at 20000 fresh states {ratio.max():.3f}"
+    )
     assert ratio.max() <= 1.0
     # and the bound itself, at 4000 fresh poses, exceeds the peak torque by at most 2 %
     q2 = rng.uniform(robot.q_min, robot.q_max, (4000, robot.n))
@@ -76,7 +78,9 @@ def test_catalogue_limits_are_tight(robot, catalogues):
         h = rd.inverse_dynamics(q, qd, np.zeros(robot.n))[j]
         qdd = np.sign(h) * np.sign(m_row) * c.a_max
         best = max(best, abs(rd.inverse_dynamics(q, qd, qdd)[j]))
-    print(f"\n{robot.name}: worst pose {np.round(q, 3)}, {c.bound_by[k]} reaches {best / robot.tau_max[j]:.3f}")
+    print(
+        f"\n{robot.name}: worst pose {np.round(q, 3)}, {c.bound_by[k]} reaches {best / robot.tau_max[j]:.3f}"
+    )
     assert 0.9 * robot.tau_max[j] <= best <= robot.tau_max[j] * (1 + 1e-9)
 
 

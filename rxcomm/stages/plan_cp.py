@@ -25,8 +25,10 @@ from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
+from rxcomm.model.catalogue import catalogue_limits
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
+from rxcomm.planning.catalogue_timing import plan_cp_catalogue
 from rxcomm.planning.cp import CpPlan, CpSettings, path_deviation_m, plan_cp
 from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
 from rxcomm.planning.paths import load_path
@@ -38,6 +40,11 @@ from rxcomm.schemas.trajectory import TrajectorySummary
 class Method(StrEnum):
     nlp = "nlp"
     toppra = "toppra"
+
+
+class Timing(StrEnum):
+    optimal = "optimal"
+    catalogue = "catalogue"
 
 
 # --- inputs -----------------------------------------------------------------------------------------
@@ -209,6 +216,14 @@ def command(
     iso_rpy_deg: Annotated[
         str, typer.Option(help="TCP orientation for --iso9283: URDF roll,pitch,yaw in degrees.")
     ] = "180,0,0",
+    timing: Annotated[
+        Timing,
+        typer.Option(
+            help="optimal: the planner under the model's torque limits; catalogue: a generic controller's "
+            "toppra timing from the catalogue joint speeds/accelerations of the prior model with the rated "
+            "payload (no torque limits; --method, --k2, --torque-rate do not apply)."
+        ),
+    ] = Timing.optimal,
 ) -> None:
     """Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`."""
     if iso9283 is not None:
@@ -228,6 +243,7 @@ def command(
         tcp_speed_max=tcp_speed_max,
         tcp_acceleration_max=tcp_acceleration_max,
         plot=plot,
+        timing=timing.value,
     )
 
 
@@ -253,6 +269,7 @@ def run(
     tcp_speed_max: float | None = None,
     tcp_acceleration_max: float | None = None,
     plot: bool = False,
+    timing: str = "optimal",
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written beside the MCAP."""
     t_all = time.perf_counter()
@@ -269,6 +286,9 @@ def run(
     )
     robot = load_robot(robot_dir)
     inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}
+    catalogue = catalogue_limits(robot) if timing == "catalogue" else None  # the maker's: prior, nominal
+    if catalogue is not None:
+        method, torque_rate, k2 = "toppra", False, 0.0
     if calibration is not None:
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
@@ -294,7 +314,11 @@ def run(
     with console.err.status(
         f"plan-cp: {spec.name or path.name} ({settings.method}, N = {intervals})"
     ) as status:
-        plan = plan_cp(robot, cpath, dyn, settings, progress=lambda m: status.update(f"plan-cp: {m}"))
+        say = lambda m: status.update(f"plan-cp: {m}")  # noqa: E731
+        if catalogue is None:
+            plan = plan_cp(robot, cpath, dyn, settings, progress=say)
+        else:
+            plan = plan_cp_catalogue(robot, cpath, catalogue, dyn, settings, progress=say)
     summary = summary_of(plan, robot)
     summary["seconds"] = time.perf_counter() - t_all
     run_settings = {
@@ -302,7 +326,10 @@ def run(
         "dynamics_model": "identified" if dynamics is not None else "prior",
         "calibrated": calibration is not None,
         "branch": plan.joint_path.labels,
+        "timing": timing,
     }
+    if catalogue is not None:
+        run_settings["catalogue"] = catalogue.as_dict()
     env = TrajectorySummary.envelope(inputs, run_settings, summary)
     output.parent.mkdir(parents=True, exist_ok=True)
     save_trajectory_mcap(output, trajectory_of(plan), env)

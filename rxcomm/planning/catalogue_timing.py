@@ -1,0 +1,129 @@
+"""The factory's timing: a generic controller that knows only the catalogue limits (issue 17).
+
+A robot as delivered knows no dynamics: its controller times a path or a point-to-point move from the
+kinematic limits its maker publishes (`rxcomm.model.catalogue`), the same for every pose and payload.
+
+- `plan_cp_catalogue`: IK along the path, then toppra's time-optimal σ̇(σ) under the catalogue joint
+  speeds and accelerations and the path's TCP limits only (no torque constraint), sampled at the drive
+  cycle. The torques τ of the result are the given model's, for the record: the factory streams none.
+- `plan_ptp_catalogue`: ruckig's time-optimal jerk-limited rest-to-rest profile under the catalogue
+  speeds and accelerations and a jerk reaching each acceleration in `JERK_RAMP_S` (50 ms).
+
+Both report every limit they honour on the drive-cycle samples; the torque against the drives' peak is
+left out of that check (it is what the catalogue's worst case guarantees, not what the timing knows).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from rxcomm.errors import InfeasibleError
+from rxcomm.io.trajectory import Trajectory
+from rxcomm.model.catalogue import CatalogueLimits
+from rxcomm.model.limits import AccelerationLimit, LimitReport, PositionLimit, VelocityLimit, check_limits
+from rxcomm.model.robot import Robot
+from rxcomm.planning.cp import CpPlan, CpSettings, TcpAccelerationLimit, TcpSpeedLimit, active_segments
+from rxcomm.planning.cp_grid import toppra_grid
+from rxcomm.planning.path_ik import solve_path_ik
+from rxcomm.planning.paths import CartesianPath
+from rxcomm.planning.ptp import sample_profile
+from rxcomm.planning.ptp_problem import PtpDynamics
+from rxcomm.planning.timing import PlanDynamics, limits_text
+from rxcomm.planning.topp import PlanLimits, time_optimal
+from rxcomm.planning.warm_start import ruckig_profile
+
+JERK_RAMP_S = 0.05  # the generic controller's jerk: each joint reaches its catalogue acceleration in 50 ms
+
+
+def _kinematic_checks(robot: Robot, catalogue: CatalogueLimits) -> list:
+    return [
+        PositionLimit(robot.q_min, robot.q_max),
+        VelocityLimit(catalogue.v_max),
+        AccelerationLimit(catalogue.a_max),
+    ]
+
+
+def plan_cp_catalogue(
+    robot: Robot,
+    path: CartesianPath,
+    catalogue: CatalogueLimits,
+    dynamics: PlanDynamics,
+    settings: CpSettings | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> CpPlan:
+    """Time `path` as a generic controller does (module docstring). `settings` give the grid
+    intervals and TCP limits; InfeasibleError from the IK or when toppra finds no profile."""
+    settings = settings or CpSettings(method="toppra", torque_rate=False)
+    say = progress or (lambda _m: None)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    spec = path.spec
+    branch = None if spec is None else spec.branch
+    q_near = None if spec is None or spec.q_start_rad is None else np.asarray(spec.q_start_rad, float)
+    say("inverse kinematics along the path")
+    jp = solve_path_ik(robot, path, branch, q_near, sigma_min_margin=settings.sigma_min_margin)
+    timings["ik_s"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    limits = PlanLimits(
+        v_max=catalogue.v_max,
+        a_max=catalogue.a_max,
+        tau_max=robot.tau_max,  # unused: no inverse dynamics is given to toppra
+        tcp_speed_max=settings.tcp_speed_max_m_s,
+        tcp_acc_max=settings.tcp_acceleration_max_m_s2,
+    )
+    grid = toppra_grid(jp, settings.intervals, catalogue.a_max)
+    curvature = np.linalg.norm(path.position(grid, 2), axis=1)
+    say("catalogue timing (toppra, kinematic limits only)")
+    topp = time_optimal(jp.spline, jp.length_m, grid, limits, None, curvature)
+    timings["toppra_s"] = time.perf_counter() - t1
+    if not topp.ok:
+        raise InfeasibleError(f"path {path.name!r}: {topp.message} under catalogue {limits_text(limits)}")
+    t, s, sd, sdd = topp.profile.sample(robot.drives.cycle_s)
+    q, qs, qss = jp(s), jp(s, 1), jp(s, 2)
+    qd = qs * sd[:, None]
+    qdd = qs * sdd[:, None] + qss * (sd**2)[:, None]
+    tau = dynamics.smooth(q, qd, qdd)
+    checks = _kinematic_checks(robot, catalogue)
+    if settings.tcp_speed_max_m_s is not None:
+        checks.append(TcpSpeedLimit(robot, settings.tcp_speed_max_m_s))
+    if settings.tcp_acceleration_max_m_s2 is not None:
+        checks.append(TcpAccelerationLimit(robot, settings.tcp_acceleration_max_m_s2))
+    report = check_limits(robot, t, q, qd, qdd, tau, limits=checks)
+    timings["total_s"] = time.perf_counter() - t0
+    return CpPlan(
+        joint_path=jp,
+        profile=topp.profile,
+        method="catalogue",
+        t=t,
+        sigma=s,
+        sigma_dot=sd,
+        sigma_ddot=sdd,
+        q=q,
+        qd=qd,
+        qdd=qdd,
+        tau=tau,
+        report=report,
+        limit_scale={},
+        toppra=topp,
+        nlp=None,
+        timings_s=timings,
+        refinements=0,
+        settings=settings,
+        active_segments=active_segments(t, s, report),
+    )
+
+
+def plan_ptp_catalogue(
+    robot: Robot, dynamics: PtpDynamics, q_start, q_goal, catalogue: CatalogueLimits
+) -> tuple[Trajectory, LimitReport]:
+    """The generic controller's rest-to-rest move (module docstring) at the drive cycle, its torques
+    from `dynamics` (for the record), and the check of the limits it honours."""
+    profile = ruckig_profile(q_start, q_goal, catalogue.v_max, catalogue.a_max, catalogue.a_max / JERK_RAMP_S)
+    traj = sample_profile(profile, dynamics, robot.drives.cycle_s)
+    report = check_limits(
+        robot, traj.t, traj.q, traj.qd, traj.qdd, traj.tau_ff, limits=_kinematic_checks(robot, catalogue)
+    )
+    return traj, report
