@@ -2,6 +2,7 @@
 
 import itertools
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -11,6 +12,8 @@ from rxcomm.errors import InfeasibleError
 from rxcomm.model.catalogue import catalogue_limits, payload_parameters, worst_case_terms
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters
 from rxcomm.schemas.drives import RatedPayload
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
@@ -107,3 +110,50 @@ def test_heavier_payload_slows_the_catalogue_and_too_heavy_is_refused(m900):
     )
     with pytest.raises(InfeasibleError, match="to hold the rated payload"):
         catalogue_limits(too_heavy, n_poses=300)
+
+
+# --- the factory's timing from the catalogue limits -----------------------------------------------
+
+
+def test_factory_cp_timing_honours_the_catalogue_and_is_slower_than_toppra(tmp_path, rx130l):
+    """plan-cp --timing catalogue on the singular line: within the catalogue speeds/accelerations on
+    the drive-cycle samples, some of them binding, torques never checked against the peak yet within it
+    (the catalogue's guarantee), and slower than toppra under the drives' own limits."""
+    from rxcomm.io.trajectory import load_trajectory_mcap
+    from rxcomm.model.limits import AccelerationLimit, VelocityLimit, check_limits
+    from rxcomm.stages import plan_cp as stage
+
+    path = ROOT / "samples/rx130l/paths/line-near-singularity.yaml"
+    out = tmp_path / "factory-cp.mcap"
+    s = stage.run(ROOT / "samples/rx130l", path, out, timing="catalogue")
+    fast = stage.run(ROOT / "samples/rx130l", path, tmp_path / "cp.mcap", method="toppra", torque_rate=False)
+    traj, env = load_trajectory_mcap(out)
+    cat = env["settings"]["catalogue"]
+    v = np.array([j["velocity_max_rad_s"] for j in cat["joints"]])
+    a = np.array([j["acceleration_max_rad_s2"] for j in cat["joints"]])
+    rep = check_limits(
+        rx130l, traj.t, traj.q, traj.qd, traj.qdd, traj.tau_ff, [VelocityLimit(v), AccelerationLimit(a)]
+    )
+    print(f"\nfactory CP {s['duration_s']:.3f} s vs toppra at the drive limits {fast['duration_s']:.3f} s")
+    assert rep.max_ratio <= 1.01 and rep.max_ratio >= 0.98
+    assert env["settings"]["timing"] == "catalogue" and s["method"] == "catalogue"
+    assert np.max(np.abs(traj.tau_ff) / rx130l.tau_max) <= 1.0
+    assert s["duration_s"] > 1.3 * fast["duration_s"]
+
+
+def test_factory_ptp_is_ruckig_under_the_catalogue(rx130l):
+    from rxcomm.planning.catalogue_timing import plan_ptp_catalogue
+    from rxcomm.planning.ptp_problem import PtpDynamics
+
+    cat = catalogue_limits(rx130l, n_poses=300)
+    q0 = np.array([-0.6, 0.5, 1.7, 1.0, 0.5, -1.5])
+    q1 = np.array([0.6, 0.5, 1.7, -1.0, 0.5, 1.5])
+    traj, rep = plan_ptp_catalogue(rx130l, PtpDynamics.from_parameters(rx130l, None), q0, q1, cat)
+    np.testing.assert_allclose(traj.q[[0, -1]], [q0, q1], atol=1e-9)
+    np.testing.assert_allclose(traj.qd[[0, -1]], 0.0, atol=1e-9)
+    assert 0.98 <= rep.max_ratio <= 1.0 + 1e-6
+    assert set(rep.ratios) == {"position", "velocity", "acceleration"}
+    # J1 moves farthest relative to its limits: the move takes at least its rest-to-rest bound
+    d = abs(q1[0] - q0[0])
+    t_min = max(2 * np.sqrt(d / cat.a_max[0]), d / cat.v_max[0])
+    assert traj.duration_s >= t_min
