@@ -12,6 +12,7 @@ import typer
 
 from rxcomm import __version__
 from rxcomm.stages import (
+    accept,
     calibrate,
     cell_sim,
     excite,
@@ -62,6 +63,7 @@ app.command("plan-cp")(plan_cp.command)
 app.command("plan-ptp")(plan_ptp.command)
 app.command("report")(report.command)
 app.command("recover-log")(recover_log.command)
+app.command("accept")(accept.command)
 
 
 def main() -> None:

@@ -20,4 +20,6 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.excitation:Excitation",
     "rxcomm.schemas.path:PathSpec",
     "rxcomm.schemas.iso9283:Iso9283",
+    "rxcomm.schemas.acceptance:AcceptanceThresholds",
+    "rxcomm.schemas.acceptance:Acceptance",
 ]
