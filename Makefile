@@ -154,9 +154,38 @@ PTPRUN_ARGS = $(RUN_SIM) --dynamics $(B)/dynamics.yaml
 $(B)/run-ptp.mcap: $(B)/ptp.mcap $(B)/dynamics.yaml $(SIM_FILES) $(call params,run-ptp,$(PTPRUN_ARGS))
 	$(RX) run $< $(PTPRUN_ARGS) -o $@
 
+# ---- the factory state (issue 17): the same robot as delivered, measured the same way -------------------------------
+# Nominal kinematics (no calibration), no feed-forward, a generic controller's timing from the catalogue
+# limits (rxcomm.model.catalogue: prior model + drives.yaml's rated payload, worst case over poses).
+FACTORY_CP_ARGS = --robot $(ROBOT) --path $(CP_PATH) --timing catalogue
+$(B)/factory-cp.mcap: $(STAMP) $(CP_PATH) $(ROBOT_FILES) $(call params,factory-cp,$(FACTORY_CP_ARGS)) | $(B)
+	$(RX) plan-cp $(FACTORY_CP_ARGS) -o $@
+
+FACTORY_PTP_ARGS = --robot $(ROBOT) --timing catalogue
+$(B)/factory-ptp.mcap: $(B)/factory-cp.mcap $(ROBOT_FILES) $(call params,factory-ptp,$(FACTORY_PTP_ARGS))
+	$(RX) plan-ptp --start=$(call QOF,$(B)/factory-cp.yaml,q_start) \
+		--goal=$(call QOF,$(B)/factory-cp.yaml,q_goal) $(FACTORY_PTP_ARGS) -o $@
+
+FACTORY_RUN_ARGS = $(RUN_SIM) --no-feedforward
+$(B)/run-factory-cp.mcap: $(B)/factory-cp.mcap $(SIM_FILES) $(call params,run-factory-cp,$(FACTORY_RUN_ARGS))
+	$(RX) run $< $(FACTORY_RUN_ARGS) -o $@
+
+$(B)/run-factory-ptp.mcap: $(B)/factory-ptp.mcap $(SIM_FILES) $(call params,run-factory-ptp,$(FACTORY_RUN_ARGS))
+	$(RX) run $< $(FACTORY_RUN_ARGS) -o $@
+
+# The verdict: the reference task (the CP path, then the PtP move between its end states) in both
+# states against the thresholds beside the cell. Reads the runs' NAME.yaml summaries.
+ACCEPTANCE ?= $(ROBOT)/acceptance.yaml
+TASK_LOGS  := --factory-log $(B)/run-factory-cp.mcap --factory-log $(B)/run-factory-ptp.mcap \
+	--commissioned-log $(B)/run-ff.mcap --commissioned-log $(B)/run-ptp.mcap
+ACCEPT_ARGS = --thresholds $(ACCEPTANCE) $(TASK_LOGS)
+$(B)/verdict.yaml: $(ACCEPTANCE) $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.mcap $(B)/run-ff.mcap \
+		$(B)/run-ptp.mcap $(call params,accept,$(ACCEPT_ARGS))
+	$(RX) accept $(ACCEPT_ARGS) -o $@
+
 # The artefacts `report` reads (rxcomm/stages/report.py); it reads no robot file and has no options.
 $(B)/report.md: $(B)/configs.yaml $(B)/calibration.yaml $(B)/excitation.yaml $(B)/dynamics.yaml \
-		$(B)/cp.mcap $(B)/ptp.mcap $(B)/run-noff.mcap $(B)/run-ff.mcap
+		$(B)/cp.mcap $(B)/ptp.mcap $(B)/run-noff.mcap $(B)/run-ff.mcap $(B)/verdict.yaml
 	$(RX) report $(B) -o $@
 
 # The main job: the report plus the chain's products it does not read.

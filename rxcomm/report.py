@@ -315,8 +315,44 @@ def execution_section(ff: Mapping, noff: Mapping | None, image: str | None) -> S
     return Section("Execution with model-based feed-forward (paper §2.3, Fig. 2)", figs, image)
 
 
-def render(title: str, preamble: str, sections: Sequence[Section]) -> str:
-    out = [f"# {title}", "", preamble, ""]
+UNIT_TEXT = {"1": "", "N2m2s": " N²·m²·s"}
+
+
+def _value(x: float | None, unit: str) -> str:
+    """A verdict-table value: in mm for lengths (the ISO 9283 criteria), "not measured" for None."""
+    if x is None:
+        return "not measured"
+    if unit == "m":
+        return f"{x * 1e3:.3g} mm"
+    return f"{x:.4g}" + UNIT_TEXT.get(unit, f" {unit}")
+
+
+def verdict_table(acceptance: Mapping) -> str:
+    """The report's opening table (an `rxcomm/Acceptance` artefact as plain data): criterion, factory,
+    commissioned, ratio, threshold, verdict; the overall verdict under it."""
+    lines = [
+        "| criterion | factory | commissioned | ratio | threshold | verdict |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in acceptance["rows"]:
+        ratio = "—" if r["ratio"] is None else f"{r['ratio']:.3g}"
+        threshold = r["threshold"].replace("N2m2s", "N²·m²·s")
+        f, c = _value(r["factory"], r["unit"]), _value(r["commissioned"], r["unit"])
+        lines.append(f"| {r['criterion']} | {f} | {c} | {ratio} | {threshold} | **{r['verdict']}** |")
+    s = acceptance["summary"]
+    lines += [
+        "",
+        f"Verdict: **{s['verdict']}** ({s['n_pass']} pass, {s['n_fail']} fail, {s['n_not_measured']} not "
+        "measured). Factory: nominal kinematics, no feed-forward, a generic controller's timing from the "
+        "catalogue limits; commissioned: calibrated kinematics, identified feed-forward, the optimal "
+        "planners. The reference task is the CP path and the PtP move between its end states.",
+    ]
+    return "\n".join(lines)
+
+
+def render(title: str, preamble: str, sections: Sequence[Section], lead: str = "") -> str:
+    """Markdown: the title, `lead` (the acceptance verdict table) first, then the preamble and sections."""
+    out = [f"# {title}", ""] + ([lead, ""] if lead else []) + [preamble, ""]
     for sec in sections:
         out += [f"## {sec.title}", "", "| figure | rxcomm | paper |", "|---|---|---|"]
         out += [f"| {f.what} | {f.ours} | {f.paper} |" for f in sec.figures]

@@ -36,8 +36,16 @@ ALL = {
     "run-noff.mcap",
     "run-ff.mcap",
     "run-ptp.mcap",
+    "factory-cp.mcap",
+    "factory-ptp.mcap",
+    "run-factory-cp.mcap",
+    "run-factory-ptp.mcap",
+    "verdict.yaml",
     "report.md",
 }
+# The factory state (issue 17): catalogue timing of the CP path and the PtP move, run without feed-forward.
+FACTORY_PLANS = {"factory-cp.mcap", "factory-ptp.mcap"}
+FACTORY_RUNS = {"run-factory-cp.mcap", "run-factory-ptp.mcap"}
 # The rules whose command talks to the simulated cell (`run`: it reads truth.yaml) ...
 ON_CELL = {
     "calib-meas.yaml",
@@ -46,10 +54,11 @@ ON_CELL = {
     "run-noff.mcap",
     "run-ff.mcap",
     "run-ptp.mcap",
+    *FACTORY_RUNS,
 }
 # ... and those downstream of their outputs. select-configs, excite, the validation plan and robot-info
 # never see the cell.
-AFTER_CELL = {"calibration.yaml", "dynamics.yaml", "cp.mcap", "ptp.mcap", "report.md"}
+AFTER_CELL = {"calibration.yaml", "dynamics.yaml", "cp.mcap", "ptp.mcap", "verdict.yaml", "report.md"}
 # select-configs and what follows the pose set: measurement, calibration, the planners on the
 # calibrated robot, their runs, the report. Excitation, identification's logs and robot-info do not.
 AFTER_POSES = {
@@ -61,10 +70,21 @@ AFTER_POSES = {
     "run-noff.mcap",
     "run-ff.mcap",
     "run-ptp.mcap",
+    "verdict.yaml",
     "report.md",
 }
-# The CP path feeds plan-cp; plan-ptp starts from its end states.
-AFTER_CP_PATH = {"cp.mcap", "ptp.mcap", "run-noff.mcap", "run-ff.mcap", "run-ptp.mcap", "report.md"}
+# The commissioned plans on the identified, calibrated model and their runs, the verdict, the report.
+AFTER_MODEL = {
+    "cp.mcap",
+    "ptp.mcap",
+    "run-noff.mcap",
+    "run-ff.mcap",
+    "run-ptp.mcap",
+    "verdict.yaml",
+    "report.md",
+}
+# The CP path feeds plan-cp (both states); plan-ptp starts from its end states.
+AFTER_CP_PATH = AFTER_MODEL | FACTORY_PLANS | FACTORY_RUNS
 # What `make commission` builds, the files `make -q` can vouch for (phony targets are never "up to date").
 PRODUCTS = ["robot-info.txt", "report.md", "run-ptp.mcap"]
 
@@ -148,10 +168,12 @@ def test_n_poses_on_the_command_line_rebuilds_select_configs_and_what_follows(bu
 def test_other_inputs_rebuild_what_reads_them(built):
     assert _remade(built, "-W", str(ROBOT / "paths/line-near-singularity.yaml"))[0] == AFTER_CP_PATH
     # cell.yaml: select-configs, calibrate, excite and the simulated cell (its tracker's field of view).
-    not_cell = {"robot-info.txt", "validation-plan.mcap"}
+    not_cell = {"robot-info.txt", "validation-plan.mcap", *FACTORY_PLANS}
     assert _remade(built, "-W", str(ROBOT / "cell.yaml"))[0] == ALL - not_cell
-    excite = {"excitation.yaml", "excite-log.mcap", "dynamics.yaml"} | AFTER_CP_PATH
+    excite = {"excitation.yaml", "excite-log.mcap", "dynamics.yaml"} | AFTER_MODEL
     assert _remade(built, "EXCITE_OPTS=--starts 3") == (excite, {"excite"})
+    # the acceptance thresholds: the verdict and the report only
+    assert _remade(built, "-W", str(ROBOT / "acceptance.yaml"))[0] == {"verdict.yaml", "report.md"}
 
 
 def test_a_stamp_is_rewritten_only_when_its_text_changes(built):

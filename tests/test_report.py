@@ -80,3 +80,40 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
     assert "[0.2, 0.1, 0.1, not scored, 0.4, 1.2] %" in text
     assert "0.9999, 0.9989]" in text and "no standstill" in text and "10 Hz; 12.4" in text
     assert "0 %" not in text and "0.00 %" not in text
+
+
+def test_the_report_opens_with_the_verdict_table():
+    acceptance = {
+        "rows": [
+            {
+                "criterion": "AP_p",
+                "unit": "m",
+                "factory": 0.0042,
+                "commissioned": 0.00021,
+                "ratio": 0.05,
+                "threshold": "≤ 0.0003 m",
+                "verdict": "PASS",
+                "note": "",
+            },
+            {
+                "criterion": "cycle_time",
+                "unit": "s",
+                "factory": 7.83,
+                "commissioned": None,
+                "ratio": None,
+                "threshold": "ratio ≤ 0.7",
+                "verdict": "not measured",
+                "note": "no run log",
+            },
+        ],  # fmt: skip
+        "summary": {"verdict": "incomplete", "n_pass": 1, "n_fail": 0, "n_not_measured": 1},
+    }
+    ff = {"max_lag_rad": [1e-4] * 6, "max_tcp_error_m": 1e-4, "underruns": 0}
+    text = rep.render("t", "preamble", [rep.execution_section(ff, None, None)], rep.verdict_table(acceptance))
+    lines = text.splitlines()
+    assert lines[2] == "| criterion | factory | commissioned | ratio | threshold | verdict |"
+    assert "| AP_p | 4.2 mm | 0.21 mm | 0.05 | ≤ 0.0003 m | **PASS** |" in lines
+    assert "| cycle_time | 7.83 s | not measured | — | ratio ≤ 0.7 | **not measured** |" in lines
+    # the table comes before the preamble and every section
+    assert text.index("| criterion |") < text.index("preamble") < text.index("## ")
+    assert "Verdict: **incomplete** (1 pass, 0 fail, 1 not measured)" in text

@@ -17,6 +17,7 @@ from rxcomm import report as rep
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_outputs
 from rxcomm.io.yaml_io import read_yaml_artefact
+from rxcomm.schemas.acceptance import Acceptance
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.dynamics import Dynamics
@@ -48,6 +49,7 @@ def build_report(build: Path) -> tuple[str, list[str]]:
         return d
 
     sections: list[rep.Section] = []
+    verdict = need("verdict.yaml", Acceptance)
     configs = need("configs.yaml", Configs)
     if configs:
         sections.append(
@@ -99,7 +101,8 @@ def build_report(build: Path) -> tuple[str, list[str]]:
     )
     if missing:
         preamble += f"\n\nNot produced in this build: {', '.join(missing)}."
-    return rep.render("rxcomm commissioning report", preamble, sections), missing
+    lead = rep.verdict_table(verdict) if verdict else ""
+    return rep.render("rxcomm commissioning report", preamble, sections, lead), missing
 
 
 def command(
