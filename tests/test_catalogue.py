@@ -157,3 +157,21 @@ def test_factory_ptp_is_ruckig_under_the_catalogue(rx130l):
     d = abs(q1[0] - q0[0])
     t_min = max(2 * np.sqrt(d / cat.a_max[0]), d / cat.v_max[0])
     assert traj.duration_s >= t_min
+
+
+def test_setpoint_filter_keeps_bounds_and_rest_and_limits_jerk():
+    from rxcomm.planning.catalogue_timing import moving_average
+
+    dt, n = 0.001, 50
+    t = np.arange(0, 1.0, dt)
+    qdd = np.where(t < 0.5, 2.0, -2.0)[:, None]  # bang-bang: 1 rad/s peak, rest to rest
+    qd = np.cumsum(qdd, axis=0) * dt
+    q = np.cumsum(qd, axis=0) * dt
+    qf, qdf, qddf = moving_average(q, n, False), moving_average(qd, n, True), moving_average(qdd, n, True)
+    assert len(qf) == len(q) + n - 1
+    assert np.abs(qddf).max() <= 2.0 + 1e-12 and np.abs(qdf).max() <= np.abs(qd).max() + 1e-12
+    jerk = np.abs(np.diff(qddf[:, 0])) / dt
+    assert jerk.max() <= 2 * 2.0 / (n * dt) + 1e-9  # the step of 4 rad/s² spread over n samples
+    assert qf[0, 0] == pytest.approx(q[0, 0]) and qf[-1, 0] == pytest.approx(q[-1, 0])
+    # consistent: the filtered speed is the derivative of the filtered position
+    np.testing.assert_allclose(np.diff(qf[:, 0]) / dt, qdf[1:, 0], atol=3e-3)

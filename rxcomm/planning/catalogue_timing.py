@@ -5,7 +5,11 @@ kinematic limits its maker publishes (`rxcomm.model.catalogue`), the same for ev
 
 - `plan_cp_catalogue`: IK along the path, then toppra's time-optimal σ̇(σ) under the catalogue joint
   speeds and accelerations and the path's TCP limits only (no torque constraint), sampled at the drive
-  cycle. The torques τ of the result are the given model's, for the record: the factory streams none.
+  cycle and passed through the setpoint filter generic controllers use to limit jerk: a moving
+  average over `JERK_RAMP_S` (it keeps every speed and acceleration within its bound, bounds the
+  jerk by 2·a/T, makes the move T longer and rounds the joint path a little: part of the factory's
+  path error). The torques τ of the result are the given model's, for the record: the factory
+  streams none.
 - `plan_ptp_catalogue`: ruckig's time-optimal jerk-limited rest-to-rest profile under the catalogue
   speeds and accelerations and a jerk reaching each acceleration in `JERK_RAMP_S` (50 ms).
 
@@ -36,6 +40,19 @@ from rxcomm.planning.topp import PlanLimits, time_optimal
 from rxcomm.planning.warm_start import ruckig_profile
 
 JERK_RAMP_S = 0.05  # the generic controller's jerk: each joint reaches its catalogue acceleration in 50 ms
+# (PtP: ruckig's jerk limit a/T; CP: a moving-average setpoint filter of length T)
+
+
+def moving_average(x: np.ndarray, n: int, rest_ends: bool) -> np.ndarray:
+    """x [N, dof] filtered by a length-n moving average, N + n − 1 samples: padded with the end values
+    (positions, `rest_ends` False) or zeros (speeds and accelerations of a rest-to-rest move)."""
+    if n <= 1:
+        return np.array(x, float)
+    x = np.asarray(x, float)
+    pad_lo = np.zeros((n - 1, x.shape[1])) if rest_ends else np.repeat(x[:1], n - 1, axis=0)
+    pad_hi = np.zeros((n - 1, x.shape[1])) if rest_ends else np.repeat(x[-1:], n - 1, axis=0)
+    c = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), pad_lo, x, pad_hi]), axis=0)
+    return (c[n:] - c[:-n]) / n
 
 
 def _kinematic_checks(robot: Robot, catalogue: CatalogueLimits) -> list:
@@ -81,10 +98,16 @@ def plan_cp_catalogue(
     timings["toppra_s"] = time.perf_counter() - t1
     if not topp.ok:
         raise InfeasibleError(f"path {path.name!r}: {topp.message} under catalogue {limits_text(limits)}")
-    t, s, sd, sdd = topp.profile.sample(robot.drives.cycle_s)
+    cycle = robot.drives.cycle_s
+    _, s, sd, sdd = topp.profile.sample(cycle)
     q, qs, qss = jp(s), jp(s, 1), jp(s, 2)
     qd = qs * sd[:, None]
     qdd = qs * sdd[:, None] + qss * (sd**2)[:, None]
+    n_filter = max(int(round(JERK_RAMP_S / cycle)), 1)
+    q, qd, qdd = (moving_average(x, n_filter, rest) for x, rest in ((q, False), (qd, True), (qdd, True)))
+    s = moving_average(s[:, None], n_filter, False)[:, 0]
+    sd, sdd = (moving_average(x[:, None], n_filter, True)[:, 0] for x in (sd, sdd))
+    t = np.arange(len(q)) * cycle
     tau = dynamics.smooth(q, qd, qdd)
     checks = _kinematic_checks(robot, catalogue)
     if settings.tcp_speed_max_m_s is not None:
