@@ -336,12 +336,15 @@ def verdict_table(acceptance: Mapping) -> str:
     ]
     for r in acceptance["rows"]:
         ratio = "—" if r["ratio"] is None else f"{r['ratio']:.3g}"
-        threshold = r["threshold"].replace("N2m2s", "N²·m²·s")
+        bounds = [] if r["max_commissioned"] is None else [f"≤ {_value(r['max_commissioned'], r['unit'])}"]
+        bounds += [] if r["max_ratio"] is None else [f"ratio ≤ {r['max_ratio']:g}"]
         f, c = _value(r["factory"], r["unit"]), _value(r["commissioned"], r["unit"])
-        lines.append(f"| {r['criterion']} | {f} | {c} | {ratio} | {threshold} | **{r['verdict']}** |")
+        lines.append(f"| {r['criterion']} | {f} | {c} | {ratio} | {', '.join(bounds)} | **{r['verdict']}** |")
     s = acceptance["summary"]
+    notes = [f"{r['criterion']}: {r['note']}" for r in acceptance["rows"] if r["verdict"] == "not measured"]
     lines += [
         "",
+        *([f"Not measured: {'; '.join(notes)}.", ""] if notes else []),
         f"Verdict: **{s['verdict']}** ({s['n_pass']} pass, {s['n_fail']} fail, {s['n_not_measured']} not "
         "measured). Factory: nominal kinematics, no feed-forward, a generic controller's timing from the "
         "catalogue limits; commissioned: calibrated kinematics, identified feed-forward, the optimal "

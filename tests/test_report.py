@@ -92,6 +92,8 @@ def test_the_report_opens_with_the_verdict_table():
                 "commissioned": 0.00021,
                 "ratio": 0.05,
                 "threshold": "≤ 0.0003 m",
+                "max_commissioned": 0.0003,
+                "max_ratio": None,
                 "verdict": "PASS",
                 "note": "",
             },
@@ -102,6 +104,8 @@ def test_the_report_opens_with_the_verdict_table():
                 "commissioned": None,
                 "ratio": None,
                 "threshold": "ratio ≤ 0.7",
+                "max_commissioned": None,
+                "max_ratio": 0.7,
                 "verdict": "not measured",
                 "note": "no run log",
             },
@@ -112,8 +116,9 @@ def test_the_report_opens_with_the_verdict_table():
     text = rep.render("t", "preamble", [rep.execution_section(ff, None, None)], rep.verdict_table(acceptance))
     lines = text.splitlines()
     assert lines[2] == "| criterion | factory | commissioned | ratio | threshold | verdict |"
-    assert "| AP_p | 4.2 mm | 0.21 mm | 0.05 | ≤ 0.0003 m | **PASS** |" in lines
+    assert "| AP_p | 4.2 mm | 0.21 mm | 0.05 | ≤ 0.3 mm | **PASS** |" in lines
     assert "| cycle_time | 7.83 s | not measured | — | ratio ≤ 0.7 | **not measured** |" in lines
     # the table comes before the preamble and every section
     assert text.index("| criterion |") < text.index("preamble") < text.index("## ")
     assert "Verdict: **incomplete** (1 pass, 0 fail, 1 not measured)" in text
+    assert "Not measured: cycle_time: no run log." in text

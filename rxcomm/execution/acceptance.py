@@ -114,6 +114,8 @@ def verdict_row(t: Threshold, factory: Measured, commissioned: Measured) -> Verd
         commissioned=c,
         ratio=ratio,
         threshold=threshold_text(t),
+        max_commissioned=t.max_commissioned,
+        max_ratio=t.max_ratio,
         verdict=verdict,
         note=note,
     )

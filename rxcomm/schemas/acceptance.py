@@ -89,6 +89,8 @@ class VerdictRow(Strict):
     commissioned: float | None = Field(description="the commissioned state's value; null: not measured")
     ratio: float | None = Field(description="|commissioned| / |factory|; null when either is missing")
     threshold: str = Field(description="the bound(s) as text, e.g. '≤ 0.0003 m', 'ratio ≤ 0.7'")
+    max_commissioned: float | None = Field(description="the bound on |commissioned|, in `unit`")
+    max_ratio: float | None = Field(description="the bound on the ratio")
     verdict: Verdict
     note: str = Field("", description="why not measured, or what the value rests on")
 
