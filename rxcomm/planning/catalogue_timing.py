@@ -139,6 +139,24 @@ def plan_cp_catalogue(
     )
 
 
+def filtered_path_deviation_m(robot: Robot, plan: CpPlan, path: CartesianPath, n: int = 600) -> float:
+    """Largest distance of the TCP of the filtered setpoints (at `n` instants) from the Cartesian
+    path (a polyline through it every 0.5 mm, distances to its segments): what the setpoint filter
+    rounds off, nominal kinematics."""
+    from rxcomm.model.kinematics import frame_placement
+
+    pts = path.position(np.linspace(0.0, path.length_m, max(int(path.length_m / 5e-4), 2) + 1))
+    a, ab = pts[:-1], np.diff(pts, axis=0)
+    ab2 = np.maximum(np.sum(ab**2, axis=1), 1e-30)
+    data = robot.create_data()
+    worst = 0.0
+    for i in np.unique(np.linspace(0, len(plan.q) - 1, n).astype(int)):
+        p = frame_placement(robot, data, plan.q[i], robot.tcp_frame_id).translation
+        u = np.clip(np.sum((p - a) * ab, axis=1) / ab2, 0.0, 1.0)
+        worst = max(worst, float(np.min(np.linalg.norm(a + u[:, None] * ab - p, axis=1))))
+    return worst
+
+
 def plan_ptp_catalogue(
     robot: Robot, dynamics: PtpDynamics, q_start, q_goal, catalogue: CatalogueLimits
 ) -> tuple[Trajectory, LimitReport]:

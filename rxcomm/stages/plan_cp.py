@@ -28,7 +28,7 @@ from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
 from rxcomm.model.catalogue import catalogue_limits
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
-from rxcomm.planning.catalogue_timing import plan_cp_catalogue
+from rxcomm.planning.catalogue_timing import filtered_path_deviation_m, plan_cp_catalogue
 from rxcomm.planning.cp import CpPlan, CpSettings, path_deviation_m, plan_cp
 from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
 from rxcomm.planning.paths import load_path
@@ -320,6 +320,8 @@ def run(
         else:
             plan = plan_cp_catalogue(robot, cpath, catalogue, dyn, settings, progress=say)
     summary = summary_of(plan, robot)
+    if catalogue is not None:  # the generic controller's setpoint filter rounds the path a little
+        summary["max_filter_deviation_m"] = filtered_path_deviation_m(robot, plan, cpath)
     summary["seconds"] = time.perf_counter() - t_all
     run_settings = {
         **settings.model_dump(mode="json"),
