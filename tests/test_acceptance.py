@@ -185,3 +185,46 @@ def test_cli_writes_the_verdict(tmp_path):
     # unequal task lists are bad input (exit 2) naming the option
     res = runner.invoke(app, args[:-2])
     assert res.exit_code == 2 and "commissioned-log" in res.output
+
+
+@pytest.mark.slow
+def test_factory_and_optimal_runs_on_the_cell_give_a_cycle_time_verdict(tmp_path):
+    """The ISO line planned by the generic controller (catalogue, no feed-forward) and by the optimal
+    planner on the prior model (prior feed-forward), both run on the simulated cell: cycle time and
+    energy from the measured torques, the verdict on the cycle-time ratio."""
+    import numpy as np
+
+    from rxcomm.io.run_log import read_run_log
+    from rxcomm.model.energy import motion_energy
+    from rxcomm.model.robot import load_robot
+    from rxcomm.stages import accept
+    from rxcomm.stages import plan_cp as plan_stage
+    from rxcomm.stages import run as run_stage
+
+    robot_dir = ROOT / "samples/rx130l"
+    path = robot_dir / "paths/iso9283-line.yaml"
+    plan_stage.run(robot_dir, path, tmp_path / "f.mcap", timing="catalogue")
+    plan_stage.run(robot_dir, path, tmp_path / "c.mcap")
+    kw = dict(interpolation_ratio=1, approach=True, show_progress=False)
+    f = run_stage.execute(tmp_path / "f.mcap", robot_dir, tmp_path / "run-f.mcap", feedforward=False, **kw)
+    c = run_stage.execute(tmp_path / "c.mcap", robot_dir, tmp_path / "run-c.mcap", **kw)
+    for s, log in ((f, "run-f.mcap"), (c, "run-c.mcap")):
+        assert s["electrical_energy_j"] > 0 and s["tau_squared_integral_nm2_s"] > 0
+        j = read_run_log(tmp_path / log).joints
+        t = np.arange(len(j)) * s["sample_s"]
+        again = motion_energy(load_robot(robot_dir), t, j.q_actual, j.tau_actual)
+        assert again["electrical_energy_j"] == pytest.approx(s["electrical_energy_j"], rel=1e-9)
+    th = tmp_path / "acceptance.yaml"
+    th.write_text(
+        "kind: rxcomm/AcceptanceThresholds\nschema_version: 1\ncriteria:\n"
+        "  - {criterion: cycle_time, unit: s, max_ratio: 0.7}\n"
+        "  - {criterion: AT_p, unit: m, target: iso9283-line, max_commissioned: 0.0005}\n"
+    )
+    summary = accept.run(th, tmp_path / "verdict.yaml", [tmp_path / "run-f.mcap"], [tmp_path / "run-c.mcap"])
+    rows = {r["criterion"]: r for r in load_yaml(tmp_path / "verdict.yaml")["rows"]}
+    ratio = c["duration_s"] / f["duration_s"]
+    print(f"\nISO line: factory {f['duration_s']:.3f} s, optimal {c['duration_s']:.3f} s, ratio {ratio:.3f}")
+    assert rows["cycle_time"]["ratio"] == pytest.approx(ratio) and ratio < 0.7
+    assert rows["cycle_time"]["verdict"] == "PASS"
+    assert rows["AT_p iso9283-line"]["verdict"] == "not measured"  # no ISO 9283 artefact given
+    assert summary["verdict"] == "incomplete"
