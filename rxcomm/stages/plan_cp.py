@@ -301,28 +301,17 @@ def run(
             torque_rate=torque_rate,
             method=method,
             intervals=intervals,
-            tcp_speed_max_m_s=tcp_speed_max if tcp_speed_max is not None else spec.limits.tcp_speed_max_m_s,
-            tcp_acceleration_max_m_s2=tcp_acceleration_max
-            if tcp_acceleration_max is not None
-            else spec.limits.tcp_acceleration_max_m_s2,
+            tcp_speed_max_m_s=_given_or(tcp_speed_max, spec.limits.tcp_speed_max_m_s),
+            tcp_acceleration_max_m_s2=_given_or(tcp_acceleration_max, spec.limits.tcp_acceleration_max_m_s2),
         ),
         {name: name.replace("_", "-") for name in CpSettings.model_fields},
     )
     if dynamics is not None:
         inputs["dynamics"] = Path(dynamics)
     dyn = PlanDynamics.load(robot, dynamics, settings.coulomb_eps_rad_s)
-    with console.err.status(
-        f"plan-cp: {spec.name or path.name} ({settings.method}, N = {intervals})"
-    ) as status:
-        say = lambda m: status.update(f"plan-cp: {m}")  # noqa: E731
-        if catalogue is None:
-            plan = plan_cp(robot, cpath, dyn, settings, progress=say)
-        else:
-            plan = plan_cp_catalogue(robot, cpath, catalogue, dyn, settings, progress=say)
+    label = f"plan-cp: {spec.name or path.name} ({timing if catalogue else settings.method}, N = {intervals})"
+    plan = _timed_plan(robot, cpath, dyn, settings, catalogue, label)
     summary = summary_of(plan, robot)
-    if catalogue is not None:  # the generic controller's setpoint filter rounds the path a little
-        summary["max_filter_deviation_m"] = filtered_path_deviation_m(robot, plan, cpath)
-    summary["seconds"] = time.perf_counter() - t_all
     run_settings = {
         **settings.model_dump(mode="json"),
         "dynamics_model": "identified" if dynamics is not None else "prior",
@@ -330,20 +319,33 @@ def run(
         "branch": plan.joint_path.labels,
         "timing": timing,
     }
-    if catalogue is not None:
+    if catalogue is not None:  # how the limits were found; what the setpoint filter rounds off
         run_settings["catalogue"] = catalogue.as_dict()
+        summary["max_filter_deviation_m"] = filtered_path_deviation_m(robot, plan, cpath)
+    summary["seconds"] = time.perf_counter() - t_all
     env = TrajectorySummary.envelope(inputs, run_settings, summary)
     output.parent.mkdir(parents=True, exist_ok=True)
     save_trajectory_mcap(output, trajectory_of(plan), env)
     console.summary_table(f"plan-cp → {output}", summary)
     _print_active(plan)
     if plot:
-        png = plot_cp(
-            plan,
-            robot,
-            output.with_suffix(".png"),
-            f"{spec.name or path.stem}: {plan.duration_s:.3f} s ({plan.method}, k2 = {k2:g}), "
-            f"{plan.active_fraction:.1%} with a limit active",
-        )
-        console.out.print(f"plot: {png}")
+        title = f"{spec.name or path.stem}: {plan.duration_s:.3f} s ({plan.method}, k2 = {k2:g}), "
+        title += f"{plan.active_fraction:.1%} with a limit active"
+        console.out.print(f"plot: {plot_cp(plan, robot, output.with_suffix('.png'), title)}")
     return summary
+
+
+def _given_or(option: float | None, default: float | None) -> float | None:
+    return option if option is not None else default
+
+
+def _timed_plan(robot, cpath, dyn, settings, catalogue, label: str) -> CpPlan:
+    """The optimal plan, or with catalogue limits the generic controller's (`--timing catalogue`)."""
+    with console.err.status(label) as status:
+
+        def say(m: str) -> None:
+            status.update(f"plan-cp: {m}")
+
+        if catalogue is None:
+            return plan_cp(robot, cpath, dyn, settings, progress=say)
+        return plan_cp_catalogue(robot, cpath, catalogue, dyn, settings, progress=say)

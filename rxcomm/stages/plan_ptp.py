@@ -185,11 +185,7 @@ def command(
     plot: Annotated[bool, typer.Option(help="Write NAME.png: normalised torques and velocities.")] = False,
     timing: Annotated[
         Timing,
-        typer.Option(
-            help="optimal: the OCP under the model's torque limits; catalogue: a generic controller's "
-            "jerk-limited (ruckig) profile from the catalogue joint speeds/accelerations of the prior "
-            "model with the rated payload (the OCP's options do not apply)."
-        ),
+        typer.Option(help="optimal: the OCP; catalogue: the factory's ruckig profile (model.catalogue)."),
     ] = Timing.optimal,
 ) -> None:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
@@ -238,8 +234,7 @@ def run(
     timing: str = "optimal",
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written beside the MCAP."""
-    t_all = time.perf_counter()
-    output = Path(output)
+    t_all, output = time.perf_counter(), Path(output)
     if output.suffix != ".mcap":
         raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
     check_outputs(
