@@ -177,3 +177,26 @@ def test_setpoint_filter_keeps_bounds_and_rest_and_limits_jerk():
     assert qf[0, 0] == pytest.approx(q[0, 0]) and qf[-1, 0] == pytest.approx(q[-1, 0])
     # consistent: the filtered speed is the derivative of the filtered position
     np.testing.assert_allclose(np.diff(qf[:, 0]) / dt, qdf[1:, 0], atol=3e-3)
+
+
+def test_cli_plan_ptp_timing_catalogue(tmp_path):
+    from typer.testing import CliRunner
+
+    from rxcomm.cli import app
+    from rxcomm.io.trajectory import load_trajectory_mcap
+
+    out = tmp_path / "factory-ptp.mcap"
+    res = CliRunner().invoke(
+        app,
+        ["plan-ptp", "--robot", str(ROOT / "samples/rx130l"), "--start=-0.6,0.5,1.7,1.0,0.5,-1.5",
+         "--goal=0.6,0.5,1.7,-1.0,0.5,1.5", "--timing", "catalogue", "-o", str(out)],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    traj, env = load_trajectory_mcap(out)
+    assert env["settings"]["timing"] == "catalogue" and env["settings"]["catalogue"]["n_poses"] == 2000
+    assert env["summary"]["limits_checked"] == "position, velocity, acceleration"
+    assert env["summary"]["duration_s"] == pytest.approx(traj.duration_s)
+    res = CliRunner().invoke(
+        app, ["plan-ptp", "--robot", "x", "--start=0", "--goal=0", "--timing", "fast", "-o", "o"]
+    )
+    assert res.exit_code == 2
