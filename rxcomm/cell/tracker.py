@@ -25,6 +25,7 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.errors import InputError
+from rxcomm.io.tracker_csv import TrackerExport
 from rxcomm.model.dynamics import RobotDynamics, truth_parameters
 from rxcomm.model.geometric_errors import ErrorModel, measured_pose, placement_to_se3
 from rxcomm.model.kinematics import quaternion_wxyz
@@ -127,3 +128,114 @@ class SimulatedTracker:
         p = m.translation + self._rng.normal(0.0, self._sigma_p, 3)
         r = pin.exp3(self._rng.normal(0.0, self._sigma_o, 3)) @ m.rotation
         return TrackerReading(p, r, valid=True)
+
+
+PRETRIGGER_S = 0.25  # s of samples kept before the trigger: the motion's start from rest
+PRETRIGGER_KEEP = 4096  # samples collected before a trigger when the old ones are dropped
+
+
+class MotionTracker:
+    """The tracker measuring while the robot moves: the TRUE TCP pose at `rate_hz` on its own clock.
+
+    The cell calls `step(t_s, q)` after every drive cycle with the cell time at the cycle's end and the
+    true (motor-side) joint angles; the tracker samples at its instants k / rate_hz, interpolating q
+    linearly between the two cycles around each instant (drive cycle 400 µs, tracker 1 ms). Only q
+    is kept while the robot runs; `export` turns the samples into poses (true kinematics, compliance,
+    noise) at the end, so the cell's cycle stays cheap. Each sample taken at cell time t is stamped
+    t + `latency_s` (the tracker reports late); `trigger()` latches the cell time of the stream start
+    unstamped (a hardware input). At most `max_samples` are kept (`overflow` says when more came).
+    """
+
+    def __init__(
+        self,
+        tracker: SimulatedTracker,
+        rate_hz: float,
+        latency_s: float,
+        n_axes: int,
+        max_samples: int = 1_000_000,
+    ) -> None:
+        if not rate_hz > 0:
+            raise InputError(f"tracker rate {rate_hz} Hz must be > 0", field="tracker.sample_rate_hz")
+        self._tracker = tracker
+        self.period_s = 1.0 / rate_hz
+        self.latency_s = latency_s
+        self._max = max_samples
+        self._t = np.empty(0)
+        self._q = np.empty((0, n_axes))
+        self._n = 0
+        self._k_next = 0  # index of the next sampling instant on the cell clock
+        self._t_prev: float | None = None
+        self._q_prev: np.ndarray | None = None
+        self.trigger_s: float | None = None
+        self.overflow = False
+
+    def trigger(self, t_s: float) -> None:
+        """The controller's stream-start trigger at cell time `t_s` (s): latched on the tracker clock;
+        a new measurement starts with the last `PRETRIGGER_S` before it (earlier samples dropped)."""
+        keep = self._t[: self._n] >= t_s - PRETRIGGER_S
+        first = int(np.argmax(keep)) if keep.any() else self._n
+        m = self._n - first
+        self._t[:m], self._q[:m] = self._t[first : self._n].copy(), self._q[first : self._n].copy()
+        self._n = m
+        self.overflow = False
+        self.trigger_s = float(t_s)
+
+    def step(self, t_s: float, q: np.ndarray) -> None:
+        """One drive cycle ended at cell time `t_s` with true joint angles `q` (rad). Before a trigger
+        only the last `PRETRIGGER_S` are kept (what the cross-correlation needs of the rest before)."""
+        if self.trigger_s is None and self._n >= PRETRIGGER_KEEP:
+            self.trigger(self._t[self._n - 1])  # drop the old ones without a trigger latched
+            self.trigger_s = None
+        if self._t_prev is not None and self._q_prev is not None:
+            t0, t1 = self._t_prev, t_s
+            k1 = int(np.floor(t1 / self.period_s + 1e-9))
+            if k1 >= self._k_next:
+                ts = (
+                    np.arange(max(self._k_next, int(np.ceil(t0 / self.period_s - 1e-9))), k1 + 1)
+                    * self.period_s
+                )
+                f = ((ts - t0) / (t1 - t0))[:, None]
+                self._append(ts, self._q_prev + f * (q - self._q_prev))
+                self._k_next = k1 + 1
+        self._t_prev, self._q_prev = float(t_s), np.array(q, dtype=float)
+
+    def _append(self, ts: np.ndarray, qs: np.ndarray) -> None:
+        room = self._max - self._n
+        if len(ts) > room:
+            self.overflow = True
+            ts, qs = ts[:room], qs[:room]
+        if self._n + len(ts) > len(self._t):
+            size = min(self._max, max(1024, 2 * len(self._t), self._n + len(ts)))
+            t, q = np.empty(size), np.empty((size, self._q.shape[1]))
+            t[: self._n], q[: self._n] = self._t[: self._n], self._q[: self._n]
+            self._t, self._q = t, q
+        self._t[self._n : self._n + len(ts)] = ts
+        self._q[self._n : self._n + len(ts)] = qs
+        self._n += len(ts)
+
+    def clear(self) -> None:
+        """Forget the samples and the trigger."""
+        self._n = 0
+        self.trigger_s = None
+        self.overflow = False
+
+    def export(self) -> TrackerExport:
+        """The samples since `PRETRIGGER_S` before the trigger as the tracker exports them: stamps on
+        its clock, TCP poses in the tracker frame. Samples the tracker cannot see are left out (a
+        real tracker loses the beam)."""
+        t, q = self._t[: self._n], self._q[: self._n]
+        stamps, pos, quat = [], [], []
+        for ti, qi in zip(t, q, strict=True):
+            r = self._tracker.measure(qi)
+            if r.valid:
+                stamps.append(ti + self.latency_s)
+                pos.append(r.position_m)
+                quat.append(r.quaternion_wxyz)
+        k = len(stamps)
+        return TrackerExport(
+            np.array(stamps),
+            np.array(pos).reshape(k, 3),
+            np.array(quat).reshape(k, 4),
+            self.trigger_s,
+            source="simulated-cell",
+        )

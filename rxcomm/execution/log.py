@@ -35,8 +35,11 @@ from rxcomm.schemas.run_log import (
     GATEWAY_TOPIC,
     JOINT_FIELDS,
     JOINTS_TOPIC,
+    TRACKER_FIELDS,
+    TRACKER_TOPIC,
     RunLog,
     RunLogTopic,
+    TrackerChannel,
 )
 
 FLUSH_PERIOD_S = 0.5  # wall time between chunks handed to the OS: what a killed run can lose
@@ -169,10 +172,16 @@ class RunLogWriter:
         self.n_joint = 0  # /run/joints rows written
         self.n_gw = 0
         self._tcp: list[np.ndarray] = []
+        self._tracker: TrackerChannel | None = None
 
     @property
     def part_path(self) -> Path:
         return part_path(self.path)
+
+    @property
+    def begun(self) -> bool:
+        """The stream started and the log is open."""
+        return self._w is not None
 
     def begin(self, plan: StreamPlan, ratio: int, cycle_s: float) -> None:
         if self._w is not None:
@@ -232,6 +241,35 @@ class RunLogWriter:
             self._w.write_arrays(GATEWAY_TOPIC, rows["t"], {k: rows[k] for k in GATEWAY_FIELDS}, digits=10)
             self._w.flush()
             self.n_gw += n
+
+    def tracker(
+        self,
+        t_tracker_s: np.ndarray,
+        position_m: np.ndarray,
+        quaternion_wxyz: np.ndarray,
+        channel: TrackerChannel,
+    ) -> None:
+        """The ``/run/tracker`` channel: samples stamped on the tracker clock, put on the joint log's
+        time axis by ``channel.offset_s`` (samples before the stream start are dropped). Once, before
+        ``close``."""
+        assert self._w is not None
+        if self._tracker is not None:
+            raise ValueError("tracker channel already written")
+        t = np.asarray(t_tracker_s) - channel.offset_s
+        keep = t >= 0
+        self._w.add_channel(TRACKER_TOPIC, "rxcomm.RunTracker", _tracker_schema())
+        self._w.write_arrays(
+            TRACKER_TOPIC,
+            t[keep],
+            {
+                "position_m": position_m[keep],
+                "quaternion_wxyz": quaternion_wxyz[keep],
+                "t_tracker_s": np.asarray(t_tracker_s)[keep],
+            },
+            digits=12,  # a tracker clock may count from its power-on: 0.1 µs at 10^5 s
+        )
+        self._w.flush()
+        self._tracker = channel.model_copy(update={"n_samples": int(keep.sum())})
 
     def close(self, result: RunResult) -> tuple[Path, dict[str, Any]]:
         """Write the rest of ``result.log`` and the summary; returns (the file written, the summary).
@@ -294,7 +332,20 @@ class RunLogWriter:
                     topic=JOINTS_TOPIC, period_s=sample_s, n_messages=self.n_joint, fields=JOINT_FIELDS
                 ),
                 RunLogTopic(topic=GATEWAY_TOPIC, period_s=None, n_messages=self.n_gw, fields=GATEWAY_FIELDS),
+                *(
+                    [
+                        RunLogTopic(
+                            topic=TRACKER_TOPIC,
+                            period_s=1.0 / self._tracker.rate_hz,
+                            n_messages=self._tracker.n_samples,
+                            fields=TRACKER_FIELDS,
+                        )
+                    ]
+                    if self._tracker is not None
+                    else []
+                ),
             ],
+            "tracker": self._tracker,
         }
 
 
@@ -318,6 +369,13 @@ def write_run_log(
 
 def _joint_schema(n: int) -> dict[str, dict[str, Any]]:
     return {k: number_field(d) if k == "tcp_error_m" else vector_field(n, d) for k, d in JOINT_FIELDS.items()}
+
+
+def _tracker_schema() -> dict[str, dict[str, Any]]:
+    sizes = {"position_m": 3, "quaternion_wxyz": 4}
+    return {
+        k: vector_field(sizes[k], d) if k in sizes else number_field(d) for k, d in TRACKER_FIELDS.items()
+    }
 
 
 def _gateway_schema() -> dict[str, dict[str, Any]]:
