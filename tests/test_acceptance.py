@@ -1,4 +1,4 @@
-"""Acceptance verdict (rxcomm.execution.acceptance, `rxcomm accept`): hand-checked rows."""
+"""Acceptance verdict (rxcomm.acceptance.verdict, `rxcomm accept`): hand-checked rows."""
 
 from pathlib import Path
 
@@ -6,8 +6,8 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+from rxcomm.acceptance.verdict import acceptance_rows, overall, task_value
 from rxcomm.cli import app
-from rxcomm.execution.acceptance import acceptance_rows, overall, task_value
 from rxcomm.io.yaml_io import load_yaml, read_yaml_model
 from rxcomm.schemas.acceptance import AcceptanceThresholds, Threshold
 from rxcomm.schemas.iso9283 import Iso9283

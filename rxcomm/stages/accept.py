@@ -16,8 +16,8 @@ from typing import Annotated
 import typer
 
 from rxcomm import console
+from rxcomm.acceptance.verdict import acceptance_rows, overall
 from rxcomm.errors import InputError
-from rxcomm.execution.acceptance import acceptance_rows, overall
 from rxcomm.io.files import check_outputs, mcap_summary_path
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
 from rxcomm.schemas.acceptance import Acceptance, AcceptanceThresholds
