@@ -145,6 +145,13 @@ def test_a_built_chain_is_up_to_date_and_a_dry_run_changes_nothing(built):
     assert _make(built, "-q", "N_POSES=24", "build/report.md").returncode == 1
 
 
+def test_the_report_reads_the_ptp_run(built):
+    # `report` shows every run of the build; the PtP run feeds the verdict (the reference task) and the
+    # report, nothing else; a factory run likewise.
+    assert _remade(built, "-W", "build/run-ptp.mcap") == ({"verdict.yaml", "report.md"}, set())
+    assert _remade(built, "-W", "build/run-factory-ptp.mcap") == ({"verdict.yaml", "report.md"}, set())
+
+
 def test_touching_the_urdf_or_drives_rebuilds_every_rule(built):
     # Every command reads the robot (report through the artefacts); drives.yaml names the URDF.
     assert (built / ROBOT / "drives.yaml").read_text().count("urdf: rx130l.urdf") == 1
