@@ -16,6 +16,7 @@ from rxcomm.stages import (
     cell_sim,
     excite,
     identify,
+    iso9283,
     plan_cp,
     plan_ptp,
     recover_log,
@@ -62,6 +63,7 @@ app.command("plan-cp")(plan_cp.command)
 app.command("plan-ptp")(plan_ptp.command)
 app.command("report")(report.command)
 app.command("recover-log")(recover_log.command)
+app.command("iso9283")(iso9283.command)
 
 
 def main() -> None:
