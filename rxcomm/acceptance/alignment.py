@@ -84,14 +84,15 @@ def _correlate(
     full = np.fft.irfft(np.sum(fb * np.conj(fa), axis=1), size)[: 2 * m + 1]  # [j] = Σ_i b[i + j]·a[i]
     cum = np.concatenate([[0.0], np.cumsum(np.sum(b * b, axis=1))])
     window = cum[n : n + 2 * m + 1] - cum[: 2 * m + 1]
-    corr = full / np.sqrt(np.sum(a * a) * np.maximum(window, 1e-300))
-    best = int(np.argmax(corr))
+    # the peak of the raw correlation (a matched filter: normalising per lag would favour lags where
+    # the tracker's window holds little but noise); its normalised value says how well they match
+    best = int(np.argmax(full))
     lag = float(best - m)
     if 0 < best < 2 * m:
-        cm, c0, cp = corr[best - 1], corr[best], corr[best + 1]
+        cm, c0, cp = full[best - 1], full[best], full[best + 1]
         if (denom := cm - 2 * c0 + cp) < 0:
             lag += 0.5 * (cm - cp) / denom  # the parabola's vertex through the three around the peak
-    return lag, float(corr[best])
+    return lag, float(full[best] / np.sqrt(np.sum(a * a) * max(window[best], 1e-300)))
 
 
 def cross_correlation_offset(
