@@ -171,12 +171,12 @@ def test_run_records_the_tracker_aligned_within_one_drive_cycle(tmp_path, rx130l
     truth_file = tmp_path / "truth.yaml"
     truth_file.write_text(yaml.safe_dump(raw))
     dt = rx130l.drives.cycle_s
-    t = np.arange(int(round(2.0 / dt)) + 1) * dt
+    t = np.arange(int(round(1.0 / dt)) + 1) * dt
     tau = t / t[-1]
     s = tau - np.sin(2 * np.pi * tau) / (2 * np.pi)
     sd = (1 - np.cos(2 * np.pi * tau)) / t[-1]
     sdd = 2 * np.pi * np.sin(2 * np.pi * tau) / t[-1] ** 2
-    dq = np.array([1.6, 0.7, -0.7, 0.0, 0.0, 0.0])
+    dq = np.array([0.8, 0.4, -0.4, 0.0, 0.0, 0.0])
     plan = save_plan(
         tmp_path / "plan.mcap", Trajectory(t, np.outer(s, dq), np.outer(sd, dq), np.outer(sdd, dq))
     )
@@ -192,7 +192,7 @@ def test_run_records_the_tracker_aligned_within_one_drive_cycle(tmp_path, rx130l
     assert found == pytest.approx(latency_s, abs=dt), found  # within one drive cycle
     log = read_run_log(out)
     tr = log.tracker
-    assert len(tr) == ch["n_samples"] >= 2000
+    assert len(tr) == ch["n_samples"] >= 1000
     np.testing.assert_allclose(np.diff(tr.t), 1e-3, atol=1e-9)  # reads back at the configured rate
     np.testing.assert_allclose(tr.t, tr.t_tracker_s - ch["offset_s"], atol=1e-9)
     assert any(t["topic"] == "/run/tracker" for t in meta["topics"])
