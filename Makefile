@@ -150,17 +150,19 @@ $(B)/run-ff.mcap: $(B)/cp.mcap $(B)/run-noff.mcap $(B)/dynamics.yaml $(SIM_FILES
 		$(call params,run-ff,$(FF_ARGS))
 	$(RX) run $< $(FF_ARGS) -o $@
 
-PTPRUN_ARGS = $(RUN_SIM) --dynamics $(B)/dynamics.yaml
+PTPRUN_ARGS = $(RUN_SIM) --dynamics $(B)/dynamics.yaml --plot
 $(B)/run-ptp.mcap: $(B)/ptp.mcap $(B)/dynamics.yaml $(SIM_FILES) $(call params,run-ptp,$(PTPRUN_ARGS))
 	$(RX) run $< $(PTPRUN_ARGS) -o $@
 
-# The artefacts `report` reads (rxcomm/stages/report.py); it reads no robot file and has no options.
+# The artefacts `report` reads (rxcomm/stages/report.py): the stages' and every run log of the chain
+# (with their PNGs); it reads no robot file and has no options. It writes report.html beside report.md.
 $(B)/report.md: $(B)/configs.yaml $(B)/calibration.yaml $(B)/excitation.yaml $(B)/dynamics.yaml \
-		$(B)/cp.mcap $(B)/ptp.mcap $(B)/run-noff.mcap $(B)/run-ff.mcap
+		$(B)/cp.mcap $(B)/ptp.mcap $(B)/run-noff.mcap $(B)/run-ff.mcap $(B)/run-ptp.mcap \
+		$(B)/excite-log.mcap $(B)/validation-log.mcap
 	$(RX) report $(B) -o $@
 
 # The main job: the report plus the chain's products it does not read.
-commission: $(B)/robot-info.txt $(B)/report.md $(B)/run-ptp.mcap
+commission: $(B)/robot-info.txt $(B)/report.md
 	@echo "commissioning report: $(B)/report.md"
 
 # CI: the same rules, reduced (fewer poses and candidates, fewer excitation starts), in its own dir.

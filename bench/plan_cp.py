@@ -19,9 +19,11 @@ from rxcomm.model.dynamics import RobotDynamics, prior_parameters
 from rxcomm.model.robot import Robot, load_robot
 from rxcomm.model.spring import spring_regressor
 from rxcomm.planning import cp
+from rxcomm.planning.cp_grid import toppra_grid
 from rxcomm.planning.path_ik import solve_path_ik
 from rxcomm.planning.path_nlp import _solver, optimise_path
 from rxcomm.planning.paths import build_path
+from rxcomm.planning.timing import PlanDynamics, nlp_setup
 from rxcomm.planning.topp import PlanLimits, ToppraPath, time_optimal
 from rxcomm.schemas.path import PathSpec
 
@@ -97,12 +99,12 @@ def bench_plan_cp(quick: bool = False) -> list[Row]:
     d_ours, d_bare = ours().profile.duration_s, bare().duration
 
     # The NLP alone (energy weight and torque-rate limits), warm from toppra, solver built beforehand.
-    dyn = cp.PlanDynamics.from_parameters(robot, params, 0.02)
+    dyn = PlanDynamics.from_parameters(robot, params, 0.02)
     settings = cp.CpSettings(k2=1e-5)
     lim = cp.plan_limits(robot, settings)
-    tgrid = cp.toppra_grid(jp, 200, robot.a_max)
+    tgrid = toppra_grid(jp, 200, robot.a_max)
     warm = time_optimal(jp.spline, jp.length_m, tgrid, lim, dyn.exact).profile
-    setup = cp._nlp_setup(dyn, jp, path, lim, warm, 200)
+    setup = nlp_setup(dyn, jp, path, lim, warm, 200)
     t0 = time.perf_counter()
     _solver(201, robot.n, True, False, 500)
     build = time.perf_counter() - t0

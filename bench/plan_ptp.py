@@ -9,10 +9,13 @@ import time
 
 from bench.table import Row
 from rxcomm.model.robot import load_robot
-from rxcomm.planning.cp import CpSettings, PlanDynamics, plan_cp
+from rxcomm.planning.cp import CpSettings, plan_cp
 from rxcomm.planning.paths import load_path
-from rxcomm.planning.ptp import PtpDynamics, PtpLimits, PtpOcp, PtpOptions, plan_ptp
+from rxcomm.planning.ptp import plan_ptp
+from rxcomm.planning.ptp_ocp import PtpOcp
+from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
 from rxcomm.planning.ptp_shooting import ShootingOcp
+from rxcomm.planning.timing import PlanDynamics
 
 LINE = "samples/rx130l/paths/line-near-singularity.yaml"
 

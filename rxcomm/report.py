@@ -1,15 +1,27 @@
-"""The commissioning report: every stage's headline figures beside the paper's, with the figures.
+"""The commissioning report's sections: each stage's headline figures, parameter tables ± σ and
+plots, every run, with the paper's value where it has one (shown in the closing comparison).
 
-Pure functions over artefact summaries (plain mappings read from the YAML files) → Markdown text.
-Reading the files is the `report` stage's job.
+Pure functions over artefact summaries (plain mappings read from the YAML files) → `reporting`
+sections; the verdict rows are `report_targets`'. Reading the files is the `report` stage's job.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import numpy as np
+
+from rxcomm.reporting import markdown
+from rxcomm.reporting.document import (
+    DEFAULT_TOLERANCE,
+    NOT_MEASURED,
+    Figure,
+    Report,
+    Section,
+    Table,
+    Tolerance,
+    ratio_note,
+)
 
 # Paper Table 2 (RX130L, 3D-Creator tracker): max |e| before → after, x y z in mm, α β γ in degrees.
 PAPER_TABLE2_MAX = {
@@ -22,27 +34,9 @@ PAPER_TABLE2_MAX = {
 }
 
 
-@dataclass(frozen=True)
-class Figure:
-    """One headline number: ours, the paper's, and what it answers."""
-
-    what: str
-    ours: str
-    paper: str = ""
-
-
-@dataclass(frozen=True)
-class Section:
-    title: str
-    figures: Sequence[Figure]
-    image: str | None = None
-    note: str = ""
-    table: str = ""
-
-
 def _f(x: object, scale: float = 1.0, digits: int = 3, unit: str = "") -> str:
     if x is None:
-        return "—"
+        return NOT_MEASURED
     if isinstance(x, str):  # e.g. "not applicable (virtual time)": said as it is, never as a number
         return x
     if isinstance(x, list | tuple):
@@ -82,7 +76,7 @@ def configs_section(s: Mapping, image: str | None, criterion: str = "det-root") 
     )
 
 
-def calibration_table(tables: Sequence[Mapping]) -> str:
+def calibration_table(tables: Sequence[Mapping]) -> Table | None:
     """The paper's Table 2 on held-out poses: max |e| and peak-to-peak per axis, before and after
     (and, when measured, the calibration from the naive poses)."""
     by = {(t["pose_set"], t["model"]): t for t in tables}
@@ -90,26 +84,70 @@ def calibration_table(tables: Sequence[Mapping]) -> str:
         by.get(("heldout", m)) for m in ("nominal", "calibrated", "frames_only", "baseline_poses")
     )
     if nominal is None or cal is None:
-        return ""
-    extra = " naive-poses max |" if naive else ""
-    lines = [
-        "| axis | nominal max | calibrated max | calibrated p-p | frames-only max |"
-        + extra
-        + " paper max before→after |",
-        "|---|---|---|---|---|" + ("---|" if naive else "") + "---|",
-    ]
+        return None
+    header = ["axis", "nominal max", "calibrated max", "calibrated p-p", "frames-only max"]
+    header += ["naive-poses max"] if naive else []
+    header += ["paper max before→after"]
+    rows = []
     for i, row in enumerate(cal["rows"]):
         q = row["quantity"]
         scale, unit = (1e3, "mm") if row["unit"] == "m" else (180 / np.pi, "°")
-        fr = frames["rows"][i]["max_abs"] * scale if frames else float("nan")
+        fr = f"{frames['rows'][i]['max_abs'] * scale:.3f} {unit}" if frames else NOT_MEASURED
         pb, pa = PAPER_TABLE2_MAX[q]
-        before = nominal["rows"][i]["max_abs"] * scale
-        nv = f" {naive['rows'][i]['max_abs'] * scale:.3f} {unit} |" if naive else ""
-        lines.append(
-            f"| {q} | {before:.3f} {unit} | {row['max_abs'] * scale:.3f} {unit} "
-            f"| ±{row['peak_to_peak'] * scale / 2:.3f} {unit} | {fr:.3f} {unit} |{nv} {pb} → {pa} {unit} |"
+        cells = [
+            q,
+            f"{nominal['rows'][i]['max_abs'] * scale:.3f} {unit}",
+            f"{row['max_abs'] * scale:.3f} {unit}",
+            f"±{row['peak_to_peak'] * scale / 2:.3f} {unit}",
+            fr,
+        ]
+        cells += [f"{naive['rows'][i]['max_abs'] * scale:.3f} {unit}"] if naive else []
+        rows.append([*cells, f"{pb} → {pa} {unit}"])
+    return Table("Held-out errors per axis (paper Table 2)", header, rows)
+
+
+def _pm(value: float, std: float | None, scale: float, digits: int = 4) -> str:
+    if std is None:
+        return f"{value * scale:.{digits}g} (fixed)"
+    return f"{value * scale:.{digits}g} ± {std * scale:.2g}"
+
+
+def calibration_parameter_table(params: Sequence[Mapping]) -> Table | None:
+    """The identified geometric errors ± 1σ (translations in mm, rotations in mrad); the parameters
+    the fit held at 0 (not identifiable from the poses) in one closing row."""
+    if not params:
+        return None
+    rows = []
+    for p in params:
+        if p["estimated"]:
+            unit = "mrad" if p["name"].rsplit(".", 1)[-1].startswith("r") else "mm"
+            rows.append([p["name"], _pm(p["value"], p["std"], 1e3), unit])
+    fixed = [p["name"] for p in params if not p["estimated"]]
+    if fixed:
+        rows.append([f"held at 0, not identifiable ({len(fixed)})", ", ".join(fixed), ""])
+    return Table("Identified geometric errors ± 1σ", ["parameter", "value", "unit"], rows)
+
+
+def compliance_table(compliance: Sequence[Mapping]) -> Table | None:
+    """Joint compliances ± 1σ and the stiffness they give (first-order σ of 1/c)."""
+    if not compliance:
+        return None
+    rows = []
+    for c in compliance:
+        k = c.get("stiffness_nm_per_rad")
+        k_std = None if k is None else k * c["std"] / c["compliance_rad_per_nm"]
+        rows.append(
+            [
+                c["joint"],
+                _pm(c["compliance_rad_per_nm"], c["std"], 1e6, 3),
+                NOT_MEASURED if k is None else _pm(k, k_std, 1e-6, 3),
+            ]
         )
-    return "\n".join(lines)
+    return Table(
+        "Joint stiffness from gravity sag ± 1σ",
+        ["joint", "compliance [µrad/(N·m)]", "stiffness [MN·m/rad]"],
+        rows,
+    )
 
 
 def baseline_pose_figures(s: Mapping) -> list[Figure]:
@@ -141,7 +179,14 @@ def baseline_pose_figures(s: Mapping) -> list[Figure]:
     ]
 
 
-def calibration_section(s: Mapping, tables: Sequence[Mapping]) -> Section:
+def calibration_section(
+    s: Mapping,
+    tables: Sequence[Mapping],
+    parameters: Sequence[Mapping] = (),
+    compliance: Sequence[Mapping] = (),
+) -> Section:
+    """The summary's figures, Table 2, the parameters ± σ and the joint stiffness (calibration.yaml)."""
+    named = [calibration_table(tables), calibration_parameter_table(parameters), compliance_table(compliance)]
     return Section(
         "Geometric calibration (paper §3.1–3.4, Table 2)",
         [
@@ -165,9 +210,9 @@ def calibration_section(s: Mapping, tables: Sequence[Mapping]) -> Section:
             *model_figures(s),
             Figure("compute time", _f(s["seconds"], unit="s")),
         ],
-        table=calibration_table(tables),
-        note="Errors are measured on held-out poses the fit never saw, on the simulated cell's tracker "
-        "(σ = 0.05 mm, 0.1 mrad), whose joints bend under gravity.",
+        tables=[t for t in named if t is not None],
+        note="Errors are measured on held-out poses the fit never saw, at the tracker noise above; the "
+        "simulated cell's joints bend under gravity.",
     )
 
 
@@ -205,14 +250,15 @@ def model_figures(s: Mapping) -> list[Figure]:
     return out
 
 
-def excitation_section(s: Mapping, image: str | None) -> Section:
+def excitation_section(s: Mapping, image: str | None, tol: Tolerance = DEFAULT_TOLERANCE) -> Section:
     return Section(
         "Optimal exciting trajectory (paper §4.2)",
         [
             Figure("cond(W), unit-norm columns", _f(s["cond"]), "N = 5, ω_f = 0.8 rad/s, k = 80"),
             Figure("random feasible Fourier trajectory (median)", _f(s["baseline_cond"])),
             Figure("cond(W) unnormalised", _f(s.get("cond_raw"))),
-            Figure("densely sampled max limit ratio", _f(s.get("max_limit_ratio"), digits=4), "≤ 1"),
+            Figure("densely sampled max limit ratio", ratio_note(s.get("max_limit_ratio"), *tol)),
+            Figure("binding limit", _f(s.get("worst_limit"))),
             Figure("duration", _f(s["duration_s"], unit="s")),
             Figure("compute time", _f(s["seconds"], unit="s")),
         ],
@@ -230,7 +276,7 @@ def _per_joint(
     """Per-joint figures (3 significant digits, or `decimals` fixed); None (a joint that did not move
     on the validation data) is "not scored"."""
     if values is None:
-        return "—"
+        return NOT_MEASURED
 
     def one(v: float) -> str:
         return _f(v, scale) if decimals is None else f"{float(v) * scale:.{decimals}f}"
@@ -239,7 +285,46 @@ def _per_joint(
     return f"[{text}]" + (f" {unit}" if unit else "")
 
 
-def dynamics_section(s: Mapping, image: str | None) -> Section:
+_UNITS = {"m": "kg", "mcx": "kg·m", "mcy": "kg·m", "mcz": "kg·m", "fc": "N·m", "fv": "N·m·s/rad"}
+_UNITS |= {"offset": "N·m", "rotor_inertia": "kg·m²", "kL0": "N"}
+
+
+def dynamics_parameter_table(params: Sequence[Mapping]) -> Table | None:
+    """The identified base parameters ± 1σ (σ = |value| · relative σ), in the independent parameter's
+    SI unit; σ not available (a parameter fixed by the fit) is said so."""
+    if not params:
+        return None
+    rows = []
+    for p in params:
+        kind = p["independent"].rsplit(".", 1)[-1]
+        unit = "kg·m²" if kind.startswith("I") else _UNITS.get(kind, "SI")
+        rel = p.get("relative_std")
+        std = None if rel is None else abs(p["value"]) * rel
+        rel_text = NOT_MEASURED if rel is None else f"{rel * 100:.2g} %"
+        rows.append(
+            [p["name"], _pm(p["value"], std, 1.0).replace("(fixed)", "(σ not measured)"), unit, rel_text]
+        )
+    return Table("Identified base parameters ± 1σ", ["base parameter", "value", "unit", "relative σ"], rows)
+
+
+def friction_table(friction: Sequence[Mapping]) -> Table | None:
+    if not friction:
+        return None
+    rows = [
+        [f["joint"], f"{f['coulomb_nm']:.4g}", f"{f['viscous_nm_s_per_rad']:.4g}", f"{f['offset_nm']:.4g}"]
+        for f in friction
+    ]
+    return Table(
+        "Identified friction per joint",
+        ["joint", "Coulomb [N·m]", "viscous [N·m·s/rad]", "offset [N·m]"],
+        rows,
+    )
+
+
+def dynamics_section(
+    s: Mapping, image: str | None, parameters: Sequence[Mapping] = (), friction: Sequence[Mapping] = ()
+) -> Section:
+    tables = [t for t in (dynamics_parameter_table(parameters), friction_table(friction)) if t]
     cutoff = s.get("cutoff_hz")
     rows = s.get("rows_per_parameter")
     return Section(
@@ -270,15 +355,26 @@ def dynamics_section(s: Mapping, image: str | None) -> Section:
         ],
         image,
         note=f"validated on {s.get('validation', '?')}; a joint that did not move there is not scored.",
+        tables=tables,
     )
 
 
-def trajectory_section(title: str, s: Mapping, image: str | None, paper_duration: str) -> Section:
+LIMITS = ("position", "velocity", "acceleration", "torque", "torque_rate")
+
+
+def trajectory_section(
+    title: str, s: Mapping, image: str | None, paper_duration: str, tol: Tolerance = DEFAULT_TOLERANCE
+) -> Section:
+    per_limit = ", ".join(
+        f"{k.replace('_', ' ')} {s[f'max_{k}_ratio']:.4f}" for k in LIMITS if f"max_{k}_ratio" in s
+    )
     return Section(
         title,
         [
             Figure("duration", _f(s["duration_s"], digits=4, unit="s"), paper_duration),
-            Figure("max limit ratio, sampled at the drive cycle", _f(s["max_limit_ratio"], digits=4), "≤ 1"),
+            Figure("max limit ratio, sampled at the drive cycle", ratio_note(s["max_limit_ratio"], *tol)),
+            Figure("max ratio per limit", per_limit or NOT_MEASURED),
+            Figure("binding limit", _f(s.get("worst_limit"))),
             Figure("fraction of time with a limit active", _f(s["active_fraction"]), "≈ 1 (time-optimal)"),
             Figure("solve time", _f(s["solve_seconds"], unit="s")),
         ],
@@ -299,8 +395,8 @@ def execution_section(ff: Mapping, noff: Mapping | None, image: str | None) -> S
         Figure("max joint lag with feed-forward", _f(ff["max_lag_rad"], 1e3, unit="mrad")),
         Figure("max TCP error with feed-forward", _f(ff["max_tcp_error_m"], 1e3, unit="mm")),
         Figure("underruns", _f(ff["underruns"])),
-        Figure("min buffered lead while feeding", _f(ff.get("min_lead_s"), unit="s"), "≥ 0.1 s"),
-        Figure("cell cycle overruns", _f(ff.get("cell_overruns")), "0"),
+        Figure("min buffered lead while feeding", _f(ff.get("min_lead_s"), unit="s")),
+        Figure("cell cycle overruns", _f(ff.get("cell_overruns"))),
     ]
     if noff is not None:
         figs += [
@@ -315,16 +411,45 @@ def execution_section(ff: Mapping, noff: Mapping | None, image: str | None) -> S
     return Section("Execution with model-based feed-forward (paper §2.3, Fig. 2)", figs, image)
 
 
+def _worst(values: Sequence[float] | None, scale: float) -> str:
+    return NOT_MEASURED if not values else f"{max(values) * scale:.3g}"
+
+
+def runs_section(runs: Mapping[str, Mapping], images: Sequence[str]) -> Section:
+    """Every executed run of the build (run log name → its RunLog artefact), one row each."""
+    header = ["run log", "feed-forward", "outcome", "duration [s]", "max lag, worst joint [mrad]"]
+    header += ["rms lag, worst joint [mrad]", "max TCP error [mm]", "underruns", "min lead [s]"]
+    rows = []
+    for name, art in runs.items():
+        s = art["summary"]
+        rows.append(
+            [
+                name,
+                str(art.get("feedforward", NOT_MEASURED)),
+                _f(s.get("outcome")) + (f" ({s['stop_reason']})" if s.get("stop_reason") else ""),
+                _f(s["duration_s"], digits=4),
+                _worst(s["max_lag_rad"], 1e3),
+                _worst(s["rms_lag_rad"], 1e3),
+                _f(s["max_tcp_error_m"], 1e3),
+                _f(s["underruns"]),
+                _f(s.get("min_lead_s")),
+            ]
+        )
+    return Section(
+        "Every executed run",
+        [Figure("runs executed on the cell", str(len(runs)) if runs else NOT_MEASURED)],
+        tables=[Table("", header, rows)] if rows else [],
+        images=images,
+        note="Lags are following errors q_demand − q_actual; the TCP error is FK of demand vs actual joints "
+        "through the nominal model (it cannot see the geometric errors calibration removes).",
+    )
+
+
+def missing_section(title: str, names: Sequence[str]) -> Section:
+    """A stage whose artefacts this build lacks: its figures are not measured, said so."""
+    return Section(title, [Figure(f"{', '.join(names)} in this build", NOT_MEASURED)])
+
+
 def render(title: str, preamble: str, sections: Sequence[Section]) -> str:
-    out = [f"# {title}", "", preamble, ""]
-    for sec in sections:
-        out += [f"## {sec.title}", "", "| figure | rxcomm | paper |", "|---|---|---|"]
-        out += [f"| {f.what} | {f.ours} | {f.paper} |" for f in sec.figures]
-        out.append("")
-        if sec.table:
-            out += [sec.table, ""]
-        if sec.note:
-            out += [sec.note, ""]
-        if sec.image:
-            out += [f"![{sec.title}]({sec.image})", ""]
-    return "\n".join(out)
+    """Markdown of sections alone (no verdict rows): what a test of one section reads."""
+    return markdown.render(Report(title, preamble, [], sections))

@@ -367,9 +367,10 @@ def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
     log = write_run_log(tmp_path / "excite-log.mcap", t, q_m, tau_m)
     out = tmp_path / "dynamics.yaml"
     res = CliRunner().invoke(
-        app, ["identify", "--robot", str(SAMPLES / "rx130l"), "--log", str(log), "-o", str(out)]
+        app, ["identify", "--robot", str(SAMPLES / "rx130l"), "--log", str(log), "-o", str(out), "--plot"]
     )
     assert res.exit_code == 0, res.output
+    assert out.with_suffix(".png").stat().st_size > 20_000  # Fig. 5b with its residual panels
     art = read_yaml_artefact(out, Dynamics)
     assert art.summary["validation"].startswith("held out: last 20 % of each of 5 blocks")
     # 59 + the coupled wrist motor's Coulomb and viscous friction (drives.yaml default: both)

@@ -125,6 +125,11 @@ def test_a_built_chain_is_up_to_date_and_a_dry_run_changes_nothing(built):
     assert _make(built, "-q", "N_POSES=24", "build/report.md").returncode == 1
 
 
+def test_the_report_reads_the_ptp_run(built):
+    # `report` shows every run of the build; the PtP run feeds nothing else, so only the report remakes.
+    assert _remade(built, "-W", "build/run-ptp.mcap") == ({"report.md"}, set())
+
+
 def test_touching_the_urdf_or_drives_rebuilds_every_rule(built):
     # Every command reads the robot (report through the artefacts); drives.yaml names the URDF.
     assert (built / ROBOT / "drives.yaml").read_text().count("urdf: rx130l.urdf") == 1

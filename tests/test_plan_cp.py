@@ -22,11 +22,13 @@ from rxcomm.io.yaml_io import load_yaml
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters
 from rxcomm.model.limits import check_limits, robot_limits
 from rxcomm.model.robot import load_robot
-from rxcomm.planning.cp import PlanDynamics, check_statics, plan_cp, toppra_grid
+from rxcomm.planning.cp import check_statics, plan_cp
+from rxcomm.planning.cp_grid import toppra_grid
 from rxcomm.planning.path_dynamics import path_dynamics
 from rxcomm.planning.path_ik import solve_path_ik
 from rxcomm.planning.path_profile import PathProfile
 from rxcomm.planning.paths import build_path
+from rxcomm.planning.timing import PlanDynamics
 from rxcomm.planning.topp import PlanLimits, ToppraPath, time_optimal
 from rxcomm.schemas.path import PathSpec
 from rxcomm.stages import plan_cp as stage

@@ -23,26 +23,22 @@ from rxcomm.model.geometric_errors import ErrorModel
 from rxcomm.model.geometric_errors import parameter_names as geometric_parameter_names
 from rxcomm.model.kinematics import cardan_xyz, solve_pose_ik, tcp_pose
 from rxcomm.model.symbolic import inverse_dynamics_function
-from rxcomm.planning.cp import CpSettings, PlanDynamics, plan_cp
+from rxcomm.planning.cp import CpSettings, plan_cp
 from rxcomm.planning.paths import load_path
 from rxcomm.planning.ptp import (
-    PTP_COULOMB_EPS_RAD_S,
-    NodeGuess,
-    PtpDynamics,
-    PtpLimits,
     PtpNotConverged,
-    PtpOcp,
-    PtpOptions,
     check_boundary_state,
     default_kinematic_limits,
     integrate_jerk,
     kinematic_fallback,
-    node_function,
     plan_ptp,
     sample_solution,
     tcp_box_ratio,
 )
+from rxcomm.planning.ptp_ocp import PtpOcp, node_function
+from rxcomm.planning.ptp_problem import PTP_COULOMB_EPS_RAD_S, NodeGuess, PtpDynamics, PtpLimits, PtpOptions
 from rxcomm.planning.ptp_shooting import ShootingOcp, forward_dynamics_function
+from rxcomm.planning.timing import PlanDynamics
 from rxcomm.planning.warm_start import feasible_profile, ruckig_profile, scaled_profile
 from rxcomm.schemas.calibration import Calibration, ModelSelection, ParameterEstimate, TrackerNoise
 from rxcomm.schemas.cell import Placement

@@ -1,6 +1,13 @@
-"""The report renders every section from artefact summaries and puts the paper's figures beside ours."""
+"""The report renders every section from artefact summaries, opens with a verdict, closes with the
+paper's figures beside ours, and says "not measured" for what the build lacks."""
+
+import base64
+import re
 
 from rxcomm import report as rep
+from rxcomm import report_targets as targets
+from rxcomm.reporting import html, markdown
+from rxcomm.reporting.document import Figure, Report, Section, Verdict, ratio_verdict
 
 
 def test_calibration_table_has_papers_numbers_and_ours_in_mm_and_degrees():
@@ -20,22 +27,32 @@ def test_calibration_table_has_papers_numbers_and_ours_in_mm_and_degrees():
         }
         for m in ("nominal", "calibrated", "frames_only")
     ]
-    text = rep.calibration_table(tables)
-    assert "| y | 2.000 mm | 2.000 mm | ±2.000 mm | 2.000 mm | 19.026 → 0.31 mm |" in text
-    assert "| alpha | 0.057 °" in text  # 1 mrad
-    assert "naive" not in text
+    table = rep.calibration_table(tables)
+    assert ["y", "2.000 mm", "2.000 mm", "±2.000 mm", "2.000 mm", "19.026 → 0.31 mm"] in table.rows
+    assert table.rows[3][1] == "0.057 °"  # 1 mrad
+    assert "naive-poses max" not in table.header
     naive = {**tables[1], "model": "baseline_poses"}
-    text = rep.calibration_table([*tables, naive])
-    assert "naive-poses max |" in text
-    assert "| y | 2.000 mm | 2.000 mm | ±2.000 mm | 2.000 mm | 2.000 mm | 19.026 → 0.31 mm |" in text
+    table = rep.calibration_table([*tables, naive])
+    assert "naive-poses max" in table.header
+    assert [
+        "y",
+        "2.000 mm",
+        "2.000 mm",
+        "±2.000 mm",
+        "2.000 mm",
+        "2.000 mm",
+        "19.026 → 0.31 mm",
+    ] in table.rows
 
 
-def test_render_puts_paper_beside_ours():
+def test_render_shows_ours_in_the_stage_and_the_paper_beside_ours_at_the_end():
     ff = {"max_lag_rad": [1e-4] * 6, "max_tcp_error_m": 1e-4, "underruns": 0}
     noff = {"max_lag_rad": [1e-3] * 6, "max_tcp_error_m": 2e-3, "underruns": 0}
     text = rep.render("t", "p", [rep.execution_section(ff, noff, "run-ff.png")])
-    assert "| lag reduction by feed-forward (worst joint) | ×10.0 | Fig. 2" in text
-    assert "![" in text and "run-ff.png" in text
+    stage, paper = text.split("## Comparison with the paper")
+    assert "| lag reduction by feed-forward (worst joint) | ×10.0 |" in stage and "model-based ≪" not in stage
+    assert "| lag reduction by feed-forward (worst joint) | ×10.0 | Fig. 2: model-based ≪ standard |" in paper
+    assert "![" in stage and "run-ff.png" in stage
 
 
 def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_measured():
@@ -80,3 +97,145 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
     assert "[0.2, 0.1, 0.1, not scored, 0.4, 1.2] %" in text
     assert "0.9999, 0.9989]" in text and "no standstill" in text and "10 Hz; 12.4" in text
     assert "0 %" not in text and "0.00 %" not in text
+
+
+def test_a_limit_ratio_above_one_is_flagged_within_tolerance_or_as_a_violation():
+    ok = ratio_verdict("cp", 0.9898, 1e-3, "run")
+    assert ok.verdict is Verdict.passed and ok.note == ""
+    within = ratio_verdict("cp", 1.0006, 1e-3, "`run`'s limit_tolerance in run-ff.yaml")
+    assert within.verdict is Verdict.passed and within.measured == "1.0006"
+    assert (
+        "0.06 % above the limit: within the tolerance of 0.1 %" in within.note
+        and "run-ff.yaml" in within.note
+    )
+    beyond = ratio_verdict("cp", 1.0015, 1e-3, "run")
+    assert beyond.verdict is Verdict.failed and "0.15 % above the limit: a violation" in beyond.note
+    missing = ratio_verdict("cp", None, 1e-3, "run")
+    assert missing.verdict is Verdict.not_measured and missing.measured == "not measured"
+    # the same flag beside the figure in the stage section
+    sec = rep.trajectory_section("cp", _TRAJ | {"max_limit_ratio": 1.0006}, None, "1.04 s")
+    assert "1.0006 (0.06 % above the limit: within the tolerance" in rep.render("t", "", [sec])
+
+
+_TRAJ = {"duration_s": 1.4648, "max_limit_ratio": 0.99, "active_fraction": 0.96, "solve_seconds": 2.4}
+
+
+def test_trajectory_section_names_the_binding_limit_and_every_limits_ratio():
+    s = _TRAJ | {
+        "max_velocity_ratio": 0.949,
+        "max_acceleration_ratio": 0.99,
+        "worst_limit": "acceleration joint_4",
+    }
+    text = rep.render("t", "", [rep.trajectory_section("cp", s, None, "1.04 s")])
+    assert "| max ratio per limit | velocity 0.9490, acceleration 0.9900 |" in text
+    assert "| binding limit | acceleration joint_4 |" in text
+
+
+def test_the_verdict_of_an_empty_build_is_not_measured_throughout_never_zero():
+    rows = targets.stage_verdicts({}, {})
+    assert len(rows) == 8 and all(r.verdict is Verdict.not_measured for r in rows)
+    assert all(r.measured == "not measured" for r in rows)
+    assert targets.verdict_note(rows) == "0 of 8 criteria pass, 0 fail, 8 not measured."
+
+
+def test_stage_verdicts_against_the_targets():
+    summaries = {
+        "calibration": {"heldout_max_position_error_m": 0.6e-3, "heldout_max_orientation_error_rad": 1e-3},
+        "dynamics": {"validation_r2": [0.999, 0.97, None, 0.99, 0.98, 0.995]},
+        "run-ff": {"max_lag_rad": [1e-4, 2e-4, 8.7e-4]},
+        "run-noff": {"max_lag_rad": [1e-3, 2.96e-2, 1e-3]},
+        "cp": {"max_limit_ratio": 1.0006},
+        "ptp": {"max_limit_ratio": 0.99},
+    }
+    runs = {
+        "run-ff.yaml": {"summary": {"outcome": "completed", "underruns": 0}},
+        "run-ptp.yaml": {"summary": {"outcome": "stopped", "underruns": 2}},
+        "sim.yaml": {"summary": {"outcome": "completed", "underruns": "not applicable (virtual time)"}},
+    }
+    rows = {r.criterion.split(":")[0] + r.criterion[-12:]: r for r in targets.stage_verdicts(summaries, runs)}
+    by = list(rows.values())
+    pos, ori, r2, ff, exc, cp, ptp, run = by
+    assert pos.verdict is Verdict.failed and pos.measured == "0.6 mm" and pos.note == "missed by 0.1 mm"
+    assert ori.verdict is Verdict.passed and ori.measured == "0.0573 °"
+    assert r2.verdict is Verdict.passed and r2.measured == "0.9700" and "5 of 6 joints moved" in r2.note
+    assert ff.verdict is Verdict.passed and ff.measured == "×34.0" and ff.note == "29.6 → 0.87 mrad"
+    assert exc.verdict is Verdict.not_measured
+    assert cp.verdict is Verdict.passed and "within the tolerance" in cp.note
+    assert ptp.verdict is Verdict.passed
+    assert run.verdict is Verdict.failed and run.measured == "2 of 3 completed, 2 underruns"
+    assert run.note == "not completed: run-ptp.yaml; underruns not applicable (virtual time) in 1 of 3"
+    virtual = {"a.yaml": runs["sim.yaml"]}
+    assert targets.runs_row(virtual).measured == "1 of 1 completed, underruns not applicable (virtual time)"
+    strict = targets.StageTargets(validation_r2_min=0.98)
+    assert targets.identification_row(summaries["dynamics"], strict).verdict is Verdict.failed
+
+
+def test_parameter_tables_carry_sigma_in_stated_units():
+    dyn = rep.dynamics_parameter_table(
+        [
+            {"name": "joint_2.mcx_R", "independent": "joint_2.mcx", "value": -2.0, "relative_std": 0.01},
+            {"name": "joint_1.Izz_R", "independent": "joint_1.Izz", "value": 4.0, "relative_std": None},
+        ]
+    )
+    assert dyn.rows[0] == ["joint_2.mcx_R", "-2 ± 0.02", "kg·m", "1 %"]
+    assert dyn.rows[1] == ["joint_1.Izz_R", "4 (σ not measured)", "kg·m²", "not measured"]
+    cal = rep.calibration_parameter_table(
+        [
+            {"name": "base.tx", "value": -2.1e-3, "std": 1.3e-5, "estimated": True},
+            {"name": "joint_2.rx", "value": -5.8e-4, "std": 9.8e-6, "estimated": True},
+            {"name": "joint_1.tx", "value": 0.0, "std": None, "estimated": False},
+        ]
+    )
+    assert cal.rows == [
+        ["base.tx", "-2.1 ± 0.013", "mm"],
+        ["joint_2.rx", "-0.58 ± 0.0098", "mrad"],
+        ["held at 0, not identifiable (1)", "joint_1.tx", ""],
+    ]
+    stiff = rep.compliance_table(
+        [{"joint": "joint_2", "compliance_rad_per_nm": 1e-6, "std": 1e-7, "stiffness_nm_per_rad": 1e6}]
+    )
+    assert stiff.rows == [["joint_2", "1 ± 0.1", "1 ± 0.1"]]  # µrad/(N·m), MN·m/rad: σ_k/k = σ_c/c
+
+
+# a 1×1 PNG
+PNG = base64.b64decode(
+    "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mP8z8BQDwAEhQGAhKmMIQAAAABJRU5ErkJggg=="
+)
+
+
+def test_html_is_self_contained_opens_with_the_verdict_and_embeds_every_figure():
+    verdict = targets.stage_verdicts({"cp": {"max_limit_ratio": 1.0015}}, {})
+    sections = [
+        Section("Stage A", [Figure("x", "1 mm", "2 mm")], image="a.png"),
+        Section("Stage B", [Figure("y", "not measured")], image="gone.png"),
+    ]
+    report = Report("r", "made `here`", verdict, sections, targets.verdict_note(verdict))
+    png = PNG
+    page = html.render(report, lambda name: png if name == "a.png" else None)
+    assert page.index('id="verdict"') < page.index("Stage A") < page.index('id="paper"')
+    assert page.count("data:image/png;base64,") == 1
+    assert base64.b64encode(png).decode() in page
+    assert "figure gone.png: not produced in this build" in page
+    assert not re.search(r"(src|href)=\"(?!data:)", page) and "<script" not in page
+    assert '<td class="fail">fail</td>' in page and "<code>here</code>" in page
+    md = markdown.render(report, "../build/")
+    assert "](../build/a.png)" in md and md.index("## Verdict") < md.index("## Stage A")
+
+
+def test_report_of_an_empty_build_says_not_measured_and_writes_both_files(tmp_path):
+    from typer.testing import CliRunner
+
+    from rxcomm.cli import app
+
+    (tmp_path / "build").mkdir()
+    res = CliRunner().invoke(
+        app, ["report", str(tmp_path / "build"), "-o", str(tmp_path / "out" / "report.md")]
+    )
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "out" / "report.md").read_text()
+    page = (tmp_path / "out" / "report.html").read_text()
+    assert "0 of 8 criteria pass, 0 fail, 8 not measured." in md and 'id="verdict"' in page
+    for title in ("Geometric calibration", "Dynamic identification", "Every executed run"):
+        assert title in md and title in page
+    assert "| calibration.yaml in this build | not measured |" in md
+    assert "| 0 |" not in md

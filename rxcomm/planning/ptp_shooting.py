@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from rxcomm.planning.ptp import PtpDynamics, PtpLimits, PtpOptions, _sx_function
+from rxcomm.planning.ptp_ocp import _sx_function
+from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
 from rxcomm.planning.warm_start import KinematicProfile
 
 

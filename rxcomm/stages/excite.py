@@ -17,19 +17,20 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.identification.excitation import ExcitationDesign, design_excitation, region_points
+from rxcomm.identification.excitation import REGION_POINTS, ExcitationDesign, design_excitation, region_points
 from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.model.limits import check_limits
+from rxcomm.model.limits import TorqueRateLimit, check_limits
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
-from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.cell import AllowedRegion, Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
 from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.trajectory import TrajectorySummary
@@ -45,29 +46,63 @@ def trajectory_path(output: Path) -> Path:
     return output.with_name(output.stem + "-trajectory.mcap")
 
 
-def plot_excitation(robot: Robot, design: ExcitationDesign, path: Path) -> Path:
-    """PNG: joint positions, velocities and feed-forward torques (normalised by their limits) over time,
-    and the tool path (paper Fig. 5a)."""
+def design_ratios(robot: Robot, s, opts: ExcitationSettings, region: AllowedRegion | None) -> dict:
+    """Signed (value − centre) / half-width of every constraint the design obeyed (ExcitationProblem's
+    limits: joint ranges minus the margin, the velocity, acceleration and torque fractions of the
+    robot's limits, the torque rate, the allowed-region boxes minus their margin): ±1 is the bound."""
+    q_lo, q_hi = robot.q_min + opts.position_margin_rad, robot.q_max - opts.position_margin_rad
+    out = {
+        "position": (s.q - (q_lo + q_hi) / 2) / ((q_hi - q_lo) / 2),
+        "velocity": s.qd / (opts.velocity_fraction * robot.v_max),
+        "acceleration": s.qdd / (opts.acceleration_fraction * robot.a_max),
+        "torque": s.tau_ff / (opts.torque_fraction * robot.tau_max),
+    }
+    rate = TorqueRateLimit(robot.tau_rate_max).ratios(s.t, s.q, s.qd, s.qdd, s.tau_ff)
+    out["torque_rate"] = plotting.signed_ratios({"r": rate}, {"r": np.gradient(s.tau_ff, s.t, axis=0)})["r"]
+    if region is not None:
+        pts = region_points(robot, s.q)
+        for name in REGION_POINTS:
+            box = getattr(region, name)
+            lo, hi = np.asarray(box.min_m), np.asarray(box.max_m)
+            out[f"region {name}"] = (pts[name] - (lo + hi) / 2) / ((hi - lo) / 2 - opts.region_margin_m)
+    return out
+
+
+def plot_excitation(
+    robot: Robot, design: ExcitationDesign, opts: ExcitationSettings, region: AllowedRegion | None, path: Path
+) -> Path:
+    """PNG: joint positions, then every constraint the design obeyed normalised to its bound (the
+    0.8·peak torque actually used, not the peak; the allowed-region boxes), the binding ones (≥
+    plotting.BINDS) in colour and the others faded, and the tool path (paper Fig. 5a)."""
     plt = plotting.pyplot()
 
+    k = max(1, len(design.samples.t) // 3000)
     s = design.samples
-    k = max(1, len(s.t) // 4000)
-    t = s.t[::k]
-    fig = plt.figure(figsize=(12, 8))
-    axes = [fig.add_subplot(2, 2, i + 1) for i in range(3)]
-    for j, name in enumerate(robot.joint_names):
-        axes[0].plot(t, s.q[::k, j], label=name)
-        axes[1].plot(t, s.qd[::k, j] / robot.v_max[j], label=name)
-        axes[2].plot(t, s.tau_ff[::k, j] / robot.tau_max[j], label=name)
-    for ax, what in zip(axes, ("q [rad]", "q̇ / q̇_max", "τ_ff / τ_max (prior model)"), strict=True):
-        ax.set_ylabel(what)
-        ax.grid(alpha=0.3)
+    sub = type(s)(s.t[::k], s.q[::k], s.qd[::k], s.qdd[::k], s.tau_ff[::k])
+    ratios = design_ratios(robot, sub, opts, region)
+    fig = plt.figure(figsize=(14, 2.1 * 4 + 1.0))
+    grid = fig.add_gridspec(4, 2)
+    names = list(robot.joint_names)
+    left = ["position", "velocity", "acceleration", "torque"]
+    units = {
+        "velocity": f"{opts.velocity_fraction:g}·q̇_max",
+        "acceleration": f"{opts.acceleration_fraction:g}·q̈_max",
+    }
+    units |= {"torque": f"{opts.torque_fraction:g}·τ_peak, prior", "position": "range − margin"}
+    for i, name in enumerate(left):
+        ax = fig.add_subplot(grid[i, 0])
+        plotting.limit_panel(ax, sub.t, {name: ratios[name]}, names, what=f"{name} / ({units[name]})")
+    ax = fig.add_subplot(grid[0, 1])
+    plotting.limit_panel(ax, sub.t, {"torque_rate": ratios["torque_rate"]}, names, what="torque rate / limit")
+    ax = fig.add_subplot(grid[1, 1])
+    regions = {k: v for k, v in ratios.items() if k.startswith("region")}
+    if regions:
+        plotting.limit_panel(ax, sub.t, regions, ["x", "y", "z"], what="region / (box − margin)")
+    else:
+        ax.text(0.5, 0.5, "no allowed region in the cell", ha="center", va="center", transform=ax.transAxes)
+    for ax in fig.axes:
         ax.set_xlabel("t [s]")
-    for ax in axes[1:]:
-        ax.axhline(1.0, color="k", lw=0.6, ls="--")
-        ax.axhline(-1.0, color="k", lw=0.6, ls="--")
-    axes[0].legend(ncol=3, fontsize=8)
-    ax3 = fig.add_subplot(2, 2, 4, projection="3d")
+    ax3 = fig.add_subplot(grid[2:, 1], projection="3d")
     pts = region_points(robot, s.q[:: max(1, len(s.t) // 800)])["tool"]
     ax3.plot(pts[:, 0], pts[:, 1], pts[:, 2], lw=0.8)
     ax3.set_xlabel("x [m]")
@@ -76,10 +111,10 @@ def plot_excitation(robot: Robot, design: ExcitationDesign, path: Path) -> Path:
     ax3.set_title("tool path")
     fig.suptitle(
         f"excitation: cond {design.cond:.2f} (random feasible {design.baseline_cond:.0f}), "
-        f"{design.samples.duration_s:.2f} s"
+        f"{design.samples.duration_s:.2f} s; every constraint as value / the bound the design obeyed"
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
     return path
 
@@ -239,7 +274,7 @@ def run(
     )
     write_yaml_artefact(output, art)
     if plot:
-        png = plot_excitation(robot, design, output.with_suffix(".png"))
+        png = plot_excitation(robot, design, opts, cell_model.allowed_region, output.with_suffix(".png"))
         console.out.print(f"plot: {png}")
     console.summary_table(f"excite → {output} (+ {traj_path.name})", summary)
     return art

@@ -61,27 +61,39 @@ def per_joint(
 
 
 def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
-    """PNG: measured and predicted joint torques on the validation data, one panel per joint."""
+    """PNG (the paper's Fig. 5b): measured and predicted joint torques on the validation data, one
+    panel per joint, each over its residual (measured − predicted), legend outside the data."""
     plt = plotting.pyplot()
 
     val = result.validation
-    n = robot.n
-    fig, axes = plt.subplots((n + 1) // 2, 2, sharex=True, figsize=(12, 2.2 * ((n + 1) // 2)))
-    for j, ax in enumerate(axes.ravel()[:n]):
+    n, rows = robot.n, (robot.n + 1) // 2
+    fig, axes = plt.subplots(
+        2 * rows, 2, sharex=True, figsize=(12, 3.0 * rows), gridspec_kw={"height_ratios": [3, 1] * rows}
+    )
+    for j in range(n):
+        ax, res = axes[2 * (j // 2), j % 2], axes[2 * (j // 2) + 1, j % 2]
         ax.plot(val.t, val.measured[:, j], lw=1.0, label="measured")
         ax.plot(val.t, val.predicted[:, j], lw=1.0, ls="--", label="identified model")
+        res.plot(val.t, val.measured[:, j] - val.predicted[:, j], ".", ms=2, color="C3", label="residual")
+        res.axhline(0.0, color="k", lw=0.5)
         ax.set_ylabel(f"{robot.joint_names[j]} [N·m]")
+        res.set_ylabel("resid. [N·m]", fontsize=8)
         if val.scored[j]:
             title = f"RMS {val.rms_nm[j]:.3g} N·m, NRMSE {100 * val.nrmse[j]:.2f} %, R² {val.r2[j]:.3f}"
         else:
             title = "not scored: the joint did not move"
         ax.set_title(title, fontsize=9)
-        ax.grid(alpha=0.3)
-    axes.ravel()[0].legend(fontsize=8)
-    for ax in axes.ravel()[-2:]:
-        ax.set_xlabel("t [s]")
-    fig.suptitle(f"validation ({val.source})")
-    fig.tight_layout()
+        for a in (ax, res):
+            a.grid(alpha=0.3)
+    if n % 2:  # an odd joint count leaves the last torque and residual axes empty
+        axes[-2, 1].set_visible(False)
+        axes[-1, 1].set_visible(False)
+    for a in axes[-1, :]:
+        a.set_xlabel("t [s]")
+    handles = [*axes[0, 0].get_legend_handles_labels()[0], *axes[1, 0].get_legend_handles_labels()[0]]
+    fig.legend(handles=handles, loc="upper right", fontsize=8, ncol=3, bbox_to_anchor=(1.0, 1.0))
+    fig.suptitle(f"validation ({val.source})", x=0.02, ha="left")
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -27,9 +27,10 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
-from rxcomm.planning.cp import CpPlan, CpSettings, PlanDynamics, path_deviation_m, plan_cp
+from rxcomm.planning.cp import CpPlan, CpSettings, path_deviation_m, plan_cp
 from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
 from rxcomm.planning.paths import load_path
+from rxcomm.planning.timing import PlanDynamics
 from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -86,38 +87,31 @@ def trajectory_of(plan: CpPlan) -> Trajectory:
 
 
 def plot_cp(plan: CpPlan, robot: Robot, path: Path, title: str) -> Path:
-    """PNG: TCP speed over time and σ (the paper's Fig. 7) and the binding limits normalised to
-    their bounds over time (Fig. 8), with the stretches where no limit is active shaded."""
+    """PNG: TCP speed over time and σ (the paper's Fig. 7) and every limit normalised to ±1 over time
+    (Fig. 8): the binding ones (≥ plotting.BINDS of the bound) in colour, the others faded, with the
+    stretches where no limit is active shaded."""
     plt = plotting.pyplot()
 
     rep = plan.report
-    fig, axes = plt.subplots(3, 1, figsize=(8, 8))
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8.5))
     axes[0].plot(plan.t, plan.sigma_dot)
     axes[0].set_xlabel("t [s]")
     axes[0].set_ylabel("TCP speed [m/s]")
     axes[1].plot(plan.sigma, plan.sigma_dot)
     axes[1].set_xlabel("σ (TCP arc length) [m]")
     axes[1].set_ylabel("TCP speed [m/s]")
-    shown = []
-    for seg in plan.active_segments:
-        if (seg.limit, seg.joint) not in shown:
-            shown.append((seg.limit, seg.joint))
-    for name, joint in shown:
-        r = rep.ratios[name]
-        col = 0 if joint == "TCP" else robot.joint_names.index(joint)
-        axes[2].plot(plan.t, r[:, col], label=f"{name} {joint}", lw=1)
+    raw = plotting.joint_signs(plan.t, plan.q, plan.qd, plan.qdd, plan.tau, (robot.q_min + robot.q_max) / 2)
+    ratios = plotting.signed_ratios(rep.ratios, raw)
+    columns = {k: ["TCP"] if r.shape[1] == 1 else list(robot.joint_names) for k, r in ratios.items()}
     mx = np.maximum.reduce([r.max(axis=1) for k, r in rep.ratios.items() if k != "position"])
-    axes[2].fill_between(plan.t, 0, 1.05, where=mx < 0.98, color="0.85", label="no limit active", step="mid")
-    axes[2].axhline(1.0, color="k", lw=0.6, ls="--")
-    axes[2].set_ylim(0, 1.05)
+    axes[2].fill_between(plan.t, -1.1, 1.1, where=mx < 0.98, color="0.9", label="no limit active", step="mid")
+    plotting.limit_panel(axes[2], plan.t, ratios, columns)
     axes[2].set_xlabel("t [s]")
-    axes[2].set_ylabel("|value| / limit")
-    axes[2].legend(fontsize=7, ncol=3, loc="lower center")
-    for ax in axes:
+    for ax in axes[:2]:
         ax.grid(alpha=0.3)
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
     return path
 

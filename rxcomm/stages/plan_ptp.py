@@ -19,21 +19,15 @@ from rxcomm import console, plotting
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
-from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
+from rxcomm.io.trajectory import save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.model.base_parameters import load_dynamics
+from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.kinematics import solve_pose_ik
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
-from rxcomm.planning.ptp import (
-    PtpDynamics,
-    PtpLimits,
-    PtpNotConverged,
-    PtpOptions,
-    PtpResult,
-    kinematic_fallback,
-    plan_ptp,
-)
+from rxcomm.planning.ptp import PtpNotConverged, PtpResult, kinematic_fallback, plan_ptp
+from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -107,25 +101,28 @@ def summary_of(result: PtpResult, q_start, q_goal, margin: float) -> dict[str, o
     return out
 
 
-def plot_ptp(traj: Trajectory, limits: PtpLimits, joint_names, path: Path, title: str) -> Path:
-    """PNG of the torques and velocities normalised by their limits (the paper's Fig. 9)."""
+def plot_ptp(result: PtpResult, limits: PtpLimits, joint_names, path: Path, title: str) -> Path:
+    """PNG, one row per limit the motion obeys (the paper's Fig. 9 has torque and velocity): each joint's
+    value / limit within ±1, the binding ones (≥ plotting.BINDS of the bound) in colour, the others
+    faded, so the limit that sets the duration (often acceleration) stands out."""
     plt = plotting.pyplot()
 
-    fig, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 6))
-    for j, name in enumerate(joint_names):
-        axes[0].plot(traj.t, traj.tau_ff[:, j] / limits.tau_max[j], label=name)
-        axes[1].plot(traj.t, traj.qd[:, j] / limits.v_max[j], label=name)
-    for ax, what in zip(axes, ("torque τ/τ_max", "velocity q̇/q̇_max"), strict=True):
-        ax.axhline(1.0, color="k", lw=0.6, ls="--")
-        ax.axhline(-1.0, color="k", lw=0.6, ls="--")
-        ax.set_ylabel(what)
-        ax.set_ylim(-1.1, 1.1)
-        ax.grid(alpha=0.3)
-    axes[0].legend(ncol=3, fontsize=8, loc="lower left")
-    axes[1].set_xlabel("t [s]")
+    traj, rep = result.trajectory, result.report
+    # the dense report is on the trajectory's own samples
+    raw = plotting.joint_signs(
+        traj.t, traj.q, traj.qd, traj.qdd, traj.tau_ff, (limits.q_min + limits.q_max) / 2
+    )
+    ratios = plotting.signed_ratios(rep.ratios, raw)
+    names = [k for k in ("position", "velocity", "acceleration", "torque", "torque_rate") if k in ratios]
+    names += [k for k in ratios if k not in names]
+    fig, axes = plt.subplots(len(names), 1, sharex=True, figsize=(10, 1.9 * len(names) + 0.8), squeeze=False)
+    for ax, name in zip(axes[:, 0], names, strict=True):
+        cols = list(joint_names) if ratios[name].shape[1] == len(joint_names) else ["TCP"]
+        plotting.limit_panel(ax, rep.t, {name: ratios[name]}, cols, what=name.replace("_", " ") + " / limit")
+    axes[-1, 0].set_xlabel("t [s]")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
 
@@ -235,15 +232,7 @@ def run(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {"dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
     )
-    robot = load_robot(robot_dir)
-    inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
-    if calibration is not None:
-        robot = load_calibrated_robot(robot, calibration)
-        inputs["calibration"] = Path(calibration)
-    params = None
-    if dynamics is not None:
-        params = load_dynamics(dynamics, robot)
-        inputs["dynamics"] = Path(dynamics)
+    robot, params, inputs = _planning_model(robot_dir, calibration, dynamics)
     options = settings_from_options(
         PtpOptions,
         dict(
@@ -286,16 +275,27 @@ def run(
     save_trajectory_mcap(output, result.trajectory, env)
     if plot:
         limits = PtpLimits.from_robot(robot, acceleration=acceleration_limits)
-        png = plot_ptp(
-            result.trajectory,
-            limits,
-            robot.joint_names,
-            output.with_suffix(".png"),
-            f"PtP {result.duration_s:.3f} s (k1 = {k1:g}, k2 = {k2:g}): normalised torques and velocities",
-        )
+        title = f"PtP {result.duration_s:.3f} s (k1 = {k1:g}, k2 = {k2:g}): every limit, value / limit"
+        png = plot_ptp(result, limits, robot.joint_names, output.with_suffix(".png"), title)
         console.out.print(f"plot: {png}")
     console.summary_table(f"plan-ptp → {output}", summary)
     return summary
+
+
+def _planning_model(
+    robot_dir: Path, calibration: Path | None, dynamics: Path | None
+) -> tuple[Robot, DynamicParameters | None, dict[str, Path]]:
+    """The robot (calibrated if given), the identified parameters (None: the prior) and the input files."""
+    robot = load_robot(robot_dir)
+    inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
+    if calibration is not None:
+        robot = load_calibrated_robot(robot, calibration)
+        inputs["calibration"] = Path(calibration)
+    params = None
+    if dynamics is not None:
+        params = load_dynamics(dynamics, robot)
+        inputs["dynamics"] = Path(dynamics)
+    return robot, params, inputs
 
 
 def _write_fallback(robot, dyn, q_start, q_goal, options, output, inputs, settings, error) -> None:

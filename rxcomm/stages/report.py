@@ -1,11 +1,14 @@
-"""`rxcomm report BUILD_DIR`: the commissioning report (Markdown + the stages' PNG figures).
+"""`rxcomm report BUILD_DIR`: the commissioning report, report.md and a self-contained report.html.
 
-Reads the artefacts `make commission` writes under their conventional names and puts each stage's
-headline figures beside the paper's. A missing artefact is a missing section, said so in the report.
+Reads the artefacts `make commission` writes under their conventional names, and every run log of the
+build; opens with the verdict, then each stage's figures, parameter tables and plots, every executed
+run, and the comparison with the paper. A missing artefact is a section "not measured".
 """
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated
@@ -14,9 +17,12 @@ import typer
 
 from rxcomm import __version__, console
 from rxcomm import report as rep
+from rxcomm import report_targets as targets
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_outputs
-from rxcomm.io.yaml_io import read_yaml_artefact
+from rxcomm.io.yaml_io import load_yaml, read_yaml_artefact
+from rxcomm.reporting import html, markdown
+from rxcomm.reporting.document import Report, Section, VerdictRow
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.dynamics import Dynamics
@@ -24,6 +30,19 @@ from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.excitation import Excitation
 from rxcomm.schemas.run_log import RunLog
 from rxcomm.schemas.trajectory import TrajectorySummary
+
+# The artefacts read by name, and the section a missing one leaves "not measured".
+ARTEFACTS: dict[str, tuple[type[Artefact], str]] = {
+    "configs.yaml": (Configs, "Optimal measurement poses (paper §3.3)"),
+    "calibration.yaml": (Calibration, "Geometric calibration (paper §3.1–3.4, Table 2)"),
+    "excitation.yaml": (Excitation, "Optimal exciting trajectory (paper §4.2)"),
+    "dynamics.yaml": (Dynamics, "Dynamic identification (paper §4.1, §4.3, Fig. 5b)"),
+    "cp.yaml": (TrajectorySummary, "Time-optimal continuous path (paper §5.1–5.3, Figs. 7–8)"),
+    "ptp.yaml": (TrajectorySummary, "Time-optimal point-to-point (paper §5.4–5.5, Fig. 9)"),
+    "run-ff.yaml": (RunLog, "Execution with model-based feed-forward (paper §2.3, Fig. 2)"),
+}
+# Which run log executed which plan: the limit tolerance `run` checked that plan against.
+EXECUTED_BY = {"cp": "run-ff.yaml", "ptp": "run-ptp.yaml", "excitation": "excite-log.yaml"}
 
 
 def _load(path: Path, model: type[Artefact]) -> dict | None:
@@ -37,91 +56,138 @@ def _img(build: Path, name: str) -> str | None:
     return name if (build / name).exists() else None
 
 
-def build_report(build: Path) -> tuple[str, list[str]]:
-    """(Markdown, names of the missing artefacts)."""
-    missing: list[str] = []
+def run_logs(build: Path) -> dict[str, dict]:
+    """Every run log of the build (kind rxcomm/RunLog), by file name, validated."""
+    out = {}
+    for path in sorted(build.glob("*.yaml")):
+        data = load_yaml(path)
+        if isinstance(data, dict) and data.get("kind") == RunLog.KIND:
+            out[path.name] = read_yaml_artefact(path, RunLog).model_dump(mode="json")
+    return out
 
-    def need(name: str, model: type[Artefact]) -> dict | None:
-        d = _load(build / name, model)
-        if d is None:
-            missing.append(name)
-        return d
 
-    sections: list[rep.Section] = []
-    configs = need("configs.yaml", Configs)
-    if configs:
-        sections.append(
-            rep.configs_section(configs["summary"], _img(build, "configs.png"), configs["criterion"])
+def _tolerances(runs: dict[str, dict]) -> dict[str, rep.Tolerance]:
+    out = {}
+    for key, log in EXECUTED_BY.items():
+        tol = runs.get(log, {}).get("settings", {}).get("limit_tolerance")
+        if tol is not None:
+            out[key] = (float(tol), f"`run`'s limit_tolerance in {log}")
+    return out
+
+
+def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[Section]:
+    """One section per stage artefact present, in chain order."""
+    s = {k: (v or {}).get("summary") for k, v in a.items()}
+    cfg, cal, dyn = a["configs.yaml"], a["calibration.yaml"], a["dynamics.yaml"]
+    out: dict[str, Section] = {}
+    if cfg:
+        out["configs.yaml"] = rep.configs_section(
+            s["configs.yaml"], _img(build, "configs.png"), cfg["criterion"]
         )
-    cal = need("calibration.yaml", Calibration)
     if cal:
-        sections.append(rep.calibration_section(cal["summary"], cal["error_tables"]))
-    exc = need("excitation.yaml", Excitation)
-    if exc:
-        sections.append(rep.excitation_section(exc["summary"], _img(build, "excitation.png")))
-    dyn = need("dynamics.yaml", Dynamics)
+        out["calibration.yaml"] = rep.calibration_section(
+            cal["summary"], cal["error_tables"], cal["parameters"], cal.get("compliance", [])
+        )
+    if s["excitation.yaml"]:
+        exc_tol = tol.get("excitation", rep.DEFAULT_TOLERANCE)
+        out["excitation.yaml"] = rep.excitation_section(
+            s["excitation.yaml"], _img(build, "excitation.png"), exc_tol
+        )
     if dyn:
-        sections.append(rep.dynamics_section(dyn["summary"], _img(build, "dynamics.png")))
-    cp = need("cp.yaml", TrajectorySummary)
-    if cp:
-        sections.append(
-            rep.trajectory_section(
-                "Time-optimal continuous path (paper §5.1–5.3, Figs. 7–8)",
-                cp["summary"],
-                _img(build, "cp.png"),
-                "1.04 s (straight line passing near a singularity)",
+        out["dynamics.yaml"] = rep.dynamics_section(
+            dyn["summary"], _img(build, "dynamics.png"), dyn["base_parameters"], dyn["friction"]
+        )
+    for key, paper in (("cp", "1.04 s (straight line passing near a singularity)"), ("ptp", "0.67 s")):
+        if s[f"{key}.yaml"]:
+            name = f"{key}.yaml"
+            sec = rep.trajectory_section(
+                ARTEFACTS[name][1],
+                s[name],
+                _img(build, f"{key}.png"),
+                paper,
+                tol.get(key, rep.DEFAULT_TOLERANCE),
             )
+            if key == "ptp" and s["cp.yaml"]:
+                sec = Section(
+                    sec.title, [*sec.figures, rep.ptp_vs_cp_figure(s["cp.yaml"], s[name])], sec.image
+                )
+            out[name] = sec
+    if s["run-ff.yaml"]:
+        out["run-ff.yaml"] = rep.execution_section(
+            s["run-ff.yaml"], s["run-noff.yaml"], _img(build, "run-ff.png")
         )
-    ptp = need("ptp.yaml", TrajectorySummary)
-    if ptp:
-        sec = rep.trajectory_section(
-            "Time-optimal point-to-point (paper §5.4–5.5, Fig. 9)",
-            ptp["summary"],
-            _img(build, "ptp.png"),
-            "0.67 s",
-        )
-        if cp:
-            sec = rep.Section(
-                sec.title, [*sec.figures, rep.ptp_vs_cp_figure(cp["summary"], ptp["summary"])], sec.image
-            )
-        sections.append(sec)
-    ff = need("run-ff.yaml", RunLog)
-    noff = need("run-noff.yaml", RunLog)
-    if ff:
-        sections.append(
-            rep.execution_section(ff["summary"], noff["summary"] if noff else None, _img(build, "run-ff.png"))
-        )
-    robot = (cal or dyn or configs or {}).get("robot", "?")
+    return [out.get(name) or rep.missing_section(title, [name]) for name, (_, title) in ARTEFACTS.items()]
+
+
+def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Report, list[str]]:
+    """(the report, names of the missing artefacts). `acceptance`: criteria measured on the robot as a
+    whole (factory vs commissioned, issue 17), which open the verdict before the stage targets."""
+    a = {name: _load(build / name, model) for name, (model, _) in ARTEFACTS.items()}
+    missing = [name for name, v in a.items() if v is None]
+    runs = run_logs(build)
+    a["run-noff.yaml"] = runs.get("run-noff.yaml")
+    tol = _tolerances(runs)
+    sections = _stage_sections(build, a, tol)
+    run_images = [
+        f"{Path(n).stem}.png" for n in runs if n != "run-ff.yaml" and (build / n).with_suffix(".png").exists()
+    ]
+    sections.append(rep.runs_section(runs, run_images))
+    keys = {"calibration": "calibration.yaml", "dynamics": "dynamics.yaml", "excitation": "excitation.yaml"}
+    keys |= {"cp": "cp.yaml", "ptp": "ptp.yaml", "run-ff": "run-ff.yaml", "run-noff": "run-noff.yaml"}
+    summaries = {k: (a.get(name) or {}).get("summary") for k, name in keys.items()}
+    verdict = [*acceptance, *targets.stage_verdicts(summaries, runs, tol)]
+    robot = (a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"] or {}).get("robot")
     preamble = (
-        f"Robot `{robot}` commissioned against the simulated cell by rxcomm {__version__} on "
+        ("The robot (named by no artefact here)" if robot is None else f"Robot `{robot}`")
+        + f" commissioned against the simulated cell by rxcomm {__version__} on "
         f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC. Every figure is read from the artefacts in this directory "
-        "(their envelopes hold the sha256 of every input); the paper's numbers are the Stäubli RX130L's."
+        "(their envelopes hold the sha256 of every input). The verdict is against the stage targets "
+        "(rxcomm/report_targets.py); the paper comparison closes the report."
     )
     if missing:
         preamble += f"\n\nNot produced in this build: {', '.join(missing)}."
-    return rep.render("rxcomm commissioning report", preamble, sections), missing
+    title = "rxcomm commissioning report"
+    return Report(title, preamble, verdict, sections, targets.verdict_note(verdict)), missing
 
 
 def command(
     build_dir: Annotated[
         Path, typer.Argument(help="Directory holding the chain's artefacts (make commission: build/).")
     ],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Markdown file to write.")] = Path(
-        "build/report.md"
-    ),
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Markdown file to write; NAME.html is written beside it.")
+    ] = Path("build/report.md"),
 ) -> None:
-    """Write the commissioning report: each stage's figures beside the paper's, with the stages' plots."""
+    """Write the commissioning report (Markdown + self-contained HTML): the verdict, each stage's figures,
+    parameter tables and plots, every run, the comparison with the paper."""
     run(build_dir, output)
+
+
+def _image_loader(build: Path):
+    def load(name: str) -> bytes | None:
+        path = build / name
+        return path.read_bytes() if path.is_file() else None
+
+    return load
 
 
 @console.stage_command
 def run(build_dir: Path, output: Path) -> list[str]:
     if not build_dir.is_dir():
         raise InputError("not a directory", file=build_dir)
-    # the report reads the build's artefacts and links its figures: none of them may be the output
+    if output.suffix == ".html":
+        raise InputError("give the Markdown file (NAME.md): NAME.html is written beside it", field="output")
+    page = output.with_suffix(".html")
+    # the report reads the build's artefacts and embeds its figures: none of them may be an output
     artefacts = {p.name: p for p in sorted(build_dir.iterdir()) if p.suffix in (".yaml", ".mcap", ".png")}
-    check_outputs({"output": output}, artefacts)
-    text, missing = build_report(build_dir)
-    atomic_write_text(output, text)
-    console.out.print(f"report → {output}" + (f" (missing: {', '.join(missing)})" if missing else ""))
+    check_outputs({"output": output, "html": page}, artefacts)
+    report, missing = build_report(build_dir)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    # Markdown links the figures where they are, relative to the report's own directory
+    prefix = Path(os.path.relpath(build_dir.resolve(), output.resolve().parent))
+    atomic_write_text(output, markdown.render(report, "" if prefix == Path(".") else f"{prefix.as_posix()}/"))
+    atomic_write_text(page, html.render(report, _image_loader(build_dir)))
+    console.out.print(
+        f"report → {output}, {page.name}" + (f" (missing: {', '.join(missing)})" if missing else "")
+    )
     return missing

@@ -369,14 +369,14 @@ def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> 
         axes[i].grid(alpha=0.3)
     axes[n].set_ylabel("TCP error [mm]")
     axes[n].grid(alpha=0.3)
-    axes[n].legend(fontsize=7)
     for ax in axes[n + 1 :]:
         ax.axis("off")
+    plotting.legend_outside(axes[n])  # beside the TCP panel, over no data
     for ax in axes[max(0, n - 1) : n + 1]:
         ax.set_xlabel("t [s]")
     fig.suptitle("lag errors per joint and TCP error (nominal kinematics)")
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
+    fig.savefig(out, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return out
 

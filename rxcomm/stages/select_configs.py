@@ -121,7 +121,7 @@ def plot_configs(robot: Robot, sel: PoseSelection, path: Path, title: str) -> Pa
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_zlabel("z [m]")
-    ax.legend(loc="upper left", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, 1.12), fontsize=8, ncol=3)  # above the box
     ax.set_title("selected poses")
     ax2 = fig.add_subplot(1, 2, 2)
     for j in range(robot.n):
@@ -140,10 +140,10 @@ def plot_configs(robot: Robot, sel: PoseSelection, path: Path, title: str) -> Pa
     ax2.set_xticks(range(1, robot.n + 1), robot.joint_names, fontsize=8)
     ax2.set_ylabel("joint angle [deg] (grey: range)")
     ax2.set_title("joint coverage")
-    ax2.legend(loc="upper right", fontsize=8)
+    plotting.legend_outside(ax2)
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
 

@@ -1,0 +1,202 @@
+"""The point-to-point problem (paper §5.4): its options, limits, dynamics, node guesses and solution.
+
+Shared by the OCP transcription (`ptp_ocp`), the planner that samples and checks it (`ptp`) and the
+forward-dynamics shooting peer (`ptp_shooting`), so none of them imports another for its inputs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Literal
+
+import casadi as ca
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from rxcomm.model.dynamics import DynamicParameters, prior_parameters
+from rxcomm.model.limits import (
+    AccelerationLimit,
+    PositionLimit,
+    TorqueLimit,
+    TorqueRateLimit,
+    VelocityLimit,
+)
+from rxcomm.model.robot import Robot
+from rxcomm.model.symbolic import forward_kinematics_function, inverse_dynamics_function
+from rxcomm.planning.warm_start import KinematicProfile
+
+Vec3 = tuple[float, float, float]
+
+
+PTP_COULOMB_EPS_RAD_S = 0.1  # friction smoothing of the PtP model (module doc)
+
+
+class PtpOptions(BaseModel):
+    """Settings of the PtP OCP (units in the names)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    n_intervals: int = Field(50, ge=4, le=2000, description="N, jerk intervals of the normalised time")
+    k1: float = Field(1.0, ge=0, description="weight of time in ∫(k1 + k2·τᵀτ)dt (dimensionless)")
+    k2_per_nm2: float = Field(0.0, ge=0, description="weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)²")
+    margin: float = Field(
+        0.01,
+        ge=0,
+        lt=0.5,
+        description="the NLP uses (1 − margin)·limit so the dense check passes between nodes",
+    )
+    acceleration_limits: bool = Field(
+        False, description="also limit |q̈| ≤ a_max (the paper's PtP limits torque, not acceleration)"
+    )
+    tcp_box_m: tuple[Vec3, Vec3] | None = Field(
+        None, description="(min, max) corners of a box in the base frame the TCP must stay in, m"
+    )
+    max_iter: int = Field(3000, ge=1, description="IPOPT iteration cap")
+    max_wall_s: float | None = Field(None, gt=0, description="IPOPT wall-time cap, s")
+    tol: float = Field(1e-6, gt=0, description="IPOPT relative tolerance")
+    compile: bool = Field(
+        False,
+        description="compile the node functions to C (rxcomm.casadi_build: cached per content; without a "
+        "C compiler it falls back and warns): ~8× faster derivatives after a one-off ~1 min compile",
+    )
+    hessian: Literal["exact", "limited-memory"] = Field(
+        "exact", description="IPOPT's Hessian: exact (assembled from the nodes) or its L-BFGS approximation"
+    )
+
+    @model_validator(mode="after")
+    def _objective(self) -> PtpOptions:
+        if self.k1 == 0 and self.k2_per_nm2 == 0:
+            raise ValueError("k1 and k2_per_nm2 are both 0: nothing to minimise")
+        if self.tcp_box_m is not None and not all(a < b for a, b in zip(*self.tcp_box_m, strict=True)):
+            raise ValueError("tcp_box_m: every min must be below its max")
+        return self
+
+
+@dataclass(frozen=True, eq=False)
+class PtpLimits:
+    """The joint-space limits a PtP motion obeys (joint side, SI units)."""
+
+    q_min: np.ndarray
+    q_max: np.ndarray
+    v_max: np.ndarray
+    tau_max: np.ndarray
+    tau_rate_max: np.ndarray
+    a_max: np.ndarray | None = None
+
+    @classmethod
+    def from_robot(cls, robot: Robot, acceleration: bool = False) -> PtpLimits:
+        return cls(
+            robot.q_min, robot.q_max, robot.v_max, robot.tau_max, robot.tau_rate_max,
+            robot.a_max if acceleration else None,
+        )  # fmt: skip
+
+    def dense_checks(self) -> list:
+        """The limit objects of `rxcomm.model.limits` for the dense check (the same set the NLP obeys)."""
+        lims = [PositionLimit(self.q_min, self.q_max), VelocityLimit(self.v_max)]
+        if self.a_max is not None:
+            lims.append(AccelerationLimit(self.a_max))
+        return [*lims, TorqueLimit(self.tau_max), TorqueRateLimit(self.tau_rate_max)]
+
+    def key(self) -> str:
+        h = hashlib.sha256()
+        for a in (self.q_min, self.q_max, self.v_max, self.tau_max, self.tau_rate_max, self.a_max):
+            h.update(b"-" if a is None else np.ascontiguousarray(a, dtype=float).tobytes())
+        return h.hexdigest()
+
+
+@dataclass(frozen=True, eq=False)
+class PtpDynamics:
+    """What the OCP needs of the robot's dynamics, as CasADi Functions with named inputs.
+
+    `inv_dyn` (q, qd, qdd) → tau: the joint torque the drives deliver (torque limit, objective, τ_ff).
+    `coulomb` (qd) → tau: its Coulomb-friction part, left out of the torque-rate limit (module doc).
+    `tcp_fk` (q) → (p, R): the TCP placement, needed only for a TCP box.
+    """
+
+    inv_dyn: ca.Function
+    coulomb: ca.Function | None = None
+    tcp_fk: ca.Function | None = None
+
+    @classmethod
+    def from_parameters(
+        cls,
+        robot: Robot,
+        params: DynamicParameters | None = None,
+        coulomb_eps_rad_s: float = PTP_COULOMB_EPS_RAD_S,
+    ) -> PtpDynamics:
+        """From `rxcomm.model.symbolic` with `params` (default: the robot's priors), Coulomb friction smoothed
+        as tanh(q̇/ε) with ε = `coulomb_eps_rad_s` (module doc: why wider than the identification's)."""
+        params = prior_parameters(robot) if params is None else params
+        inv_dyn = inverse_dynamics_function(robot, params, coulomb_eps_rad_s)
+        qd = ca.SX.sym("qd", robot.n)
+        coulomb = ca.Function(
+            "coulomb", [qd], [ca.DM(params.coulomb_nm) * ca.tanh(qd / coulomb_eps_rad_s)], ["qd"], ["tau"]
+        )
+        return cls(inv_dyn, coulomb, forward_kinematics_function(robot))
+
+    @property
+    def dof(self) -> int:
+        return int(self.inv_dyn.size1_in(0))
+
+    def key(self) -> str:
+        h = hashlib.sha256()
+        for f in (self.inv_dyn, self.coulomb, self.tcp_fk):
+            h.update(b"-" if f is None else f.serialize().encode())
+        return h.hexdigest()
+
+    def torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """τ [n, dof] at many samples (one mapped call)."""
+        return np.asarray(self.inv_dyn.map(q.shape[0])(q.T, qd.T, qdd.T)).T.reshape(q.shape)
+
+    def rate_torque(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The torque whose rate is limited: τ minus its Coulomb part."""
+        if self.coulomb is None:
+            return tau
+        return tau - np.asarray(self.coulomb.map(q.shape[0])(qd.T)).T.reshape(q.shape)
+
+
+@dataclass(frozen=True, eq=False)
+class NodeGuess:
+    """Values on the OCP grid: T, q/q̇/q̈ at the N + 1 nodes [N+1, dof], jerk on the N intervals [N, dof]."""
+
+    duration_s: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    jerk: np.ndarray
+
+    @classmethod
+    def from_profile(cls, profile: KinematicProfile, n_intervals: int) -> NodeGuess:
+        """Sample a kinematic profile at the nodes; the jerk makes q̈ match at every node."""
+        T = max(profile.duration_s, 1e-3)
+        t = np.linspace(0.0, T, n_intervals + 1)
+        q, qd, qdd = profile.at(t)
+        return cls(T, q, qd, qdd, np.diff(qdd, axis=0) / (T / n_intervals))
+
+
+@dataclass(frozen=True, eq=False)
+class PtpSolution:
+    """The OCP's answer on its grid, and how IPOPT got there."""
+
+    duration_s: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    jerk: np.ndarray
+    tau: np.ndarray
+    objective: float
+    status: str
+    success: bool
+    iterations: int
+    solve_seconds: float
+
+    @property
+    def n_intervals(self) -> int:
+        return self.jerk.shape[0]
+
+    @property
+    def tau_squared_integral(self) -> float:
+        """∫τᵀτ dt by the trapezoid rule over the nodes, (N·m)²·s."""
+        s = np.sum(self.tau**2, axis=1)
+        return float(self.duration_s / self.n_intervals * (s.sum() - 0.5 * (s[0] + s[-1])))

@@ -1,0 +1,150 @@
+"""The report's verdict from the stage targets: one row per stage's headline against a stated target.
+
+These rows open the report until the build holds acceptance criteria measured on the robot as a whole
+(issue 17); they then follow them. Inputs are artefact summaries (plain mappings); None is a stage the
+build lacks, and its row says "not measured".
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from rxcomm.reporting.document import (
+    DEFAULT_TOLERANCE,
+    NOT_MEASURED,
+    Tolerance,
+    Verdict,
+    VerdictRow,
+    ratio_verdict,
+)
+
+
+class StageTargets(BaseModel):
+    """What each stage must reach. The calibration targets round up the paper's after-calibration
+    Table 2 (max 0.41 mm per axis, 0.19°); a fit whose torque prediction explains less than 95 % of the
+    validation torque variance is no model for feed-forward; feed-forward must at least halve the lag."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    heldout_max_position_error_m: float = Field(0.5e-3, gt=0, description="max |e_xyz| on held-out poses, m")
+    heldout_max_orientation_error_deg: float = Field(0.2, gt=0, description="max rotation error, degrees")
+    validation_r2_min: float = Field(0.95, gt=0, le=1, description="worst scored joint's validation R²")
+    lag_reduction_min: float = Field(2.0, gt=1, description="worst-joint max lag without / with feed-forward")
+
+
+def _at_most(criterion: str, value: float | None, target: float, scale: float, unit: str) -> VerdictRow:
+    threshold = f"≤ {target * scale:.3g} {unit}"
+    if value is None:
+        return VerdictRow(criterion, NOT_MEASURED, threshold, Verdict.not_measured)
+    verdict = Verdict.passed if value <= target else Verdict.failed
+    note = "" if verdict is Verdict.passed else f"missed by {(value - target) * scale:.3g} {unit}"
+    return VerdictRow(criterion, f"{value * scale:.3g} {unit}", threshold, verdict, note)
+
+
+def calibration_rows(s: Mapping | None, t: StageTargets) -> list[VerdictRow]:
+    s = s or {}
+    ori = s.get("heldout_max_orientation_error_rad")
+    return [
+        _at_most(
+            "calibration: held-out max position error",
+            s.get("heldout_max_position_error_m"),
+            t.heldout_max_position_error_m,
+            1e3,
+            "mm",
+        ),
+        _at_most(
+            "calibration: held-out max orientation error",
+            None if ori is None else float(np.degrees(ori)),
+            t.heldout_max_orientation_error_deg,
+            1.0,
+            "°",
+        ),
+    ]
+
+
+def identification_row(s: Mapping | None, t: StageTargets) -> VerdictRow:
+    criterion, threshold = "identification: validation R², worst moving joint", f"≥ {t.validation_r2_min:g}"
+    scored = [r for r in (s or {}).get("validation_r2") or [] if r is not None]
+    if not scored:
+        return VerdictRow(criterion, NOT_MEASURED, threshold, Verdict.not_measured)
+    worst = min(scored)
+    ok = worst >= t.validation_r2_min
+    n = len((s or {})["validation_r2"])
+    note = f"{len(scored)} of {n} joints moved on the validation data"
+    return VerdictRow(criterion, f"{worst:.4f}", threshold, Verdict.passed if ok else Verdict.failed, note)
+
+
+def feedforward_row(ff: Mapping | None, noff: Mapping | None, t: StageTargets) -> VerdictRow:
+    criterion = "execution: max joint lag without / with feed-forward (worst joint)"
+    threshold = f"≥ ×{t.lag_reduction_min:g}"
+    if ff is None or noff is None:
+        return VerdictRow(criterion, NOT_MEASURED, threshold, Verdict.not_measured)
+    with_ff, without = max(ff["max_lag_rad"]), max(noff["max_lag_rad"])
+    ratio = without / with_ff
+    ok = ratio >= t.lag_reduction_min
+    note = f"{without * 1e3:.3g} → {with_ff * 1e3:.3g} mrad"
+    return VerdictRow(criterion, f"×{ratio:.1f}", threshold, Verdict.passed if ok else Verdict.failed, note)
+
+
+def runs_row(runs: Mapping[str, Mapping]) -> VerdictRow:
+    criterion, threshold = "every run completed, no setpoint underrun", "all completed, 0 underruns"
+    if not runs:
+        return VerdictRow(criterion, NOT_MEASURED, threshold, Verdict.not_measured)
+    done = [n for n, a in runs.items() if a["summary"].get("outcome") == "completed"]
+    # a run in virtual time has no deadline to miss: its underruns are a string saying so, not 0
+    counted = {n: a["summary"]["underruns"] for n, a in runs.items()}
+    counted = {n: u for n, u in counted.items() if isinstance(u, int | float)}
+    underruns = int(sum(counted.values()))
+    ok = len(done) == len(runs) and underruns == 0
+    failed = sorted(set(runs) - set(done))
+    notes = [f"not completed: {', '.join(failed)}"] if failed else []
+    if counted and len(counted) < len(runs):
+        notes.append(f"underruns not applicable (virtual time) in {len(runs) - len(counted)} of {len(runs)}")
+    # no run in real time: no deadline, so underruns are not measured (never said as 0)
+    counts = f"{underruns} underruns" if counted else "underruns not applicable (virtual time)"
+    return VerdictRow(
+        criterion,
+        f"{len(done)} of {len(runs)} completed, {counts}",
+        threshold,
+        Verdict.passed if ok else Verdict.failed,
+        "; ".join(notes),
+    )
+
+
+def stage_verdicts(
+    summaries: Mapping[str, Mapping | None],
+    runs: Mapping[str, Mapping],
+    tolerances: Mapping[str, Tolerance] | None = None,
+    targets: StageTargets | None = None,
+) -> list[VerdictRow]:
+    """Rows for `summaries` keyed calibration, dynamics, excitation, cp, ptp, run-ff, run-noff (None or
+    absent: not in the build). `tolerances[key]` is the limit tolerance `run` checked that plan with."""
+    t = targets or StageTargets()
+    tol = tolerances or {}
+
+    def plan(key: str, what: str) -> VerdictRow:
+        s = summaries.get(key)
+        ratio = None if s is None else s.get("max_limit_ratio")
+        return ratio_verdict(f"{what}: max limit ratio", ratio, *tol.get(key, DEFAULT_TOLERANCE))
+
+    return [
+        *calibration_rows(summaries.get("calibration"), t),
+        identification_row(summaries.get("dynamics"), t),
+        feedforward_row(summaries.get("run-ff"), summaries.get("run-noff"), t),
+        plan("excitation", "exciting trajectory"),
+        plan("cp", "continuous-path plan"),
+        plan("ptp", "point-to-point plan"),
+        runs_row(runs),
+    ]
+
+
+def verdict_note(rows: Sequence[VerdictRow]) -> str:
+    """One sentence under the table: how many criteria pass, fail, were not measured."""
+    n = {v: sum(r.verdict is v for r in rows) for v in Verdict}
+    return (
+        f"{n[Verdict.passed]} of {len(rows)} criteria pass, {n[Verdict.failed]} fail, "
+        f"{n[Verdict.not_measured]} not measured."
+    )
