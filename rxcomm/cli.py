@@ -17,6 +17,7 @@ from rxcomm.stages import (
     cell_sim,
     excite,
     identify,
+    iso9283,
     plan_cp,
     plan_ptp,
     recover_log,
@@ -64,6 +65,7 @@ app.command("plan-ptp")(plan_ptp.command)
 app.command("report")(report.command)
 app.command("recover-log")(recover_log.command)
 app.command("accept")(accept.command)
+app.command("iso9283")(iso9283.command)
 
 
 def main() -> None:

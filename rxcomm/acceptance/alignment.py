@@ -84,14 +84,15 @@ def _correlate(
     full = np.fft.irfft(np.sum(fb * np.conj(fa), axis=1), size)[: 2 * m + 1]  # [j] = Σ_i b[i + j]·a[i]
     cum = np.concatenate([[0.0], np.cumsum(np.sum(b * b, axis=1))])
     window = cum[n : n + 2 * m + 1] - cum[: 2 * m + 1]
-    corr = full / np.sqrt(np.sum(a * a) * np.maximum(window, 1e-300))
-    best = int(np.argmax(corr))
+    # the peak of the raw correlation (a matched filter: normalising per lag would favour lags where
+    # the tracker's window holds little but noise); its normalised value says how well they match
+    best = int(np.argmax(full))
     lag = float(best - m)
     if 0 < best < 2 * m:
-        cm, c0, cp = corr[best - 1], corr[best], corr[best + 1]
+        cm, c0, cp = full[best - 1], full[best], full[best + 1]
         if (denom := cm - 2 * c0 + cp) < 0:
             lag += 0.5 * (cm - cp) / denom  # the parabola's vertex through the three around the peak
-    return lag, float(corr[best])
+    return lag, float(full[best] / np.sqrt(np.sum(a * a) * max(window[best], 1e-300)))
 
 
 def cross_correlation_offset(
@@ -131,9 +132,12 @@ def align(
     method: str = "auto",
     search_s: float = 0.05,
 ) -> Alignment:
-    """The offset by `method`: "trigger", "cross-correlation" (a search of ±1 s about the trigger's,
-    or about the stamps' start when no trigger) or "auto" (trigger refined by the cross-correlation
-    within ±`search_s`; the cross-correlation alone without a trigger)."""
+    """The offset by `method`: "trigger", "cross-correlation" (a search of ±1 s about the trigger's;
+    without a trigger, wherever the two records overlap) or "auto" (the trigger refined by the
+    cross-correlation within ±`search_s`; the cross-correlation alone without a trigger). The
+    cross-correlation is kept only when the tracker covers `MIN_COVERAGE` of the joint log and the
+    velocities correlate to `MIN_CORRELATION`: held values over a lost beam are no motion to match
+    ("auto" then keeps the trigger's offset; otherwise InputError)."""
     trig = None if trigger_s is None else trigger_offset(trigger_s, sample_s)
     if method == "trigger":
         if trig is None:
@@ -143,20 +147,43 @@ def align(
         return Alignment(trig, "trigger", trig, None)
     if method not in ("auto", "cross-correlation"):
         raise InputError(f"unknown alignment {method!r}", field="alignment")
-    wide = method == "cross-correlation" or trig is None
-    start = trig if trig is not None else float(t_tracker[0] - t_joint[0])
+    if trig is not None:
+        start, search = trig, 1.0 if method == "cross-correlation" else search_s
+    else:  # no trigger: anywhere the two records overlap
+        start = float(t_tracker[0] - t_joint[0])
+        search = float(np.ptp(t_tracker) + np.ptp(t_joint))
+    reason = ""
     try:
         offset, peak = cross_correlation_offset(
-            t_tracker, p_tracker, t_joint, p_fk, offset0_s=start, search_s=1.0 if wide else search_s
+            t_tracker, p_tracker, t_joint, p_fk, offset0_s=start, search_s=search
         )
-    except InputError:
-        if method == "auto" and trig is not None:  # a motion without speed: the trigger alone
+        cover = coverage(t_tracker - offset, t_joint)
+        if cover < MIN_COVERAGE or peak < MIN_CORRELATION:
+            reason = (
+                f"the tracker covers {cover:.0%} of the joint log (gaps: the beam was lost) and the "
+                f"velocities correlate to {peak:.2f}; need ≥ {MIN_COVERAGE:.0%} and ≥ {MIN_CORRELATION}"
+            )
+    except InputError as e:
+        reason = str(e)
+    if reason:
+        if method == "auto" and trig is not None:  # the trigger alone
             return Alignment(trig, "trigger", trig, None)
-        raise
+        raise InputError(f"no alignment by cross-correlation: {reason}", field="tracker")
     name = (
         "cross-correlation" if trig is None or method == "cross-correlation" else "trigger+cross-correlation"
     )
     return Alignment(offset, name, trig, peak)
+
+
+MIN_COVERAGE = 0.95  # share of the joint log's instants with a tracker sample within 2 ms
+MIN_CORRELATION = 0.9
+
+
+def coverage(t_tracker_aligned: np.ndarray, t_joint: np.ndarray, within_s: float = 0.002) -> float:
+    """Share of the joint log's instants with a tracker sample within `within_s`."""
+    i = np.clip(np.searchsorted(t_tracker_aligned, t_joint), 1, len(t_tracker_aligned) - 1)
+    near = np.minimum(np.abs(t_tracker_aligned[i] - t_joint), np.abs(t_tracker_aligned[i - 1] - t_joint))
+    return float(np.mean(near <= within_s))
 
 
 def tracker_channel(

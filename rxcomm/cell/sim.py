@@ -79,7 +79,9 @@ class SimulatedCell:
                 field="q0",
             )
         seed = truth.truth.seed if s.seed is None else s.seed
-        torque_rng, tracker_rng = (np.random.default_rng(ss) for ss in np.random.SeedSequence(seed).spawn(2))
+        torque_rng, tracker_rng, motion_rng = (
+            np.random.default_rng(ss) for ss in np.random.SeedSequence(seed).spawn(3)
+        )
         self._rng = torque_rng
         self._lsb = truth.truth.noise.encoder_lsb_rad
         self._torque_sigma = np.array(truth.truth.noise.torque_noise_nm, dtype=float)
@@ -90,9 +92,16 @@ class SimulatedCell:
         self.drives = CascadedDrives(self.gains, self._encoder())
         visibility = None if truth.cell is None else truth.cell.tracker
         self._tracker = SimulatedTracker(robot, truth.truth, tracker_rng, visibility=visibility)
-        rate = 1000.0 if truth.cell is None else truth.cell.tracker.sample_rate_hz
+        rate = 1000.0 if visibility is None else visibility.sample_rate_hz
+        # Performance tests mount their target facing the tracker: its range and view cone hold,
+        # the calibration probe's cone does not (a TCP pointing down would hide the whole ISO cube).
+        facing = None if visibility is None else visibility.model_copy(update={"probe_half_angle_rad": np.pi})
         self.motion_tracker = MotionTracker(
-            self._tracker, rate, truth.truth.noise.tracker_latency_s, n, max_samples=s.tracker_max_samples
+            SimulatedTracker(robot, truth.truth, motion_rng, visibility=facing),
+            rate,
+            truth.truth.noise.tracker_latency_s,
+            n,
+            max_samples=s.tracker_max_samples,
         )
         self._n = n
         self._rated = np.array(robot.tau_cont, dtype=float)
