@@ -19,6 +19,7 @@ from rxcomm.stages import (
     identify,
     iso9283,
     plan_cp,
+    plan_poses,
     plan_ptp,
     recover_log,
     report,
@@ -66,6 +67,7 @@ app.command("report")(report.command)
 app.command("recover-log")(recover_log.command)
 app.command("accept")(accept.command)
 app.command("iso9283")(iso9283.command)
+app.command("plan-poses")(plan_poses.command)
 
 
 def main() -> None:

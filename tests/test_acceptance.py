@@ -110,7 +110,8 @@ def test_missing_measurements_are_not_measured_never_pass():
     # a path criterion at another speed does not match the threshold's 1 m/s
     th = t(criterion="AT_p", unit="m", target="iso9283-line", command_speed_m_per_s=1.0, max_commissioned=1.0)
     rows = acceptance_rows([th], [], [], None, iso({("AT_p", "iso9283-line"): 0.0001}, speed=0.5))
-    assert rows[0].verdict == "not measured" and "not in the ISO 9283 artefact" in rows[0].note
+    assert rows[0].verdict == "not measured"
+    assert "measured at a command speed of 0.5 m/s only, not 1 m/s" in rows[0].note
     # a stopped run is no cycle time
     assert task_value("cycle_time", [{"duration_s": 1.0, "outcome": "stopped"}]).value is None
     rows = acceptance_rows([t(criterion="AP_p", unit="m", max_commissioned=1.0)], [], [], None, iso({}))
@@ -228,3 +229,10 @@ def test_factory_and_optimal_runs_on_the_cell_give_a_cycle_time_verdict(tmp_path
     assert rows["cycle_time"]["verdict"] == "PASS"
     assert rows["AT_p iso9283-line"]["verdict"] == "not measured"  # no ISO 9283 artefact given
     assert summary["verdict"] == "incomplete"
+
+
+def test_an_unmeasured_path_says_why():
+    th = t(criterion="AT_p", unit="m", target="iso9283-line", command_speed_m_per_s=1.0, max_commissioned=1.0)
+    art = iso({("AT_p", "iso9283-line"): None}, speed=None)
+    rows = acceptance_rows([th], [], [], None, art)
+    assert rows[0].verdict == "not measured" and "iso9283-line: no tracker channel" in rows[0].note

@@ -40,12 +40,26 @@ ALL = {
     "factory-ptp.mcap",
     "run-factory-cp.mcap",
     "run-factory-ptp.mcap",
+    "factory-poses.mcap",
+    "factory-iso-line.mcap",
+    "poses.mcap",
+    "iso-line.mcap",
+    "run-factory-poses.mcap",
+    "run-factory-iso-line.mcap",
+    "run-poses.mcap",
+    "run-iso-line.mcap",
+    "iso9283-factory.yaml",
+    "iso9283.yaml",
     "verdict.yaml",
     "report.md",
 }
 # The factory state (issue 17): catalogue timing of the CP path and the PtP move, run without feed-forward.
 FACTORY_PLANS = {"factory-cp.mcap", "factory-ptp.mcap"}
 FACTORY_RUNS = {"run-factory-cp.mcap", "run-factory-ptp.mcap"}
+# ISO 9283 in both states: the pose cycle and the ISO line, their runs with the tracker, the criteria.
+ISO_RUNS = {"run-factory-poses.mcap", "run-factory-iso-line.mcap", "run-poses.mcap", "run-iso-line.mcap"}
+# what the identified dynamics (and the calibration) feed of it
+ISO_ON_MODEL = {"poses.mcap", "iso-line.mcap", "run-poses.mcap", "run-iso-line.mcap", "iso9283.yaml"}
 # The rules whose command talks to the simulated cell (`run`: it reads truth.yaml) ...
 ON_CELL = {
     "calib-meas.yaml",
@@ -55,10 +69,12 @@ ON_CELL = {
     "run-ff.mcap",
     "run-ptp.mcap",
     *FACTORY_RUNS,
+    *ISO_RUNS,
 }
 # ... and those downstream of their outputs. select-configs, excite, the validation plan and robot-info
 # never see the cell.
 AFTER_CELL = {"calibration.yaml", "dynamics.yaml", "cp.mcap", "ptp.mcap", "verdict.yaml", "report.md"}
+AFTER_CELL |= {"poses.mcap", "iso-line.mcap", "iso9283-factory.yaml", "iso9283.yaml"}
 # select-configs and what follows the pose set: measurement, calibration, the planners on the
 # calibrated robot, their runs, the report. Excitation, identification's logs and robot-info do not.
 AFTER_POSES = {
@@ -72,6 +88,8 @@ AFTER_POSES = {
     "run-ptp.mcap",
     "verdict.yaml",
     "report.md",
+    *ISO_ON_MODEL,
+    "iso9283-factory.yaml",  # the tracker's base frame is the calibration's
 }
 # The commissioned plans on the identified, calibrated model and their runs, the verdict, the report.
 AFTER_MODEL = {
@@ -82,9 +100,10 @@ AFTER_MODEL = {
     "run-ptp.mcap",
     "verdict.yaml",
     "report.md",
+    *ISO_ON_MODEL,
 }
 # The CP path feeds plan-cp (both states); plan-ptp starts from its end states.
-AFTER_CP_PATH = AFTER_MODEL | FACTORY_PLANS | FACTORY_RUNS
+AFTER_CP_PATH = AFTER_MODEL - ISO_ON_MODEL | FACTORY_PLANS | FACTORY_RUNS
 # What `make commission` builds, the files `make -q` can vouch for (phony targets are never "up to date").
 PRODUCTS = ["robot-info.txt", "report.md", "run-ptp.mcap"]
 
@@ -175,10 +194,26 @@ def test_n_poses_on_the_command_line_rebuilds_select_configs_and_what_follows(bu
 def test_other_inputs_rebuild_what_reads_them(built):
     assert _remade(built, "-W", str(ROBOT / "paths/line-near-singularity.yaml"))[0] == AFTER_CP_PATH
     # cell.yaml: select-configs, calibrate, excite and the simulated cell (its tracker's field of view).
-    not_cell = {"robot-info.txt", "validation-plan.mcap", *FACTORY_PLANS}
+    not_cell = {
+        "robot-info.txt",
+        "validation-plan.mcap",
+        *FACTORY_PLANS,
+        "factory-poses.mcap",
+        "factory-iso-line.mcap",
+    }
     assert _remade(built, "-W", str(ROBOT / "cell.yaml"))[0] == ALL - not_cell
     excite = {"excitation.yaml", "excite-log.mcap", "dynamics.yaml"} | AFTER_MODEL
     assert _remade(built, "EXCITE_OPTS=--starts 3") == (excite, {"excite"})
+    # the ISO line: its plans in both states, their runs, the criteria, the verdict, the report
+    line = {"factory-iso-line.mcap", "iso-line.mcap", "run-factory-iso-line.mcap", "run-iso-line.mcap"}
+    after = {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml", "report.md"}
+    assert _remade(built, "-W", str(ROBOT / "paths/iso9283-line.yaml"))[0] == line | after
+    # the pose cycle's length: its two plans, their runs and what follows
+    poses = {"factory-poses.mcap", "poses.mcap", "run-factory-poses.mcap", "run-poses.mcap"}
+    assert _remade(built, "POSE_CYCLES=3") == (
+        poses | after,
+        {"factory-poses", "poses", "iso9283"} - {"iso9283"},
+    )
     # the acceptance thresholds: the verdict and the report only
     assert _remade(built, "-W", str(ROBOT / "acceptance.yaml"))[0] == {"verdict.yaml", "report.md"}
 

@@ -56,12 +56,17 @@ def iso_value(threshold: Threshold, iso: Iso9283 | None) -> Measured:
         rows = [c for c in rows if c.target == threshold.target]
     v_cmd = threshold.command_speed_m_per_s
     if v_cmd is not None:
-        rows = [
+        speeds = sorted({c.command_speed_m_per_s for c in rows if c.command_speed_m_per_s is not None})
+        near = [
             c
             for c in rows
             if c.command_speed_m_per_s is not None
             and abs(c.command_speed_m_per_s - v_cmd) <= SPEED_TOLERANCE * v_cmd
         ]
+        if speeds and not near:
+            at = ", ".join(f"{v:.3g}" for v in speeds)
+            return Measured(None, f"measured at a command speed of {at} m/s only, not {v_cmd:g} m/s")
+        rows = near or rows  # no speed at all: every row is unmeasured, and says why below
     if not rows:
         return Measured(None, "not in the ISO 9283 artefact")
     measured = [c for c in rows if c.value is not None]

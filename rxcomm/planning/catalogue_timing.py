@@ -12,6 +12,9 @@ kinematic limits its maker publishes (`rxcomm.model.catalogue`), the same for ev
   streams none.
 - `plan_ptp_catalogue`: ruckig's time-optimal jerk-limited rest-to-rest profile under the catalogue
   speeds and accelerations and a jerk reaching each acceleration in `JERK_RAMP_S` (50 ms).
+- `pose_cycle_plan`: the ISO 9283 pose test (P1 → P5 → P4 → P3 → P2, `planning.iso9283`) with each
+  move a cycloidal profile at the catalogue limits. Both states use it: the test measures the poses
+  at rest, so only the kinematics the IK solved them on differ.
 
 Both report every limit they honour on the drive-cycle samples; the torque against the drives' peak is
 left out of that check (it is what the catalogue's worst case guarantees, not what the timing knows).
@@ -31,6 +34,12 @@ from rxcomm.model.limits import AccelerationLimit, LimitReport, PositionLimit, V
 from rxcomm.model.robot import Robot
 from rxcomm.planning.cp import CpPlan, CpSettings, TcpAccelerationLimit, TcpSpeedLimit, active_segments
 from rxcomm.planning.cp_grid import toppra_grid
+from rxcomm.planning.iso9283 import (
+    cube_from_rectangle,
+    cycloidal_move,
+    pose_cycle_joints,
+    pose_cycle_trajectory,
+)
 from rxcomm.planning.path_ik import solve_path_ik
 from rxcomm.planning.paths import CartesianPath
 from rxcomm.planning.ptp import sample_profile
@@ -38,6 +47,7 @@ from rxcomm.planning.ptp_problem import PtpDynamics
 from rxcomm.planning.timing import PlanDynamics, limits_text
 from rxcomm.planning.topp import PlanLimits, time_optimal
 from rxcomm.planning.warm_start import ruckig_profile
+from rxcomm.schemas.path import PathSpec
 
 JERK_RAMP_S = 0.05  # the generic controller's jerk: each joint reaches its catalogue acceleration in 50 ms
 # (PtP: ruckig's jerk limit a/T; CP: a moving-average setpoint filter of length T)
@@ -168,3 +178,26 @@ def plan_ptp_catalogue(
         robot, traj.t, traj.q, traj.qd, traj.qdd, traj.tau_ff, limits=_kinematic_checks(robot, catalogue)
     )
     return traj, report
+
+
+def pose_cycle_plan(
+    robot: Robot,
+    rectangle: PathSpec,
+    catalogue: CatalogueLimits,
+    dynamics: PtpDynamics,
+    n_cycles: int,
+    dwell_s: float,
+    sample_s: float,
+) -> tuple[Trajectory, list[str], LimitReport]:
+    """The pose-cycle plan through the test cube of `rectangle` (the iso9283-rectangle spec) on
+    `robot` (a calibrated one to honour a calibration): the trajectory sampled every `sample_s` with
+    its torques from `dynamics`, the poses in the order visited, the check of the catalogue limits."""
+    joints = pose_cycle_joints(robot, cube_from_rectangle(rectangle), rectangle.branch)
+    move = cycloidal_move(catalogue.v_max, catalogue.a_max, sample_s)
+    traj, order = pose_cycle_trajectory(joints, n_cycles, dwell_s, move, sample_s)
+    tau = dynamics.torque(traj.q, traj.qd, traj.qdd)
+    traj = Trajectory(traj.t, traj.q, traj.qd, traj.qdd, tau)
+    report = check_limits(
+        robot, traj.t, traj.q, traj.qd, traj.qdd, tau, limits=_kinematic_checks(robot, catalogue)
+    )
+    return traj, order, report
