@@ -9,6 +9,7 @@ import pinocchio as pin
 import pytest
 
 from rxcomm.errors import InfeasibleError
+from rxcomm.io.yaml_io import load_yaml
 from rxcomm.model.catalogue import catalogue_limits, payload_parameters, worst_case_terms
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters
 from rxcomm.schemas.drives import RatedPayload
@@ -200,3 +201,29 @@ def test_cli_plan_ptp_timing_catalogue(tmp_path):
         app, ["plan-ptp", "--robot", "x", "--start=0", "--goal=0", "--timing", "fast", "-o", "o"]
     )
     assert res.exit_code == 2
+
+
+def test_plan_poses_visits_the_cube_at_the_catalogue_limits(tmp_path, rx130l):
+    """plan-poses: P1 then P5 → P4 → P3 → P2 → P1 per cycle, held for the dwell, every joint within the
+    catalogue limits (some bound), the calibrated robot's IK when a calibration is given (not here)."""
+    from rxcomm.io.trajectory import load_trajectory_mcap
+    from rxcomm.model.kinematics import frame_placement
+    from rxcomm.planning.iso9283 import cube_from_rectangle
+    from rxcomm.schemas.path import PathSpec
+    from rxcomm.stages import plan_poses
+
+    out = tmp_path / "poses.mcap"
+    s = plan_poses.run(ROOT / "samples/rx130l", out, cycles=2, dwell_s=0.3)
+    assert s["order"] == "P1 P5 P4 P3 P2 P1 P5 P4 P3 P2 P1"
+    assert 0.98 <= s["max_limit_ratio"] <= 1.0 + 1e-9
+    traj, env = load_trajectory_mcap(out)
+    assert env["settings"]["calibrated"] is False and env["settings"]["catalogue"]["n_poses"] == 2000
+    cat = catalogue_limits(rx130l)
+    assert np.all(np.abs(traj.qd) <= cat.v_max * (1 + 1e-9)) and np.all(
+        np.abs(traj.qdd) <= cat.a_max * (1 + 1e-9)
+    )
+    spec = PathSpec.model_validate(load_yaml(ROOT / "samples/rx130l/paths/iso9283-rectangle.yaml"))
+    cube = cube_from_rectangle(spec)
+    p = frame_placement(rx130l, rx130l.create_data(), traj.q[0], rx130l.tcp_frame_id).translation
+    np.testing.assert_allclose(p, cube.points_m["P1"], atol=1e-6)
+    assert np.max(np.abs(traj.tau_ff) / rx130l.tau_max) <= 1.0
