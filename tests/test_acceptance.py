@@ -236,3 +236,17 @@ def test_an_unmeasured_path_says_why():
     art = iso({("AT_p", "iso9283-line"): None}, speed=None)
     rows = acceptance_rows([th], [], [], None, art)
     assert rows[0].verdict == "not measured" and "iso9283-line: no tracker channel" in rows[0].note
+
+
+def test_a_factory_that_cannot_reach_the_command_speed_is_said_so():
+    th = t(
+        criterion="AT_p", unit="m", target="iso9283-line", command_speed_m_per_s=1.0, max_commissioned=0.0005
+    )
+    f_iso = iso({("AT_p", "iso9283-line"): 0.0076}, speed=0.643)
+    c_iso = iso({("AT_p", "iso9283-line"): 0.0004}, speed=1.0)
+    (row,) = acceptance_rows([th], [], [], f_iso, c_iso)
+    assert row.verdict == "PASS" and row.factory is None and row.ratio is None
+    assert row.note == (
+        "worst of 1: iso9283-line, 10 cycles; factory: measured at a command speed of 0.643 m/s only, "
+        "not 1 m/s"
+    )

@@ -74,7 +74,7 @@ def iso_value(threshold: Threshold, iso: Iso9283 | None) -> Measured:
         missing = [c for c in rows if c.value is None]
         return Measured(None, f"{missing[0].target}: {missing[0].note or 'not measured'}")
     worst = max(measured, key=lambda c: abs(c.value))
-    cycles = f", {worst.cycles} cycles" if worst.cycles else ""
+    cycles = f", {worst.cycles} cycle{'s' if worst.cycles != 1 else ''}" if worst.cycles else ""
     return Measured(abs(worst.value), f"worst of {len(rows)}: {worst.target}{cycles}")
 
 
@@ -114,6 +114,8 @@ def verdict_row(t: Threshold, factory: Measured, commissioned: Measured) -> Verd
         )
         verdict = "PASS" if ok else "FAIL"
     note = "; ".join(missing) if missing else commissioned.note
+    if f is None and not any(m.startswith(("factory", "both")) for m in missing):
+        note += f"; factory: {factory.note}"  # e.g. it could not run at the command speed
     return VerdictRow(
         criterion=label(t),
         unit=t.unit,
