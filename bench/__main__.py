@@ -28,6 +28,7 @@ SECTIONS = [
     "bench.identification",
     "bench.plan_ptp",
     "bench.plan_cp",
+    "bench.iso9283",
 ]
 
 

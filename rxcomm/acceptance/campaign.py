@@ -42,6 +42,8 @@ from rxcomm.schemas.iso9283 import CRITERIA_UNITS, POSES, Criterion
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.run_log import TRACKER_TOPIC
 
+COMMAND_SPEED_STEP_S = 0.004  # s between the FK samples of the command speed
+
 
 class CampaignSettings(BaseModel):
     """How attained poses and paths are taken from the logs."""
@@ -148,12 +150,16 @@ class PathCycle:
 
 
 def path_cycle(robot: Robot, log: TrackedLog, s: CampaignSettings) -> PathCycle:
-    p_cmd = _fk(robot, log.q_demand)
-    v_cmd_grid = np.linalg.norm(np.gradient(p_cmd, log.t_joint, axis=0), axis=1)
+    # the command speed from FK every ~COMMAND_SPEED_STEP_S: it is smooth, and FK of every setpoint
+    # of a campaign would be most of its time
+    step = max(1, int(round(COMMAND_SPEED_STEP_S / float(np.median(np.diff(log.t_joint))))))
+    idx = np.unique(np.append(np.arange(0, len(log.t_joint), step), len(log.t_joint) - 1))
+    p_cmd = _fk(robot, log.q_demand[idx])
+    v_cmd_grid = np.linalg.norm(np.gradient(p_cmd, log.t_joint[idx], axis=0), axis=1)
     inside = (log.t >= log.t_joint[0]) & (log.t <= log.t_joint[-1])
     t = log.t[inside]
     v_att = np.linalg.norm(velocity_on_grid(log.t, log.position_m, t, s.velocity_window_s), axis=1)
-    return PathCycle(log.position_m[inside], v_att, np.interp(t, log.t_joint, v_cmd_grid))
+    return PathCycle(log.position_m[inside], v_att, np.interp(t, log.t_joint[idx], v_cmd_grid))
 
 
 def command_path(spec: PathSpec, n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
