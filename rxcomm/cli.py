@@ -16,6 +16,7 @@ from rxcomm.stages import (
     cell_sim,
     excite,
     identify,
+    import_tracker,
     iso9283,
     plan_cp,
     plan_ptp,
@@ -64,6 +65,7 @@ app.command("plan-ptp")(plan_ptp.command)
 app.command("report")(report.command)
 app.command("recover-log")(recover_log.command)
 app.command("iso9283")(iso9283.command)
+app.command("import-tracker")(import_tracker.command)
 
 
 def main() -> None:
