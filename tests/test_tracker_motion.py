@@ -268,3 +268,23 @@ def test_import_tracker_puts_a_csv_on_a_run_log(tmp_path, rx130l):
         ],
     )
     assert res2.exit_code == 2 and "tracker channel already" in res2.output
+
+
+def test_batched_measurement_is_the_per_sample_true_pose(rx130l, truth):
+    """measure_many (the motion tracker's export) = true_pose sample by sample: the same kinematics,
+    errors, frame and compliance; the deflection interpolated between every 25th state costs < 0.1 µm."""
+    quiet = truth.noise.model_copy(
+        update={"tracker_position_sigma_m": 0.0, "tracker_orientation_sigma_rad": 0.0}
+    )
+    tracker = SimulatedTracker(rx130l, truth.model_copy(update={"noise": quiet}), np.random.default_rng(0))
+    qs = np.random.default_rng(1).uniform(-0.5, 0.5, (50, 6))
+    p, r, visible = tracker.measure_many(qs, deflection_every=1)
+    assert visible.all()
+    for i, q in enumerate(qs):
+        m = tracker.true_pose(q)
+        np.testing.assert_allclose(p[i], m.translation, atol=1e-12)
+        np.testing.assert_allclose(r[i], m.rotation, atol=1e-12)
+    line = np.linspace(qs[0], qs[1], 1000)
+    p_line, _, _ = tracker.measure_many(line)
+    ref = np.array([tracker.true_pose(q).translation for q in line])
+    assert np.abs(p_line - ref).max() < 1e-7
