@@ -122,7 +122,8 @@ $(B)/validation-plan.mcap: $(STAMP) $(ROBOT_FILES) $(VAL_PATH) \
 $(B)/validation-log.mcap: $(B)/validation-plan.mcap $(SIM_FILES) $(call params,validation-run,$(RUN_SIM))
 	$(RX) run $< $(RUN_SIM) -o $@
 
-ID_ARGS = --robot $(ROBOT) --validate $(B)/validation-log.mcap --plot
+ID_ARGS = --robot $(ROBOT) --validate $(B)/validation-log.mcap --plot --cutoff-hz auto \
+	--params-out $(B)/dynamics-params.csv
 $(B)/dynamics.yaml: $(B)/excite-log.mcap $(B)/validation-log.mcap $(ROBOT_FILES) \
 		$(call params,identify,$(ID_ARGS))
 	$(RX) identify --log $< $(ID_ARGS) -o $@

@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 
 import casadi as ca
+import numpy as np
 
 log = logging.getLogger(__name__)
 COMPILE_TIMEOUT_S = 300.0
@@ -79,3 +80,35 @@ def compiled(functions: list[ca.Function], flags: tuple[str, ...] = ("-O1",)) ->
             os.replace(part, so)  # atomic: a concurrent reader sees the whole file or none
         out.append(ca.external(f.name(), str(so)))
     return out
+
+
+class Mapped:
+    """A CasADi function mapped over k samples and evaluated in place on numpy arrays (CasADi's
+    buffer interface: no DM conversion, which costs more than the evaluation itself here).
+
+    CasADi stores matrices column-major, so the mapped input of an (r × 1) argument, r × k, is a
+    C-order [k, r] array (sample-major), and the mapped output of an (r × c) result is a C-order
+    [k, c, r] array. Outputs must be dense (`ca.densify`). The returned arrays are reused by the
+    next call: copy what you keep."""
+
+    def __init__(self, f: ca.Function, k: int):
+        self.k = k
+        self._f = f.map(k)
+        self._buf, self._eval = self._f.buffer()
+        self._args = [np.zeros(self._f.nnz_in(i)) for i in range(self._f.n_in())]
+        self._res = []
+        for i in range(self._f.n_out()):
+            if self._f.nnz_out(i) != self._f.numel_out(i):
+                raise ValueError(f"output {i} of {f.name()} is sparse: densify it")
+            self._res.append(np.zeros(self._f.nnz_out(i)))
+        for i, arr in enumerate(self._args):
+            self._buf.set_arg(i, memoryview(arr))
+        for i, arr in enumerate(self._res):
+            self._buf.set_res(i, memoryview(arr))
+        self._shapes = [(k, f.size2_out(i), f.size1_out(i)) for i in range(f.n_out())]
+
+    def __call__(self, *inputs: np.ndarray) -> list[np.ndarray]:
+        for arr, x in zip(self._args, inputs, strict=True):
+            arr[:] = np.ravel(x)
+        self._eval()
+        return [r.reshape(shape) for r, shape in zip(self._res, self._shapes, strict=True)]

@@ -285,6 +285,12 @@ def _per_joint(
     return f"[{text}]" + (f" {unit}" if unit else "")
 
 
+def _cutoff_choice(s: Mapping) -> str:
+    """ " (auto: why)" for a cut-off chosen from the data; nothing for one given."""
+    choice = str(s.get("cutoff_choice") or "")
+    return f" ({choice})" if choice.startswith("auto") else ""
+
+
 _UNITS = {"m": "kg", "mcx": "kg·m", "mcy": "kg·m", "mcz": "kg·m", "fc": "N·m", "fv": "N·m·s/rad"}
 _UNITS |= {"offset": "N·m", "rotor_inertia": "kg·m²", "kL0": "N"}
 
@@ -348,8 +354,13 @@ def dynamics_section(
                 _per_joint(s.get("validation_standstill_in_band_fraction"), none="no standstill"),
             ),
             Figure(
+                "fit RMS error per joint beside the cross-validated held-out RMS (contiguous folds)",
+                f"{_per_joint(s.get('fit_rms_nm'), unit='N·m')} / "
+                f"{_per_joint(s.get('cv_rms_nm') if s.get('cv_folds_scored') else None, unit='N·m')}",
+            ),
+            Figure(
                 "low-pass cut-off; fit rows per base parameter",
-                f"{_f(cutoff, unit='Hz')}; {_f(rows)}",
+                f"{_f(cutoff, unit='Hz')}{_cutoff_choice(s)}; {_f(rows)}",
             ),
             Figure("compute time", _f(s["seconds"], unit="s")),
         ],

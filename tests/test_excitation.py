@@ -11,13 +11,12 @@ from typer.testing import CliRunner
 from rxcomm.cli import app
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.execution.plan import prepare_plan
-from rxcomm.identification.excitation import (
-    ExcitationProblem,
+from rxcomm.identification.excitation import design_excitation
+from rxcomm.identification.excitation_limits import region_points
+from rxcomm.identification.excitation_problem import ExcitationProblem, condition_numbers
+from rxcomm.identification.excitation_trajectory import (
     FourierTrajectory,
-    condition_numbers,
-    design_excitation,
     fourier_basis,
-    region_points,
     sample_trajectory,
     snapped_omega,
 )

@@ -97,6 +97,19 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
     assert "[0.2, 0.1, 0.1, not scored, 0.4, 1.2] %" in text
     assert "0.9999, 0.9989]" in text and "no standstill" in text and "10 Hz; 12.4" in text
     assert "0 %" not in text and "0.00 %" not in text
+    assert "| not measured / not measured |" in text  # no fit or cross-validation figures: never 0
+    s |= {
+        "fit_rms_nm": [0.45, 0.4, 0.17, 0.04, 0.019, 0.02],
+        "cv_rms_nm": [0.49, 0.42, 0.18, 0.042, 0.022, 0.021],
+        "cv_folds_scored": 5,
+        "cutoff_hz": 40.0,
+        "cutoff_choice": "auto: least mean cross-validated held-out NRMSE (5 Hz: 0.45 %, 40 Hz: 0.14 %)",
+    }
+    text = rep.render("t", "p", [rep.dynamics_section(s, None)])
+    assert "[0.45, 0.4, 0.17, 0.04, 0.019, 0.02] N·m / [0.49, 0.42, 0.18, 0.042, 0.022, 0.021] N·m" in text
+    assert (
+        "40 Hz (auto: least mean cross-validated held-out NRMSE (5 Hz: 0.45 %, 40 Hz: 0.14 %)); 12.4" in text
+    )
 
 
 def test_a_limit_ratio_above_one_is_flagged_within_tolerance_or_as_a_violation():

@@ -22,7 +22,8 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.identification.excitation import REGION_POINTS, ExcitationDesign, design_excitation, region_points
+from rxcomm.identification.excitation import ExcitationDesign, design_excitation
+from rxcomm.identification.excitation_limits import REGION_POINTS, region_points
 from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
@@ -170,6 +171,61 @@ def command(
     run(robot_dir, cell, output, trajectory_out=trajectory_out, settings=values, start=start, plot=plot)
 
 
+def design_summary(design: ExcitationDesign) -> dict[str, object]:
+    """The summary of excitation.yaml: conditioning beside the random baseline, limits, timing."""
+    return {
+        "cond": design.cond,
+        "cond_raw": design.cond_raw,
+        "baseline_cond": design.baseline_cond,
+        "duration_s": design.samples.duration_s,
+        "seconds": design.seconds,
+        "max_limit_ratio": design.max_limit_ratio,
+        "cond_dense": design.cond_dense,
+        "improvement_ratio": design.baseline_cond / design.cond,
+        "worst_limit": f"{design.worst_limit[0]} {design.worst_limit[1]} at {design.worst_limit[2]:.3f} s",
+        "n_base_params": design.bset.n_base,
+        "starts_feasible": sum(s.feasible for s in design.starts),
+    }
+
+
+def excitation_artefact(
+    robot: Robot, design: ExcitationDesign, periods: int, envelope: dict, traj_path: Path, output: Path
+) -> Excitation:
+    """excitation.yaml's artefact: the coefficients, the starts, the limit ratios and the trajectory
+    file (by name when it lies beside the output)."""
+    traj = design.trajectory
+    return Excitation(
+        **envelope,
+        robot=robot.name,
+        robot_joints=list(robot.joint_names),
+        harmonics=traj.harmonics,
+        omega_f_rad_s=traj.omega_rad_s,
+        period_s=traj.period_s,
+        periods=periods,
+        q0_rad=traj.q0.tolist(),
+        q_start_rad=traj.q_start.tolist(),
+        a_rad_s=traj.a.tolist(),
+        b_rad_s=traj.b.tolist(),
+        base_parameters=list(design.bset.names),
+        starts=[
+            ExcitationStart(
+                seed=s.seed,
+                initial_cond=s.initial_cond,
+                cond=s.cond,
+                feasible=s.feasible,
+                iterations=s.iterations,
+                seconds=s.seconds,
+            )
+            for s in design.starts
+        ],
+        limit_ratios=design.limit_ratios,
+        trajectory_file=traj_path.name
+        if traj_path.parent.resolve() == output.parent.resolve()
+        else str(traj_path),
+        trajectory_sha256=sha256_file(traj_path),
+    )
+
+
 @console.stage_command
 def run(
     robot_dir: Path,
@@ -228,49 +284,9 @@ def run(
     output.parent.mkdir(parents=True, exist_ok=True)
     traj_path.parent.mkdir(parents=True, exist_ok=True)
     save_trajectory_mcap(traj_path, samples, TrajectorySummary.envelope(inputs, opts, traj_summary))
-    traj = design.trajectory
-    summary = {
-        "cond": design.cond,
-        "cond_raw": design.cond_raw,
-        "baseline_cond": design.baseline_cond,
-        "duration_s": samples.duration_s,
-        "seconds": design.seconds,
-        "max_limit_ratio": design.max_limit_ratio,
-        "cond_dense": design.cond_dense,
-        "improvement_ratio": design.baseline_cond / design.cond,
-        "worst_limit": f"{design.worst_limit[0]} {design.worst_limit[1]} at {design.worst_limit[2]:.3f} s",
-        "n_base_params": design.bset.n_base,
-        "starts_feasible": sum(s.feasible for s in design.starts),
-    }
-    art = Excitation(
-        **Excitation.envelope(inputs, opts, summary),
-        robot=robot.name,
-        robot_joints=list(robot.joint_names),
-        harmonics=traj.harmonics,
-        omega_f_rad_s=traj.omega_rad_s,
-        period_s=traj.period_s,
-        periods=opts.periods,
-        q0_rad=traj.q0.tolist(),
-        q_start_rad=traj.q_start.tolist(),
-        a_rad_s=traj.a.tolist(),
-        b_rad_s=traj.b.tolist(),
-        base_parameters=list(design.bset.names),
-        starts=[
-            ExcitationStart(
-                seed=s.seed,
-                initial_cond=s.initial_cond,
-                cond=s.cond,
-                feasible=s.feasible,
-                iterations=s.iterations,
-                seconds=s.seconds,
-            )
-            for s in design.starts
-        ],
-        limit_ratios=design.limit_ratios,
-        trajectory_file=traj_path.name
-        if traj_path.parent.resolve() == output.parent.resolve()
-        else str(traj_path),
-        trajectory_sha256=sha256_file(traj_path),
+    summary = design_summary(design)
+    art = excitation_artefact(
+        robot, design, opts.periods, Excitation.envelope(inputs, opts, summary), traj_path, output
     )
     write_yaml_artefact(output, art)
     if plot:

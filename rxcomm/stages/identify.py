@@ -22,15 +22,11 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.identification.fit import (
-    Identification,
-    IdentifySettings,
-    Validation,
-    identify,
-    load_joint_log,
-    score,
-    write_torques_csv,
-)
+from rxcomm.identification.export import write_parameters_csv, write_torques_csv
+from rxcomm.identification.fit import Identification, identify, score
+from rxcomm.identification.logs import load_joint_log
+from rxcomm.identification.settings import IdentifySettings
+from rxcomm.identification.validation import Validation
 from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
@@ -99,6 +95,44 @@ def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
     return path
 
 
+# Options whose help needs more than a line
+CutoffOption = Annotated[
+    str,
+    typer.Option(
+        metavar="HZ|auto",
+        help="Low-pass cut-off of positions and torques, Hz, or auto: the one of 5, 10, 20, 40 Hz whose "
+        "fit predicts held-out folds best.",
+    ),
+]
+DecimateOption = Annotated[
+    float | None,
+    typer.Option(help="Sample rate after filtering, Hz (default 2 × cut-off: rows uncorrelated)."),
+]
+FoldsOption = Annotated[
+    int, typer.Option(help="Blocked cross-validation: contiguous folds in time (0: none).")
+]
+ParamsOutOption = Annotated[
+    Path | None,
+    typer.Option(
+        help="Write the identified base parameters ± σ as CSV (name, value, std, unit, definition)."
+    ),
+]
+TorqueLagOption = Annotated[
+    float | None,
+    typer.Option(
+        help="The torque acting at a position sample is logged this much later, s "
+        "(default: one drive cycle for a run log, 0 for a CSV)."
+    ),
+]
+ValidateOption = Annotated[
+    Path | None,
+    typer.Option(
+        help="Validation log (another trajectory, e.g. ISO 9283); default: the last 20 % of each of "
+        "5 blocks of LOG."
+    ),
+]
+
+
 def command(
     robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
     log: Annotated[
@@ -112,13 +146,7 @@ def command(
     torques_csv: Annotated[
         Path | None, typer.Option(help="Write the validation rows' measured and predicted torques as CSV.")
     ] = None,
-    validate: Annotated[
-        Path | None,
-        typer.Option(
-            help="Validation log (another trajectory, e.g. ISO 9283); default: the last 20 % of each of "
-            "5 blocks of LOG."
-        ),
-    ] = None,
+    validate: ValidateOption = None,
     friction: Annotated[
         Friction | None,
         typer.Option(help="Friction model: joint, motor or both (default: drives.yaml's friction)."),
@@ -130,10 +158,10 @@ def command(
     method: Annotated[Method, typer.Option(help="Weighted (per-joint noise) or ordinary least squares.")] = (
         Method.wls
     ),
-    cutoff_hz: Annotated[float, typer.Option(help="Low-pass cut-off of positions and torques, Hz.")] = 10.0,
-    decimate_hz: Annotated[
-        float, typer.Option(help="Sample rate after filtering, Hz (2 × cut-off keeps rows uncorrelated).")
-    ] = 20.0,
+    cutoff_hz: CutoffOption = "10",
+    decimate_hz: DecimateOption = None,
+    folds: FoldsOption = 5,
+    params_out: ParamsOutOption = None,
     min_speed: Annotated[
         float, typer.Option(help="Rows of joints slower than this are rejected, rad/s.")
     ] = 0.05,
@@ -143,13 +171,7 @@ def command(
     max_gap: Annotated[
         float, typer.Option(help="Longest gap in the log bridged by interpolation, s.")
     ] = 0.01,
-    torque_lag: Annotated[
-        float | None,
-        typer.Option(
-            help="The torque acting at a position sample is logged this much later, s "
-            "(default: one drive cycle for a run log, 0 for a CSV)."
-        ),
-    ] = None,
+    torque_lag: TorqueLagOption = None,
     stick_guard: Annotated[
         float | None,
         typer.Option(help="Reject rows this close to a joint's slow samples, s (default 1/cutoff)."),
@@ -160,8 +182,9 @@ def command(
     values = {
         "physical": physical,
         "method": method.value,
-        "cutoff_hz": cutoff_hz,
+        "cutoff_hz": cutoff_hz if cutoff_hz == "auto" else _number(cutoff_hz, "cutoff-hz"),
         "decimate_hz": decimate_hz,
+        "folds": folds,
         "min_speed_rad_s": min_speed,
         "max_cond": max_cond,
         "max_gap_s": max_gap,
@@ -169,19 +192,39 @@ def command(
         "stick_guard_s": stick_guard,
         "friction": None if friction is None else friction.value,
     }
-    _check_mode(model, log, output, validate)
+    _check_mode(model, log, output, validate, params_out)
     if model is not None:
         score_run(robot_dir, model, validate, settings=values, torques_csv=torques_csv)
         return
-    run(robot_dir, log, output, validate=validate, settings=values, plot=plot, torques_csv=torques_csv)
+    run(
+        robot_dir,
+        log,
+        output,
+        validate=validate,
+        settings=values,
+        plot=plot,
+        torques_csv=torques_csv,
+        params_csv=params_out,
+    )
 
 
 @console.stage_command
-def _check_mode(model: Path | None, log: Path | None, output: Path | None, validate: Path | None) -> None:
+def _number(text: str, option: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise InputError(f"expected a number of Hz or auto, got {text!r}", field=option) from None
+
+
+@console.stage_command
+def _check_mode(
+    model: Path | None, log: Path | None, output: Path | None, validate: Path | None, params_out: Path | None
+) -> None:
     if model is not None:
-        if validate is None or log is not None or output is not None:
+        if validate is None or log is not None or output is not None or params_out is not None:
             raise InputError(
-                "--model scores a model on --validate LOG: give --validate, not --log or -o", field="model"
+                "--model scores a model on --validate LOG: give --validate, not --log, -o or --params-out",
+                field="model",
             )
     elif log is None or output is None:
         raise InputError("give --log and -o (or --model with --validate to score a model)", field="log")
@@ -208,6 +251,62 @@ def validation_rows(val: Validation) -> dict[str, object]:
     }
 
 
+def artefact_fields(robot: Robot, result: Identification, std: np.ndarray) -> dict:
+    """dynamics.yaml's data fields: the base parameters with their relative σ, and the full
+    consistent vector when it is the result."""
+    with np.errstate(divide="ignore"):
+        rel = np.where(np.abs(result.p_b) > 0, std / np.abs(result.p_b), np.inf)
+    return dynamics_artefact_fields(
+        robot,
+        result.bset,
+        result.p_b,
+        relative_std=rel,
+        full=result.params if result.physical else None,
+        full_method=(
+            "physically consistent: log-Cholesky pseudo-inertias, least squares in the WLS information metric"
+            if result.physical
+            else None
+        ),
+    )
+
+
+def console_rows(result: Identification, summary: dict[str, object]) -> dict[str, object]:
+    """The console table of an identification: the set, the validation, fit beside held-out error,
+    consistency."""
+    shown = {k: summary[k] for k in ("n_base_params", "friction", "cond", "cutoff_hz", "sample_hz")}
+    shown["rows_per_parameter"] = f"{summary['rows_per_parameter']:.1f} ({result.estimate.n_rows} rows)"
+    shown.update(validation_rows(result.validation))
+    shown.update(fit_and_cv_rows(result))
+    for k in ("max_relative_std", "n_inconsistent_links"):
+        shown[k] = summary[k]
+    if summary["inconsistent_links"]:
+        dist = summary["consistency_distance_sigma"]
+        shown["inconsistent_links"] = (
+            f"{summary['inconsistent_links']}: pseudo-inertia not positive definite (no body has that mass "
+            f"distribution); the nearest consistent estimate is {dist:.3g} σ away (≲ √n_base: within "
+            "the noise; --physical writes it)"
+        )
+    for k in ("consistency_distance_sigma", "method", "seconds"):
+        shown[k] = summary[k]
+    return shown
+
+
+def fit_and_cv_rows(result: Identification) -> dict[str, object]:
+    """The console lines of the fit error beside the cross-validated held-out error, and the cut-off
+    choice when it was automatic."""
+    cv = result.cross_validation
+    rows: dict[str, object] = {"fit_rms_nm": per_joint([float(v) for v in result.estimate.residual_rms_nm])}
+    if cv is None or cv.folds_scored == 0:
+        rows["cv_rms_nm (held-out folds)"] = "not measured" + (" (--folds 0)" if cv is None else "")
+    else:
+        rows[f"cv_rms_nm ({cv.folds_scored} of {cv.folds} held-out folds)"] = per_joint(
+            [None if not np.isfinite(v) else float(v) for v in cv.rms_nm]
+        )
+    if result.cutoff_choice is not None:
+        rows["cutoff_choice"] = result.cutoff_choice.reason
+    return rows
+
+
 @console.stage_command
 def score_run(
     robot_dir: Path,
@@ -228,6 +327,8 @@ def score_run(
         given = values.get(k, fields[k].default)
         if given == fields[k].default and art.settings.get(k) is not None:
             values[k] = art.settings[k]
+    if values.get("cutoff_hz") == "auto":  # the model's chosen cut-off and its decimation
+        values["cutoff_hz"] = art.summary.get("cutoff_hz")
     opts = _settings(values)
     if opts.friction is not None:
         robot = robot.with_friction(opts.friction)
@@ -252,6 +353,7 @@ def run(
     settings: IdentifySettings | dict | None = None,
     plot: bool = False,
     torques_csv: Path | None = None,
+    params_csv: Path | None = None,
 ) -> Dynamics:
     """The stage as a function (tests call it): returns the artefact written."""
     output = Path(output)
@@ -262,6 +364,7 @@ def run(
             "output": output,
             "plot": output.with_suffix(".png") if plot else None,
             "torques-csv": torques_csv,
+            "params-out": params_csv,
         },
         {"log": log, "validate": validate, **robot_files(robot_dir)},
     )
@@ -279,22 +382,8 @@ def run(
             )
     with console.err.status("identify: estimating"):
         result = identify(robot, joint_log, opts, validation_log=val_log)
-    est = result.estimate
-    std = np.sqrt(np.maximum(np.diag(est.cov), 0.0))
-    with np.errstate(divide="ignore"):
-        rel = np.where(np.abs(result.p_b) > 0, std / np.abs(result.p_b), np.inf)
-    fields = dynamics_artefact_fields(
-        robot,
-        result.bset,
-        result.p_b,
-        relative_std=rel,
-        full=result.params if result.physical else None,
-        full_method=(
-            "physically consistent: log-Cholesky pseudo-inertias, least squares in the WLS information metric"
-            if result.physical
-            else None
-        ),
-    )
+    std = np.sqrt(np.maximum(np.diag(result.estimate.cov), 0.0))
+    fields = artefact_fields(robot, result, std)
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "log": Path(log)}
     if validate is not None:
         inputs["validate"] = Path(validate)
@@ -308,20 +397,9 @@ def run(
     if torques_csv is not None:
         path = write_torques_csv(torques_csv, robot.joint_names, result.validation)
         console.out.print(f"torques: {path}")
-    shown = {k: summary[k] for k in ("n_base_params", "friction", "cond", "cutoff_hz", "sample_hz")}
-    shown["rows_per_parameter"] = f"{summary['rows_per_parameter']:.1f} ({est.n_rows} rows)"
-    shown.update(validation_rows(result.validation))
-    for k in ("fit_rms_nm", "max_relative_std", "n_inconsistent_links"):
-        shown[k] = summary[k]
-    if summary["inconsistent_links"]:
-        dist = summary["consistency_distance_sigma"]
-        shown["inconsistent_links"] = (
-            f"{summary['inconsistent_links']}: pseudo-inertia not positive definite (no body has that mass "
-            f"distribution); the nearest consistent estimate is {dist:.3g} σ away (≲ √n_base: within "
-            "the noise; --physical writes it)"
-        )
-    for k in ("consistency_distance_sigma", "method", "seconds"):
-        shown[k] = summary[k]
+    if params_csv is not None:
+        console.out.print(f"parameters: {write_parameters_csv(art, params_csv, output.name)}")
+    shown = console_rows(result, summary)
     console.summary_table(f"identify → {output}", shown)
     for w in result.warnings(opts):
         console.err.print(f"[yellow]warning:[/] {w}")
