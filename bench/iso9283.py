@@ -64,7 +64,7 @@ def campaign(n_pose_cycles: int, n_path_cycles: int):
 
 def rows(quick: bool) -> list[Row]:
     robot, cube, specs, poses, paths = campaign(30, 10)
-    s = CampaignSettings()
+    s = CampaignSettings(match_m=10.0)  # the synthetic joint motion is not the path: every move is a cycle
     rot_cmd = rpy_matrix(cube.rpy_rad)
 
     def every_criterion() -> None:
