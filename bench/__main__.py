@@ -29,6 +29,7 @@ SECTIONS = [
     "bench.plan_ptp",
     "bench.plan_cp",
     "bench.acceptance",
+    "bench.iso9283",
 ]
 
 

@@ -17,6 +17,7 @@ from rxcomm.stages import (
     cell_sim,
     excite,
     identify,
+    import_tracker,
     iso9283,
     plan_cp,
     plan_poses,
@@ -68,6 +69,7 @@ app.command("recover-log")(recover_log.command)
 app.command("accept")(accept.command)
 app.command("iso9283")(iso9283.command)
 app.command("plan-poses")(plan_poses.command)
+app.command("import-tracker")(import_tracker.command)
 
 
 def main() -> None:

@@ -210,3 +210,38 @@ def test_a_full_campaigns_criteria_take_under_a_second():
         path_criteria(pts, tan, cycles)
     wall = time.perf_counter() - t0
     assert wall < 1.0, wall
+
+
+def test_repeated_path_cycles_in_one_log_are_found(rx130l):
+    """repeat_cycles: n runs of a path with return moves and dwells; path_cycles finds the n forward
+    runs (the returns go the other way) and each holds the tracker samples of its own run."""
+    from rxcomm.acceptance.campaign import CampaignSettings, TrackedLog, path_cycles
+    from rxcomm.planning.iso9283 import repeat_cycles
+    from rxcomm.schemas.path import PathSpec
+
+    dt = rx130l.drives.cycle_s
+    move = cycloidal_move(0.5 * rx130l.v_max, 0.5 * rx130l.a_max, dt)
+    q0, q1 = np.array([0.0, -0.2, 0.5, 0.0, 0.8, 0.0]), np.array([0.6, 0.1, 0.3, 0.2, 0.6, 0.3])
+    path = move(q0, q1)
+    traj = repeat_cycles(path, 4, 0.3, move, dt)
+    assert traj.q.shape[0] == 4 * (len(path.t) - 1) + 1 + 3 * (len(move(q1, q0).t) - 1 + 2 * 750)
+    np.testing.assert_allclose(traj.q[-1], q1, atol=1e-12)
+    data = rx130l.create_data()
+    a, b = (frame_placement(rx130l, data, q, rx130l.tcp_frame_id).translation for q in (q0, q1))
+    spec = PathSpec.model_validate(
+        {
+            "kind": "rxcomm/Path",
+            "schema_version": 1,
+            "name": "test",
+            "geometry": {"type": "line", "start_m": a.tolist(), "end_m": b.tolist()},
+            "orientation": {"mode": "hold", "rpy_rad": [np.pi, 0, 0]},
+        }
+    )
+    t_tr = np.arange(0, traj.t[-1], 1e-3)
+    p_tr = np.column_stack([np.interp(t_tr, traj.t, traj.q[:, i]) for i in range(3)])  # any positions
+    log = TrackedLog("x", traj.t, traj.q, t_tr, p_tr, None)
+    cycles = path_cycles(rx130l, log, spec, CampaignSettings())
+    assert len(cycles) == 4
+    for c in cycles:
+        assert len(c.position_m) == pytest.approx(path.t[-1] / 1e-3, abs=2)
+        assert c.command_speed_m_per_s.max() > 0.1

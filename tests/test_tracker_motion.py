@@ -196,3 +196,95 @@ def test_run_records_the_tracker_aligned_within_one_drive_cycle(tmp_path, rx130l
     np.testing.assert_allclose(np.diff(tr.t), 1e-3, atol=1e-9)  # reads back at the configured rate
     np.testing.assert_allclose(tr.t, tr.t_tracker_s - ch["offset_s"], atol=1e-9)
     assert any(t["topic"] == "/run/tracker" for t in meta["topics"])
+
+
+@pytest.mark.slow
+def test_import_tracker_puts_a_csv_on_a_run_log(tmp_path, rx130l):
+    """A run on ideal drives (no tracker), a tracker CSV of that motion in its own frame and clock
+    (shifted 1234.5678 s, no trigger): `import-tracker` writes the log with /run/tracker aligned."""
+    from typer.testing import CliRunner
+
+    from rxcomm.cell.backend import IdealBackend
+    from rxcomm.cell.server import CellServer, ServerConfig
+    from rxcomm.cli import app
+    from rxcomm.io.trajectory import Trajectory
+    from rxcomm.stages import run as run_stage
+
+    from .test_run import save_plan
+
+    t, q = joint_move(1.0, CYCLE, dq=(0.5, 0.3, -0.3, 0.2, -0.2, 0.3))
+    qd = np.gradient(q, t, axis=0)
+    plan = save_plan(tmp_path / "plan.mcap", Trajectory(t, q, qd, np.gradient(qd, t, axis=0)))
+    backend = IdealBackend(q[0], rated_torque_nm=np.asarray(rx130l.tau_max))
+    with CellServer(backend, ServerConfig()) as srv:
+        log = tmp_path / "log.mcap"
+        gw = f"127.0.0.1:{srv.port}"
+        run_stage.execute(
+            plan, SAMPLES / "rx130l", log, gateway=gw, interpolation_ratio=1, show_progress=False
+        )
+    j = read_run_log(log).joints
+    csv = write_tracker_csv(
+        tmp_path / "tracker.csv", tracker_view(rx130l, j.t, j.q_actual, 1234.5678, 1000, 5e-5)
+    )
+    out = tmp_path / "tracked.mcap"
+    res = CliRunner().invoke(
+        app,
+        [
+            "import-tracker",
+            str(log),
+            "--tracker-csv",
+            str(csv),
+            "--robot",
+            str(SAMPLES / "rx130l"),
+            "-o",
+            str(out),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    meta = yaml.safe_load(out.with_suffix(".yaml").read_text())
+    ch = meta["tracker"]
+    assert (
+        ch["source"] == "csv"
+        and ch["source_file"] == "tracker.csv"
+        and ch["alignment"] == "cross-correlation"
+    )
+    assert ch["offset_s"] == pytest.approx(1234.5678, abs=0.1 * CYCLE)
+    assert "tracker csv" in meta["inputs"]
+    back = read_run_log(out)
+    assert len(back.joints) == len(j) and np.allclose(back.joints.q_actual, j.q_actual, atol=1e-9)
+    assert len(back.tracker) == ch["n_samples"] > 900
+    # importing twice is refused, naming the field
+    res2 = CliRunner().invoke(
+        app,
+        [
+            "import-tracker",
+            str(out),
+            "--tracker-csv",
+            str(csv),
+            "--robot",
+            str(SAMPLES / "rx130l"),
+            "-o",
+            str(tmp_path / "x.mcap"),
+        ],
+    )
+    assert res2.exit_code == 2 and "tracker channel already" in res2.output
+
+
+def test_batched_measurement_is_the_per_sample_true_pose(rx130l, truth):
+    """measure_many (the motion tracker's export) = true_pose sample by sample: the same kinematics,
+    errors, frame and compliance; the deflection interpolated between every 25th state costs < 0.1 µm."""
+    quiet = truth.noise.model_copy(
+        update={"tracker_position_sigma_m": 0.0, "tracker_orientation_sigma_rad": 0.0}
+    )
+    tracker = SimulatedTracker(rx130l, truth.model_copy(update={"noise": quiet}), np.random.default_rng(0))
+    qs = np.random.default_rng(1).uniform(-0.5, 0.5, (50, 6))
+    p, r, visible = tracker.measure_many(qs, deflection_every=1)
+    assert visible.all()
+    for i, q in enumerate(qs):
+        m = tracker.true_pose(q)
+        np.testing.assert_allclose(p[i], m.translation, atol=1e-12)
+        np.testing.assert_allclose(r[i], m.rotation, atol=1e-12)
+    line = np.linspace(qs[0], qs[1], 1000)
+    p_line, _, _ = tracker.measure_many(line)
+    ref = np.array([tracker.true_pose(q).translation for q in line])
+    assert np.abs(p_line - ref).max() < 1e-7

@@ -5,10 +5,12 @@
   dwell is the mean of the tracker samples over its last `measure_fraction` (the arm has settled);
   a dwell belongs to the test pose P1–P5 its commanded TCP (nominal FK of q_demand) is within
   `match_m` of (other dwells, such as a start pose, are ignored).
-- A **path log** (one cycle of an ISO 9283 path): the tracker samples while the arm moves are the
-  attained path; the command path is the path spec's geometry sampled at `n_points` points (the
-  first and last 1 % of its length left out: the arm starts and stops there); the command speed is
-  the speed of the nominal FK of q_demand, the attained one the tracker's.
+- A **path log** (one cycle of an ISO 9283 path, or n cycles with return moves and dwells between,
+  `rxcomm.planning.iso9283.repeat_cycles`): each move from the path's start to its end is a cycle,
+  its tracker samples the attained path; the command path is the path spec's geometry sampled at
+  `n_points` points (the first and last 1 % of its length left out: the arm starts and stops
+  there); the command speed is the speed of the nominal FK of q_demand, the attained one the
+  tracker's.
 
 Poses are mapped from the tracker frame into the robot base frame with `base_in_tracker` (the
 nominal base placement the calibration and the controller's model refer to).
@@ -41,6 +43,8 @@ from rxcomm.planning.paths import build_curve, rpy_matrix
 from rxcomm.schemas.iso9283 import CRITERIA_UNITS, POSES, Criterion
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.run_log import TRACKER_TOPIC
+
+COMMAND_SPEED_STEP_S = 0.004  # s between the FK samples of the command speed
 
 
 class CampaignSettings(BaseModel):
@@ -147,13 +151,35 @@ class PathCycle:
     command_speed_m_per_s: np.ndarray  # nominal FK(q_demand) speed at the same instants
 
 
-def path_cycle(robot: Robot, log: TrackedLog, s: CampaignSettings) -> PathCycle:
-    p_cmd = _fk(robot, log.q_demand)
-    v_cmd_grid = np.linalg.norm(np.gradient(p_cmd, log.t_joint, axis=0), axis=1)
-    inside = (log.t >= log.t_joint[0]) & (log.t <= log.t_joint[-1])
-    t = log.t[inside]
-    v_att = np.linalg.norm(velocity_on_grid(log.t, log.position_m, t, s.velocity_window_s), axis=1)
-    return PathCycle(log.position_m[inside], v_att, np.interp(t, log.t_joint, v_cmd_grid))
+def path_cycles(robot: Robot, log: TrackedLog, spec: PathSpec, s: CampaignSettings) -> list[PathCycle]:
+    """The cycles of a test path in one log: each move between dwells (zero commanded velocity for
+    ≥ `min_dwell_s`, or the log's ends) whose command TCP starts within `match_m` of the path's start
+    and ends within it of the path's end (a return move the other way is not a cycle). A log of one
+    path run is one cycle."""
+    dt = float(np.median(np.diff(log.t_joint)))
+    # the command speed from FK every ~COMMAND_SPEED_STEP_S: it is smooth, and FK of every setpoint
+    # of a campaign would be most of its time
+    step = max(1, int(round(COMMAND_SPEED_STEP_S / dt)))
+    idx = np.unique(np.append(np.arange(0, len(log.t_joint), step), len(log.t_joint) - 1))
+    p_cmd = _fk(robot, log.q_demand[idx])
+    v_cmd_grid = np.linalg.norm(np.gradient(p_cmd, log.t_joint[idx], axis=0), axis=1)
+    curve = build_curve(spec.geometry)
+    start, end = curve.eval(np.array([0.0]), 0)[0], curve.eval(np.array([curve.length_m]), 0)[0]
+    still = np.all(np.abs(np.diff(log.q_demand, axis=0)) < 1e-12, axis=1)
+    dwells = [(a, b) for a, b in _runs(still) if (b - a) * dt >= s.min_dwell_s]
+    bounds = [0, *(i for a, b in dwells for i in (a, b)), len(log.t_joint) - 1]
+    v_att_all = np.linalg.norm(velocity_on_grid(log.t, log.position_m, log.t, s.velocity_window_s), axis=1)
+    out = []
+    for a, b in zip(bounds[::2], bounds[1::2], strict=True):
+        if b <= a:
+            continue
+        ends = _fk(robot, log.q_demand[[a, b]])
+        if np.linalg.norm(ends[0] - start) > s.match_m or np.linalg.norm(ends[1] - end) > s.match_m:
+            continue
+        sel = (log.t >= log.t_joint[a]) & (log.t <= log.t_joint[b])
+        t = log.t[sel]
+        out.append(PathCycle(log.position_m[sel], v_att_all[sel], np.interp(t, log.t_joint[idx], v_cmd_grid)))
+    return out
 
 
 def command_path(spec: PathSpec, n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -229,7 +255,10 @@ def path_entries(
     if not logs or spec is None:
         why = "no path log" if not logs else "no path spec"
         return [_criterion(k, target, None, None, None, names, why) for k in keys]
-    cycles = [path_cycle(robot, lg, s) for lg in logs]
+    cycles = [c for lg in logs for c in path_cycles(robot, lg, spec, s)]
+    if not cycles:
+        why = f"no move from the path's start to its end (within {s.match_m} m) in the logs"
+        return [_criterion(k, target, None, None, None, names, why) for k in keys]
     pts, tan, dense, _ = command_path(spec, s.n_points)
     pc = path_criteria(pts, tan, [c.position_m for c in cycles])
     vc = velocity_criteria([c.speed_m_per_s for c in cycles], [c.command_speed_m_per_s for c in cycles])

@@ -73,28 +73,25 @@ def pose_criteria(
     return PoseCriteria(len(x), bary, float(np.linalg.norm(d)), d, rp_l, ap_abc, rp_abc)
 
 
-def plane_crossings(
-    path_m: np.ndarray, points_m: np.ndarray, tangents: np.ndarray, chunk: int = 64
-) -> np.ndarray:
+def plane_crossings(path_m: np.ndarray, points_m: np.ndarray, tangents: np.ndarray) -> np.ndarray:
     """[m, 3]: where the polyline `path_m` [k, 3] crosses the plane through each of `points_m` [m, 3]
     normal to `tangents` [m, 3] — the crossing nearest the point (NaN where it never crosses)."""
     p = np.asarray(path_m, dtype=float)
     c = np.asarray(points_m, dtype=float)
     t = np.asarray(tangents, dtype=float)
     t = t / np.linalg.norm(t, axis=1, keepdims=True)
+    s = p @ t.T - np.sum(c * t, axis=1)  # signed distances [k, m] (one matrix product)
+    s0, s1 = s[:-1], s[1:]
+    seg, plane = np.nonzero((s0 <= 0) & (s1 > 0) | (s0 >= 0) & (s1 < 0))  # the few sign changes
     out = np.full(c.shape, np.nan)
-    for lo in range(0, len(c), chunk):
-        cc, tt = c[lo : lo + chunk], t[lo : lo + chunk]
-        s = np.einsum("mkd,md->mk", p[None, :, :] - cc[:, None, :], tt)  # signed distances [m, k]
-        s0, s1 = s[:, :-1], s[:, 1:]
-        cross = (s0 <= 0) & (s1 > 0) | (s0 >= 0) & (s1 < 0)
-        f = np.where(cross, s0 / np.where(cross, s0 - s1, 1.0), 0.0)  # fraction along each segment
-        x = p[None, :-1, :] + f[..., None] * (p[None, 1:, :] - p[None, :-1, :])  # [m, k-1, 3]
-        dist = np.where(cross, np.linalg.norm(x - cc[:, None, :], axis=2), np.inf)
-        j = np.argmin(dist, axis=1)
-        rows = np.arange(len(cc))
-        hit = np.isfinite(dist[rows, j])
-        out[lo : lo + chunk][hit] = x[rows[hit], j[hit]]
+    if seg.size == 0:
+        return out
+    a, b = s0[seg, plane], s1[seg, plane]
+    x = p[seg] + (a / (a - b))[:, None] * (p[seg + 1] - p[seg])
+    d = np.linalg.norm(x - c[plane], axis=1)
+    order = np.lexsort((d, plane))  # by plane, nearest first
+    first = order[np.r_[True, plane[order][1:] != plane[order][:-1]]]
+    out[plane[first]] = x[first]
     return out
 
 
@@ -145,15 +142,20 @@ def corner_overshoot(
 ) -> tuple[float, np.ndarray]:
     """(CO, [n_corners] per corner, max over cycles): the largest distance of the attained points
     from the command path within `zone_m` after each corner along its next edge (unit directions
-    `next_edges` [c, 3]); points beside the corner's incoming edge are not in the zone."""
+    `next_edges` [c, 3]); points beside the corner's incoming edge are not in the zone. Only the
+    command path within 2 `zone_m` of the corner is searched."""
     e = next_edges / np.linalg.norm(next_edges, axis=1, keepdims=True)
     per = np.zeros(len(corners_m))
-    for path in cycles:
-        d = distances_to_polyline(path, command_polyline_m)
-        along = np.einsum("ckd,cd->ck", path[None] - corners_m[:, None], e)  # [c, k]
-        across = np.linalg.norm(path[None] - corners_m[:, None] - along[..., None] * e[:, None], axis=2)
-        zone = (along >= 0) & (along <= zone_m) & (across <= zone_m)
-        per = np.maximum(per, np.max(np.where(zone, d[None], 0.0), axis=1))
+    for i, (corner, ei) in enumerate(zip(corners_m, e, strict=True)):
+        near = np.linalg.norm(command_polyline_m - corner, axis=1) <= 2 * zone_m
+        local = command_polyline_m[np.flatnonzero(near).min() : np.flatnonzero(near).max() + 1]
+        for path in cycles:
+            rel = path - corner
+            along = rel @ ei
+            across = np.linalg.norm(rel - along[:, None] * ei, axis=1)
+            zone = (along >= 0) & (along <= zone_m) & (across <= zone_m)
+            if zone.any():
+                per[i] = max(per[i], float(np.max(distances_to_polyline(path[zone], local))))
     return float(per.max()), per
 
 

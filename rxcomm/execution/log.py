@@ -255,21 +255,7 @@ class RunLogWriter:
         assert self._w is not None
         if self._tracker is not None:
             raise ValueError("tracker channel already written")
-        t = np.asarray(t_tracker_s) - channel.offset_s
-        keep = t >= 0
-        self._w.add_channel(TRACKER_TOPIC, "rxcomm.RunTracker", _tracker_schema())
-        self._w.write_arrays(
-            TRACKER_TOPIC,
-            t[keep],
-            {
-                "position_m": position_m[keep],
-                "quaternion_wxyz": quaternion_wxyz[keep],
-                "t_tracker_s": np.asarray(t_tracker_s)[keep],
-            },
-            digits=12,  # a tracker clock may count from its power-on: 0.1 µs at 10^5 s
-        )
-        self._w.flush()
-        self._tracker = channel.model_copy(update={"n_samples": int(keep.sum())})
+        self._tracker = write_tracker_channel(self._w, t_tracker_s, position_m, quaternion_wxyz, channel)
 
     def close(self, result: RunResult) -> tuple[Path, dict[str, Any]]:
         """Write the rest of ``result.log`` and the summary; returns (the file written, the summary).
@@ -371,7 +357,33 @@ def _joint_schema(n: int) -> dict[str, dict[str, Any]]:
     return {k: number_field(d) if k == "tcp_error_m" else vector_field(n, d) for k, d in JOINT_FIELDS.items()}
 
 
-def _tracker_schema() -> dict[str, dict[str, Any]]:
+def write_tracker_channel(
+    w: McapWriter,
+    t_tracker_s: np.ndarray,
+    position_m: np.ndarray,
+    quaternion_wxyz: np.ndarray,
+    channel: TrackerChannel,
+) -> TrackerChannel:
+    """Add ``/run/tracker`` to `w`: the samples at t = t_tracker_s − offset_s (those before the
+    stream start dropped); returns `channel` with the samples kept."""
+    t = np.asarray(t_tracker_s) - channel.offset_s
+    keep = t >= 0
+    w.add_channel(TRACKER_TOPIC, "rxcomm.RunTracker", tracker_schema())
+    w.write_arrays(
+        TRACKER_TOPIC,
+        t[keep],
+        {
+            "position_m": np.asarray(position_m)[keep],
+            "quaternion_wxyz": np.asarray(quaternion_wxyz)[keep],
+            "t_tracker_s": np.asarray(t_tracker_s)[keep],
+        },
+        digits=12,  # a tracker clock may count from its power-on: 0.1 µs at 10^5 s
+    )
+    w.flush()
+    return channel.model_copy(update={"n_samples": int(keep.sum())})
+
+
+def tracker_schema() -> dict[str, dict[str, Any]]:
     sizes = {"position_m": 3, "quaternion_wxyz": 4}
     return {
         k: vector_field(sizes[k], d) if k in sizes else number_field(d) for k, d in TRACKER_FIELDS.items()

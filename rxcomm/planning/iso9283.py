@@ -324,3 +324,32 @@ def cube_from_rectangle(spec: PathSpec) -> Iso9283Cube:
     rpy = spec.orientation.start
     points = {"P1": centre, "P2": p2, "P3": p3, "P4": p4, "P5": p5}
     return Iso9283Cube(centre, side, tuple(float(a) for a in rpy), corners, points)
+
+
+def repeat_cycles(
+    traj: Trajectory, n_cycles: int, dwell_s: float, move: MoveFn, sample_s: float
+) -> Trajectory:
+    """`n_cycles` runs of a rest-to-rest trajectory (a test path) in one plan: each followed by a
+    dwell, a return `move` to its start and a dwell (not after the last), so that one run log holds
+    the standard's repeated cycles (the simulated cell's noise differs from cycle to cycle there,
+    not from one fresh cell to the next)."""
+    if n_cycles < 1 or dwell_s <= 0:
+        raise InputError("needs n_cycles ≥ 1 and dwell_s > 0", field="n_cycles")
+    if abs(float(np.median(np.diff(traj.t))) - sample_s) > 1e-9 * max(1.0, sample_s):
+        raise InputError(f"the trajectory is sampled at {np.median(np.diff(traj.t))} s, not {sample_s} s")
+    n_dwell = max(2, int(round(dwell_s / sample_s)))
+    back = move(traj.q[-1], traj.q[0])
+    zeros = np.zeros((n_dwell, traj.q.shape[1]))
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = [(traj.q, traj.qd, traj.qdd)]
+    for _ in range(n_cycles - 1):
+        parts.append((np.tile(traj.q[-1], (n_dwell, 1)), zeros, zeros))
+        parts.append((back.q[1:], back.qd[1:], back.qdd[1:]))
+        parts.append((np.tile(traj.q[0], (n_dwell, 1)), zeros, zeros))
+        parts.append((traj.q[1:], traj.qd[1:], traj.qdd[1:]))
+    q = np.concatenate([p[0] for p in parts])
+    return Trajectory(
+        np.arange(len(q)) * sample_s,
+        q,
+        np.concatenate([p[1] for p in parts]),
+        np.concatenate([p[2] for p in parts]),
+    )
