@@ -188,11 +188,16 @@ def pose_cycle_plan(
     n_cycles: int,
     dwell_s: float,
     sample_s: float,
+    command: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[Trajectory, list[str], LimitReport]:
     """The pose-cycle plan through the test cube of `rectangle` (the iso9283-rectangle spec) on
     `robot` (a calibrated one to honour a calibration): the trajectory sampled every `sample_s` with
-    its torques from `dynamics`, the poses in the order visited, the check of the catalogue limits."""
+    its torques from `dynamics`, the poses in the order visited, the check of the catalogue limits.
+    `command` maps each pose's IK solution to the joint angles commanded (a compliance
+    compensation); default: as solved."""
     joints = pose_cycle_joints(robot, cube_from_rectangle(rectangle), rectangle.branch)
+    if command is not None:
+        joints = {k: command(q) for k, q in joints.items()}
     move = cycloidal_move(catalogue.v_max, catalogue.a_max, sample_s)
     traj, order = pose_cycle_trajectory(joints, n_cycles, dwell_s, move, sample_s)
     tau = dynamics.torque(traj.q, traj.qd, traj.qdd)

@@ -16,16 +16,18 @@ from typing import Annotated
 import typer
 
 from rxcomm import console
+from rxcomm.calibration.compliance import compliance_torque_params, encoder_angles, joint_compliance
 from rxcomm.calibration.fit import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import save_trajectory_mcap
-from rxcomm.io.yaml_io import read_yaml_model
+from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.catalogue import catalogue_limits
 from rxcomm.model.robot import load_robot, robot_files
 from rxcomm.planning.catalogue_timing import pose_cycle_plan
 from rxcomm.planning.ptp_problem import PtpDynamics
+from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -85,11 +87,12 @@ def run(
     catalogue = catalogue_limits(nominal)  # the maker's, as the factory state's timing
     robot = nominal if calibration is None else load_calibrated_robot(nominal, calibration)
     params = None if dynamics is None else load_dynamics(dynamics, robot)
+    command, compliance = _commanded(nominal, calibration, params)
     spec = read_yaml_model(rectangle, PathSpec)
     sample_s = PLAN_CYCLES * robot.drives.cycle_s
     t0 = time.perf_counter()
     traj, order, report = pose_cycle_plan(
-        robot, spec, catalogue, PtpDynamics.from_parameters(robot, params), cycles, dwell_s, sample_s
+        robot, spec, catalogue, PtpDynamics.from_parameters(robot, params), cycles, dwell_s, sample_s, command
     )
     summary = {
         "duration_s": traj.duration_s,
@@ -109,6 +112,7 @@ def run(
         "timing": "catalogue (cycloidal moves)",
         "catalogue": catalogue.as_dict(),
         "calibrated": calibration is not None,
+        "compliance_compensated_rad_per_nm": compliance,
         "dynamics_model": "identified" if dynamics is not None else "prior",
         "sample_s": sample_s,
     }
@@ -116,3 +120,16 @@ def run(
     save_trajectory_mcap(output, traj, TrajectorySummary.envelope(inputs, settings, summary))
     console.summary_table(f"plan-poses → {output}", {k: v for k, v in summary.items() if k != "order"})
     return summary
+
+
+def _commanded(nominal, calibration: Path | None, params):
+    """With a calibration that found joint compliance: the encoder angles that hold each link at its
+    IK pose (`calibration.compliance`), and the compliances used; else none."""
+    if calibration is None:
+        return None, None
+    art = read_yaml_artefact(calibration, Calibration)
+    c = joint_compliance(nominal, art)
+    if not c.any():
+        return None, None
+    torque_params = compliance_torque_params(art, params)
+    return (lambda q: encoder_angles(nominal, q, c, torque_params)), c.tolist()
