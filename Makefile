@@ -176,8 +176,8 @@ $(B)/run-factory-ptp.mcap: $(B)/factory-ptp.mcap $(SIM_FILES) $(call params,run-
 
 # ---- ISO 9283 in both states, measured by the tracker during motion (rxcomm iso9283) -----------------
 # The pose test (P1 → P5 → P4 → P3 → P2, dwells, catalogue-limit moves in both states: it measures at
-# rest) and the ISO line at 1 m/s (factory: catalogue timing; commissioned: the optimal planner), one
-# cycle each run. The tracker's base frame is the calibration's measured one in both states.
+# rest) and the ISO line at 1 m/s (factory: catalogue timing; commissioned: the optimal planner),
+# LINE_CYCLES cycles in one run. The tracker's base frame is the calibration's measured one in both.
 ISO_DIR    ?= $(ROBOT)/paths
 ISO_FILES  := $(ISO_DIR)/iso9283-rectangle.yaml
 ISO_LINE   ?= $(ISO_DIR)/iso9283-line.yaml
@@ -198,6 +198,17 @@ LINE_ARGS = --robot $(ROBOT) --path $(ISO_LINE) $(MODEL_ARGS) --tcp-speed-max 1.
 $(B)/iso-line.mcap: $(ISO_LINE) $(MODEL) $(ROBOT_FILES) $(call params,iso-line,$(LINE_ARGS))
 	$(RX) plan-cp $(LINE_ARGS) -o $@
 
+# The ISO line's cycles in one plan each (every fresh embedded cell draws the same noise).
+LINE_CYCLES ?= 10
+CYCLE_ARGS = --robot $(ROBOT) --cycles $(LINE_CYCLES)
+$(B)/factory-iso-line-cycles.mcap: $(B)/factory-iso-line.mcap $(ROBOT_FILES) \
+		$(call params,factory-iso-line-cycles,$(CYCLE_ARGS))
+	$(RX) plan-cycles $< $(CYCLE_ARGS) -o $@
+
+$(B)/iso-line-cycles.mcap: $(B)/iso-line.mcap $(B)/dynamics.yaml $(ROBOT_FILES) \
+		$(call params,iso-line-cycles,$(CYCLE_ARGS) --dynamics $(B)/dynamics.yaml)
+	$(RX) plan-cycles $< $(CYCLE_ARGS) --dynamics $(B)/dynamics.yaml -o $@
+
 POSE_RUN = --robot $(ROBOT) --truth $(TRUTH) --approach --interpolation-ratio 8
 $(B)/run-factory-poses.mcap: $(B)/factory-poses.mcap $(SIM_FILES) \
 		$(call params,run-factory-poses,$(POSE_RUN) --no-feedforward)
@@ -207,11 +218,11 @@ $(B)/run-poses.mcap: $(B)/poses.mcap $(B)/dynamics.yaml $(SIM_FILES) \
 		$(call params,run-poses,$(POSE_RUN) --dynamics $(B)/dynamics.yaml)
 	$(RX) run $< $(POSE_RUN) --dynamics $(B)/dynamics.yaml -o $@
 
-$(B)/run-factory-iso-line.mcap: $(B)/factory-iso-line.mcap $(SIM_FILES) \
+$(B)/run-factory-iso-line.mcap: $(B)/factory-iso-line-cycles.mcap $(SIM_FILES) \
 		$(call params,run-factory-iso-line,$(FACTORY_RUN_ARGS))
 	$(RX) run $< $(FACTORY_RUN_ARGS) -o $@
 
-$(B)/run-iso-line.mcap: $(B)/iso-line.mcap $(B)/dynamics.yaml $(SIM_FILES) \
+$(B)/run-iso-line.mcap: $(B)/iso-line-cycles.mcap $(B)/dynamics.yaml $(SIM_FILES) \
 		$(call params,run-iso-line,$(PTPRUN_ARGS))
 	$(RX) run $< $(PTPRUN_ARGS) -o $@
 

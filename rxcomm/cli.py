@@ -20,6 +20,7 @@ from rxcomm.stages import (
     import_tracker,
     iso9283,
     plan_cp,
+    plan_cycles,
     plan_poses,
     plan_ptp,
     recover_log,
@@ -69,6 +70,7 @@ app.command("recover-log")(recover_log.command)
 app.command("accept")(accept.command)
 app.command("iso9283")(iso9283.command)
 app.command("plan-poses")(plan_poses.command)
+app.command("plan-cycles")(plan_cycles.command)
 app.command("import-tracker")(import_tracker.command)
 
 

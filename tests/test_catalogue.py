@@ -227,3 +227,25 @@ def test_plan_poses_visits_the_cube_at_the_catalogue_limits(tmp_path, rx130l):
     p = frame_placement(rx130l, rx130l.create_data(), traj.q[0], rx130l.tcp_frame_id).translation
     np.testing.assert_allclose(p, cube.points_m["P1"], atol=1e-6)
     assert np.max(np.abs(traj.tau_ff) / rx130l.tau_max) <= 1.0
+
+
+def test_plan_cycles_repeats_a_path_with_return_moves(tmp_path, rx130l):
+    from rxcomm.io.trajectory import load_trajectory_mcap
+    from rxcomm.stages import plan_cp as stage
+    from rxcomm.stages import plan_cycles
+
+    one = tmp_path / "line.mcap"
+    stage.run(
+        ROOT / "samples/rx130l", ROOT / "samples/rx130l/paths/iso9283-line.yaml", one, timing="catalogue"
+    )
+    s = plan_cycles.run(one, ROOT / "samples/rx130l", tmp_path / "line-3.mcap", cycles=3, dwell_s=0.2)
+    single, _ = load_trajectory_mcap(one)
+    traj, env = load_trajectory_mcap(tmp_path / "line-3.mcap")
+    assert s["n_cycles"] == 3 and s["cycle_duration_s"] == pytest.approx(single.duration_s)
+    assert traj.duration_s > 3 * single.duration_s + 4 * 0.2  # three passes, four dwells, two returns
+    np.testing.assert_allclose(traj.q[0], single.q[0]) and np.testing.assert_allclose(
+        traj.q[-1], single.q[-1]
+    )
+    assert s["max_limit_ratio"] <= 1.0 + 1e-3
+    # each pass of the path is there, exactly: the last samples are the single plan's
+    np.testing.assert_allclose(traj.q[-len(single.q) :], single.q, atol=1e-12)

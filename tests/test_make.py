@@ -44,6 +44,8 @@ ALL = {
     "factory-iso-line.mcap",
     "poses.mcap",
     "iso-line.mcap",
+    "factory-iso-line-cycles.mcap",
+    "iso-line-cycles.mcap",
     "run-factory-poses.mcap",
     "run-factory-iso-line.mcap",
     "run-poses.mcap",
@@ -59,7 +61,8 @@ FACTORY_RUNS = {"run-factory-cp.mcap", "run-factory-ptp.mcap"}
 # ISO 9283 in both states: the pose cycle and the ISO line, their runs with the tracker, the criteria.
 ISO_RUNS = {"run-factory-poses.mcap", "run-factory-iso-line.mcap", "run-poses.mcap", "run-iso-line.mcap"}
 # what the identified dynamics (and the calibration) feed of it
-ISO_ON_MODEL = {"poses.mcap", "iso-line.mcap", "run-poses.mcap", "run-iso-line.mcap", "iso9283.yaml"}
+ISO_ON_MODEL = {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "run-poses.mcap", "run-iso-line.mcap"}
+ISO_ON_MODEL |= {"iso9283.yaml"}
 # The rules whose command talks to the simulated cell (`run`: it reads truth.yaml) ...
 ON_CELL = {
     "calib-meas.yaml",
@@ -74,7 +77,7 @@ ON_CELL = {
 # ... and those downstream of their outputs. select-configs, excite, the validation plan and robot-info
 # never see the cell.
 AFTER_CELL = {"calibration.yaml", "dynamics.yaml", "cp.mcap", "ptp.mcap", "verdict.yaml", "report.md"}
-AFTER_CELL |= {"poses.mcap", "iso-line.mcap", "iso9283-factory.yaml", "iso9283.yaml"}
+AFTER_CELL |= {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "iso9283-factory.yaml", "iso9283.yaml"}
 # select-configs and what follows the pose set: measurement, calibration, the planners on the
 # calibrated robot, their runs, the report. Excitation, identification's logs and robot-info do not.
 AFTER_POSES = {
@@ -200,12 +203,14 @@ def test_other_inputs_rebuild_what_reads_them(built):
         *FACTORY_PLANS,
         "factory-poses.mcap",
         "factory-iso-line.mcap",
+        "factory-iso-line-cycles.mcap",
     }
     assert _remade(built, "-W", str(ROBOT / "cell.yaml"))[0] == ALL - not_cell
     excite = {"excitation.yaml", "excite-log.mcap", "dynamics.yaml"} | AFTER_MODEL
     assert _remade(built, "EXCITE_OPTS=--starts 3") == (excite, {"excite"})
     # the ISO line: its plans in both states, their runs, the criteria, the verdict, the report
     line = {"factory-iso-line.mcap", "iso-line.mcap", "run-factory-iso-line.mcap", "run-iso-line.mcap"}
+    line |= {"factory-iso-line-cycles.mcap", "iso-line-cycles.mcap"}
     after = {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml", "report.md"}
     assert _remade(built, "-W", str(ROBOT / "paths/iso9283-line.yaml"))[0] == line | after
     # the pose cycle's length: its two plans, their runs and what follows
