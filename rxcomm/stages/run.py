@@ -162,7 +162,11 @@ def record_tracker(server: Any, sink: RunLogWriter, result: Any, robot: Robot) -
     if export is None or export.n < 2 or log is None or log.n_records < 2 or not sink.begun:
         return
     sample_s = result.ratio * result.cycle_s
-    channel = tracker_channel(robot, export, log.q_actual[: log.n_records], sample_s)
+    try:
+        channel = tracker_channel(robot, export, log.q_actual[: log.n_records], sample_s)
+    except InputError as e:  # no alignment: the run stands, without a tracker channel
+        console.err.print(f"warning: tracker samples not recorded: {e}")
+        return
     sink.tracker(export.t_s, export.position_m, export.quaternion_wxyz, channel)
 
 
