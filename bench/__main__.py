@@ -26,6 +26,7 @@ SECTIONS = [
     "bench.calibration",
     "bench.run",
     "bench.identification",
+    "bench.logs",
     "bench.plan_ptp",
     "bench.plan_cp",
     "bench.acceptance",

@@ -16,6 +16,7 @@ from rxcomm.stages import (
     calibrate,
     cell_sim,
     excite,
+    export,
     identify,
     import_tracker,
     iso9283,
@@ -72,6 +73,7 @@ app.command("iso9283")(iso9283.command)
 app.command("plan-poses")(plan_poses.command)
 app.command("plan-cycles")(plan_cycles.command)
 app.command("import-tracker")(import_tracker.command)
+app.command("export")(export.command)
 
 
 def main() -> None:

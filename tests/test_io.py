@@ -233,15 +233,30 @@ def test_mcap_round_trip_types_timestamps_and_foxglove_conventions(tmp_path: Pat
     with open(path, "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        assert summary is not None and summary.statistics.message_count == n + 5
+        assert summary is not None
+        counts = {
+            ch.topic: summary.statistics.channel_message_counts[i] for i, ch in summary.channels.items()
+        }
+        # per-sample messages, and beside each all-numeric topic one column block (< 2500 samples)
+        assert counts == {"/joints": n, "/event": 2, "/scalar": 3, "/columns/joints": 1, "/columns/scalar": 1}
         schema = next(s for s in summary.schemas.values() if s.name == "rxcomm.joints")
         assert schema.encoding == "jsonschema"
         props = json.loads(schema.data)["properties"]
         assert props["timestamp"]["title"] == "time" and props["q"]["maxItems"] == 6
-        assert {ch.message_encoding for ch in summary.channels.values()} == {"json"}
+        encodings = {ch.topic: ch.message_encoding for ch in summary.channels.values()}
+        assert encodings == {"/joints": "json", "/event": "json", "/scalar": "json"} | {
+            "/columns/joints": "protobuf",
+            "/columns/scalar": "protobuf",
+        }
         _, _, msg = next(reader.iter_messages(topics=["/joints"]))
         body = json.loads(msg.data)
-        assert body["timestamp"] == {"sec": 3, "nsec": 0} and len(body["q"]) == 6
+        # epoch time stamps: the writer's time origin (when it opened) + the sample time
+        assert (
+            abs(body["timestamp"]["sec"] + body["timestamp"]["nsec"] * 1e-9 - (c.time_origin_ns / 1e9 + 3))
+            < 1e-6
+        )
+        assert abs(c.time_origin_ns / 1e9 - time.time()) < 60 and len(body["q"]) == 6
+        assert msg.log_time == c.time_origin_ns + 3 * 10**9
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
         assert json.loads(meta[ENVELOPE_RECORD]["kind"]) == "rxcomm/Demo"
 
@@ -415,8 +430,15 @@ def _traj_envelope(tmp_path: Path, **summary: object) -> dict:
 def test_trajectory_mcap_round_trip_and_summary_yaml(tmp_path: Path) -> None:
     traj = _traj()
     out = tmp_path / "cp.mcap"
-    summary = save_trajectory_mcap(out, traj, _traj_envelope(tmp_path))
+    names = [f"joint_{j + 1}" for j in range(6)]
+    summary = save_trajectory_mcap(out, traj, _traj_envelope(tmp_path), names)
     assert sorted(os.listdir(tmp_path)) == ["cp.mcap", "cp.yaml", "path.yaml"]
+    td = read_mcap(out).topics["/trajectory"]
+    assert td.constants == {"joint_names": names} and "joint_names" not in td.fields
+    with open(out, "rb") as f:  # in every message Foxglove shows, epoch-stamped from the plan's creation
+        _, _, msg = next(make_reader(f).iter_messages(topics=["/trajectory"]))
+    body = json.loads(msg.data)
+    assert body["joint_names"] == names and abs(body["timestamp"]["sec"] - time.time()) < 600
     back, env = load_trajectory_mcap(out)
     assert np.max(np.abs(back.t - traj.t)) <= 0.5e-9  # MCAP log times have ns resolution
     for name in ("q", "qd", "qdd", "tau_ff"):
@@ -483,3 +505,75 @@ def test_write_summary_yaml_beside_log(tmp_path: Path) -> None:
     art = _demo(tmp_path)
     assert write_summary_yaml(tmp_path / "run-log.mcap", art) == tmp_path / "run-log.yaml"
     assert read_yaml_artefact(tmp_path / "run-log.yaml", Demo) == art
+
+
+def test_column_blocks_equal_the_messages_nan_rows_and_blocks_of_2500(tmp_path: Path) -> None:
+    """The reader's blocks give what the per-sample JSON gives: NaN (null) rows from write(), integer and
+    boolean columns, more samples than one block holds."""
+    path = tmp_path / "mixed.mcap"
+    n = 6000  # three blocks
+    t = np.arange(n) / 2500.0
+    q = np.random.default_rng(3).standard_normal((n, 6))
+    with McapWriter(path, _env(tmp_path), flush_period_s=0.3) as w:
+        w.write_arrays("/a", t, {"q": q, "k": np.arange(n)}, digits=17)
+        w.add_channel("/b", "rxcomm.B", {"x": number_field("m"), "ok": {"type": "boolean"}})
+        for i in range(50):
+            w.write("/b", i * 0.01, {"x": float("nan") if i % 7 == 0 else i * 0.5, "ok": i % 2 == 0})
+    fast = read_mcap(path)
+    slow = read_mcap(path, columns=False)
+    for topic in ("/a", "/b"):
+        a, b = fast.topics[topic], slow.topics[topic]
+        assert np.array_equal(a.t, b.t) and set(a.fields) == set(b.fields)
+        for k in a.fields:
+            assert a[k].dtype == b[k].dtype and np.array_equal(
+                a[k], b[k], equal_nan=a[k].dtype.kind == "f"
+            ), k
+    assert np.isnan(fast.topics["/b"].x[::7]).all() and fast.topics["/b"].ok.dtype == bool
+    with open(path, "rb") as f:
+        s = make_reader(f).get_summary()
+        blocks = next(
+            s.statistics.channel_message_counts[i] for i, c in s.channels.items() if c.topic == "/columns/a"
+        )
+        columns = {i for i, c in s.channels.items() if c.topic.startswith("/columns/")}
+        for ci in s.chunk_indexes:  # blocks in chunks of their own, uncompressed; the JSON in zstd chunks
+            ids = set(ci.message_index_offsets)
+            assert (ids <= columns and ci.compression == "") or (
+                not ids & columns and ci.compression == "zstd"
+            )
+    assert blocks >= 3
+
+
+def test_a_log_from_before_the_time_origin_and_columns_still_reads(tmp_path: Path) -> None:
+    """A run log as rxcomm wrote it before (no rxcomm/time record, no column channel, no tcp_speed_m_s):
+    identify's fields read, t from 0; the default reader refuses it naming the missing field."""
+    from mcap.writer import Writer
+
+    from rxcomm.io.mcap_format import encode_metadata, envelope_values
+    from rxcomm.io.run_log import read_run_log
+    from rxcomm.schemas.run_log import RunLog
+
+    path = tmp_path / "old.mcap"
+    env = RunLog.envelope({}, {}, {"underruns": 0, "max_lag_rad": [0.0] * 6, "rms_lag_rad": [0.0] * 6,
+                                   "max_tcp_error_m": 0.0, "duration_s": 0.4})  # fmt: skip
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="rxcomm")
+        w.add_metadata("rxcomm/envelope", encode_metadata(envelope_values(env)))
+        vec = {"type": "array", "items": {"type": "number"}}
+        props = {"q_actual": vec, "tau_actual": vec}
+        sid = w.register_schema("rxcomm.RunJoints", "jsonschema", json.dumps({"properties": props}).encode())
+        cid = w.register_channel("/run/joints", "json", sid)
+        for i in range(1001):
+            body = {
+                "timestamp": {"sec": 0, "nsec": i * 400_000},
+                "q_actual": [i * 1e-3] * 6,
+                "tau_actual": [1] * 6,
+            }
+            w.add_message(cid, i * 400_000, json.dumps(body).encode(), i * 400_000)
+        w.finish()
+    log = read_run_log(path, fields=("q_actual", "tau_actual"))
+    assert log.joints.t[0] == 0.0 and abs(log.joints.t[-1] - 0.4) < 1e-12
+    assert log.joints.tau_actual.dtype == np.float64 and log.joints.q_actual[-1, 0] == 1.0
+    with pytest.raises(InputError) as ei:
+        read_run_log(path)
+    assert ei.value.field == "/run/joints.q_demand"  # the first field of the contract it lacks

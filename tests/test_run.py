@@ -435,7 +435,15 @@ def test_read_mcap_of_a_run_log_is_foxglove_shaped(tmp_path, cell, rx130l):
     out = tmp_path / "log.mcap"
     run_stage.execute(plan, ROBOT_DIR, out, gateway=gw(cell), show_progress=False)
     c = read_mcap(out)
-    assert set(c.topics) == {"/run/joints", "/run/gateway"}
+    assert set(c.topics) == {
+        "/run/joints",
+        "/run/gateway",
+        "/run/tf",
+        "/run/tf_demand",
+        "/run/tcp",
+        "/run/tcp_demand",
+        "/robot_description",
+    }
     assert c.topics["/run/joints"].schema_title == "rxcomm.RunJoints"
     assert c.envelope["kind"] == "rxcomm/RunLog"
 

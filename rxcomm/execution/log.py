@@ -18,8 +18,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from rxcomm.errors import InputError
+from rxcomm.execution.frames import FoxgloveFrames
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.session import NOT_APPLICABLE_VIRTUAL, RunResult, StreamLog, timing_figures
 from rxcomm.io.files import part_path
@@ -55,6 +57,26 @@ def tcp_errors(robot: Robot, q_demand: np.ndarray, q_actual: np.ndarray) -> np.n
             p_a = frame_placement(robot, data, qa, robot.tcp_frame_id).translation
             out[i] = float(np.linalg.norm(p_d - p_a))
     return out
+
+
+def tcp_error_and_speed(
+    robot: Robot, q_demand: np.ndarray, qd_demand: np.ndarray, q_actual: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample (m) ``tcp_errors`` and (m/s) the planned TCP speed |v(q_demand, qd_demand)|, with one
+    kinematics pass per side (the demand pass carries the velocity): the writer does this while the
+    robot moves, so it counts."""
+    model, data, fid = robot.model, robot.create_data(), robot.tcp_frame_id
+    err = np.full(len(q_demand), np.nan)
+    speed = np.zeros(len(q_demand))
+    frame = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    for i in range(len(q_demand)):
+        pin.forwardKinematics(model, data, q_demand[i], qd_demand[i])
+        speed[i] = float(np.linalg.norm(pin.getFrameVelocity(model, data, fid, frame).linear))
+        if np.all(np.isfinite(q_actual[i])):
+            p_d = pin.updateFramePlacement(model, data, fid).translation.copy()
+            pin.forwardKinematics(model, data, q_actual[i])
+            err[i] = float(np.linalg.norm(p_d - pin.updateFramePlacement(model, data, fid).translation))
+    return err, speed
 
 
 def _nanmax(a: np.ndarray, axis: int | None = None) -> Any:
@@ -128,6 +150,7 @@ def joint_columns(robot: Robot, log: StreamLog, tcp_error: np.ndarray | None = N
     """The ``/run/joints`` columns of a stream log (one row per trace record)."""
     m = log.n_records
     p = log.plan
+    tcp, speed = tcp_error_and_speed(robot, p.q[:m], p.qd[:m], log.q_actual)
     return {
         "q_demand": p.q[:m],
         "qd_demand": p.qd[:m],
@@ -136,7 +159,8 @@ def joint_columns(robot: Robot, log: StreamLog, tcp_error: np.ndarray | None = N
         "tau_actual": log.tau_actual,
         "tau_ff": p.tau_ff[:m],
         "following_error": log.following_error,
-        "tcp_error_m": tcp_errors(robot, p.q[:m], log.q_actual) if tcp_error is None else tcp_error,
+        "tcp_error_m": tcp if tcp_error is None else tcp_error,
+        "tcp_speed_m_s": speed,
     }
 
 
@@ -173,6 +197,7 @@ class RunLogWriter:
         self.n_gw = 0
         self._tcp: list[np.ndarray] = []
         self._tracker: TrackerChannel | None = None
+        self._foxglove: FoxgloveFrames | None = None
 
     @property
     def part_path(self) -> Path:
@@ -200,8 +225,10 @@ class RunLogWriter:
         try:
             # Channels first, with units in the schema, so even a log stopped before its first record
             # has them.
-            w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n))
+            names = {"joint_names": list(self.robot.joint_names)}
+            w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n), constants=names)
             w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
+            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s)
             w.flush()
         except BaseException:
             w.abort()
@@ -218,7 +245,7 @@ class RunLogWriter:
             return
         p = self._plan
         sl = slice(first, first + m)
-        tcp = tcp_errors(self.robot, p.q[sl], q_actual)
+        tcp, speed = tcp_error_and_speed(self.robot, p.q[sl], p.qd[sl], q_actual)
         cols = {
             "q_demand": p.q[sl],
             "qd_demand": p.qd[sl],
@@ -228,8 +255,11 @@ class RunLogWriter:
             "tau_ff": p.tau_ff[sl],
             "following_error": p.q[sl] - q_actual,
             "tcp_error_m": tcp,
+            "tcp_speed_m_s": speed,
         }
         self._w.write_arrays(JOINTS_TOPIC, np.arange(first, first + m) * p.sample_s, cols, digits=10)
+        assert self._foxglove is not None
+        self._foxglove.write(first, p.q[sl], q_actual)
         self._w.flush()
         self._tcp.append(tcp)
         self.n_joint += m
@@ -330,6 +360,7 @@ class RunLogWriter:
                     if self._tracker is not None
                     else []
                 ),
+                *(self._foxglove.topics() if self._foxglove is not None else ()),
             ],
             "tracker": self._tracker,
         }
@@ -354,7 +385,9 @@ def write_run_log(
 
 
 def _joint_schema(n: int) -> dict[str, dict[str, Any]]:
-    return {k: number_field(d) if k == "tcp_error_m" else vector_field(n, d) for k, d in JOINT_FIELDS.items()}
+    return {
+        k: number_field(d) if k.startswith("tcp_") else vector_field(n, d) for k, d in JOINT_FIELDS.items()
+    }
 
 
 def write_tracker_channel(

@@ -12,7 +12,14 @@ from rxcomm.errors import InputError
 from rxcomm.io.mcap_io import TopicData, read_mcap
 from rxcomm.io.validate import check_kind, validate_model
 from rxcomm.schemas.envelope import Artefact
-from rxcomm.schemas.run_log import GATEWAY_TOPIC, JOINT_FIELDS, JOINTS_TOPIC, TRACKER_TOPIC, RunLog
+from rxcomm.schemas.run_log import (
+    FOXGLOVE_VIEW_TOPICS,
+    GATEWAY_TOPIC,
+    JOINT_FIELDS,
+    JOINTS_TOPIC,
+    TRACKER_TOPIC,
+    RunLog,
+)
 
 
 @dataclass(frozen=True)
@@ -33,7 +40,7 @@ def read_run_log(path: str | Path, fields: Iterable[str] = tuple(JOINT_FIELDS)) 
     """Read a finished run log MCAP (also a stopped run's ``.mcap.part``) that has the joint `fields`
     (default: all the contract lists); InputError names file and field."""
     path = Path(path)
-    contents = read_mcap(path)
+    contents = read_mcap(path, exclude=FOXGLOVE_VIEW_TOPICS)  # the data, not the 3D panel's channels
     env = contents.envelope
     if env.get("kind") != RunLog.KIND:
         raise InputError(

@@ -1,13 +1,14 @@
 """Sampled joint trajectory (t, q, q̇, q̈, τ_ff) and its MCAP file form.
 
 Units: s, rad, rad/s, rad/s², N·m. The file is ``NAME.mcap`` (topic ``/trajectory``, one message per
-sample, vectors as arrays so Foxglove plots ``/trajectory.q[0]``) with ``NAME.yaml`` beside it
+sample, vectors as arrays so Foxglove plots ``/trajectory.q[0]``, the robot's ``joint_names`` in each;
+stamped in epoch time from the plan's creation) with ``NAME.yaml`` beside it
 (:class:`rxcomm.schemas.trajectory.TrajectorySummary`: the envelope, the summary and the MCAP's hash).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -16,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from rxcomm.errors import InputError
-from rxcomm.io.mcap_io import McapWriter, read_mcap
+from rxcomm.io.mcap_io import McapWriter, field_for, read_mcap
 from rxcomm.io.validate import check_kind, validate_model
 from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
 from rxcomm.schemas.envelope import Artefact
@@ -106,9 +107,13 @@ class Trajectory:
 
 
 def save_trajectory_mcap(
-    path: str | Path, traj: Trajectory, envelope: Mapping[str, Any] | Artefact
+    path: str | Path,
+    traj: Trajectory,
+    envelope: Mapping[str, Any] | Artefact,
+    joint_names: Sequence[str] | None = None,
 ) -> TrajectorySummary:
     """Write ``traj`` to ``NAME.mcap`` and its summary to ``NAME.yaml``; return the summary.
+    ``joint_names`` go into every message (a channel constant) so Foxglove shows which joint is which.
 
     ``envelope`` comes from ``TrajectorySummary.envelope(inputs, settings, summary)`` and must carry
     the summary keys architecture §9 requires. Order: finished ``NAME.mcap.part`` -> hash -> ``NAME.yaml``
@@ -130,6 +135,11 @@ def save_trajectory_mcap(
         write_summary_yaml(path, summary[0])
 
     with McapWriter(path, env) as w:
+        if joint_names is not None:
+            if len(joint_names) != traj.dof:
+                raise InvalidTrajectory("joint_names", f"{len(joint_names)} names for {traj.dof} joints")
+            fields = {k: field_for(c) for k, c in columns.items()}
+            w.add_channel(TOPIC, SCHEMA_TITLE, fields, constants={"joint_names": list(joint_names)})
         w.write_arrays(TOPIC, traj.t, columns, schema_title=SCHEMA_TITLE)
         w.finish(before_rename=write_yaml)
     return summary[0]

@@ -8,7 +8,8 @@ joint side, SI):
 - ``/run/joints`` every ``sample_s``: ``q_demand``, ``qd_demand``, ``qdd_demand`` (rad, rad/s, rad/s²,
   the setpoint reached in that cycle), ``q_actual`` (rad, encoders), ``tau_actual`` (N·m, as the drives
   report it), ``tau_ff`` (N·m, the feed-forward sent), ``following_error`` (rad, q_demand − q_actual),
-  ``tcp_error_m`` (m, |FK(q_demand) − FK(q_actual)| through the nominal kinematics);
+  ``tcp_error_m`` (m, |FK(q_demand) − FK(q_actual)| through the nominal kinematics), ``tcp_speed_m_s``
+  (m/s, the planned TCP speed; logs written before it existed are refused by the default reader);
 - ``/run/gateway`` once per exchanged block (≈ every 6·R drive cycles): ``status`` (register 30 bits),
   ``error``, ``execute_index``, ``write_index``, ``buffer_level`` (setpoints), ``lead_s``,
   ``round_trip_s``, ``wall_s`` (master clock since the stream start);
@@ -16,6 +17,14 @@ joint side, SI):
   ``position_m`` (m, TCP position in the tracker frame), ``quaternion_wxyz`` (TCP orientation in the
   tracker frame), ``t_tracker_s`` (s, the tracker's own time stamp); the message time is the stamp
   aligned to the joint log, t = t_tracker_s − ``tracker.offset_s`` (docs/tracker-csv.md).
+
+For Foxglove's 3D panel, at most ``FOXGLOVE_RATE_HZ`` (every k-th joint sample): ``/run/tf`` and
+``/run/tf_demand`` (``foxglove.FrameTransforms``: FK of q_actual with the URDF's link names, FK of
+q_demand with the links prefixed ``demand/``) and ``/run/tcp`` and ``/run/tcp_demand``
+(``foxglove.PoseInFrame``: the TCP in the root link's frame), ``/robot_description`` (the URDF) and,
+with a tracker, ``/run/tracker_pose`` (PoseInFrame in frame ``tracker``). Every ``/run/joints``
+message repeats the ``joint_names`` (a channel constant). Times are epoch time: the run's wall
+clock at its start + the sample time (readers give s from the start).
 
 A run that ends in a stop keeps its log as ``NAME.mcap.part`` (finished, readable; its envelope
 summary says ``outcome`` and ``stop_reason``) and writes no ``NAME.yaml``.
@@ -33,6 +42,22 @@ from rxcomm.schemas.envelope import Artefact, Sha256Hex
 JOINTS_TOPIC = "/run/joints"
 GATEWAY_TOPIC = "/run/gateway"
 TRACKER_TOPIC = "/run/tracker"
+TF_TOPIC = "/run/tf"
+TF_DEMAND_TOPIC = "/run/tf_demand"
+TCP_TOPIC = "/run/tcp"
+TCP_DEMAND_TOPIC = "/run/tcp_demand"
+ROBOT_DESCRIPTION_TOPIC = "/robot_description"  # the URDF text, for the 3D panel's URDF layers
+TRACKER_POSE_TOPIC = "/run/tracker_pose"  # foxglove.PoseInFrame of the tracker's TCP, frame "tracker"
+# Views for Foxglove, derived from the data channels: readers of the data skip them.
+FOXGLOVE_VIEW_TOPICS = (
+    TF_TOPIC,
+    TF_DEMAND_TOPIC,
+    TCP_TOPIC,
+    TCP_DEMAND_TOPIC,
+    ROBOT_DESCRIPTION_TOPIC,
+    TRACKER_POSE_TOPIC,
+)
+FOXGLOVE_RATE_HZ = 50.0  # the 3D view's rate: enough to watch, 50x fewer FK calls than 2.5 kHz
 JOINT_FIELDS = {
     "q_demand": "rad, position setpoint reached in this cycle",
     "qd_demand": "rad/s, planned joint velocity at that setpoint",
@@ -42,6 +67,7 @@ JOINT_FIELDS = {
     "tau_ff": "N·m, feed-forward torque sent with the setpoint",
     "following_error": "rad, q_demand − q_actual",
     "tcp_error_m": "m, |FK(q_demand) − FK(q_actual)| of the TCP position, nominal kinematics",
+    "tcp_speed_m_s": "m/s, planned TCP speed |J(q_demand)·qd_demand|, nominal kinematics",
 }
 GATEWAY_FIELDS = {
     "status": "register 30 status bits (docs/gateway.md §2.3)",

@@ -283,7 +283,8 @@ def run(
     }
     output.parent.mkdir(parents=True, exist_ok=True)
     traj_path.parent.mkdir(parents=True, exist_ok=True)
-    save_trajectory_mcap(traj_path, samples, TrajectorySummary.envelope(inputs, opts, traj_summary))
+    env = TrajectorySummary.envelope(inputs, opts, traj_summary)
+    save_trajectory_mcap(traj_path, samples, env, robot.joint_names)
     summary = design_summary(design)
     art = excitation_artefact(
         robot, design, opts.periods, Excitation.envelope(inputs, opts, summary), traj_path, output

@@ -318,7 +318,7 @@ def run(
     summary["seconds"] = time.perf_counter() - t_all
     env = TrajectorySummary.envelope(inputs, run_settings, summary)
     output.parent.mkdir(parents=True, exist_ok=True)
-    save_trajectory_mcap(output, trajectory_of(plan), env)
+    save_trajectory_mcap(output, trajectory_of(plan), env, robot.joint_names)
     console.summary_table(f"plan-cp → {output}", summary)
     _print_active(plan)
     if plot:

@@ -287,7 +287,7 @@ def run(
     summary["seconds"] = time.perf_counter() - t_all
     env = TrajectorySummary.envelope(inputs, settings, summary)
     output.parent.mkdir(parents=True, exist_ok=True)
-    save_trajectory_mcap(output, result.trajectory, env)
+    save_trajectory_mcap(output, result.trajectory, env, robot.joint_names)
     if plot:
         limits = PtpLimits.from_robot(robot, acceleration=acceleration_limits)
         title = f"PtP {result.duration_s:.3f} s (k1 = {k1:g}, k2 = {k2:g}): every limit, value / limit"
@@ -354,7 +354,9 @@ def _write_fallback(robot, dyn, q_start, q_goal, options, output, inputs, settin
         "solver_status": error.status,
         "fallback": True,
     }
-    save_trajectory_mcap(output, traj, TrajectorySummary.envelope(inputs, settings, summary))
+    save_trajectory_mcap(
+        output, traj, TrajectorySummary.envelope(inputs, settings, summary), robot.joint_names
+    )
     console.err.print(
         f"[yellow]fallback[/]: wrote the kinematic (ruckig) profile, {traj.duration_s:.3f} s, "
         f"max limit ratio {report.max_ratio:.3f}, to {output}"

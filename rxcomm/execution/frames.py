@@ -1,0 +1,188 @@
+"""The robot's frame transforms along a run, for Foxglove's 3D panel: FK of the logged joints.
+
+Each URDF link (and the TCP frame of drives.yaml) is given in its parent link, the tree the URDF
+itself has, so Foxglove's URDF layer draws every link at its logged place. The actual robot uses the
+URDF's link names; the commanded one the same tree with every frame prefixed ``demand/`` (its root at
+the actual root), so a second URDF layer with that frame prefix shows it in the same 3D view.
+``FoxgloveFrames`` writes these channels (and the TCP poses, the URDF) into a run log as it is recorded.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from rxcomm.io.foxglove import (
+    FRAME_TRANSFORMS,
+    FRAME_TRANSFORMS_SCHEMA,
+    POSE_IN_FRAME,
+    POSE_IN_FRAME_SCHEMA,
+    STRING_SCHEMA,
+    frame_transforms_json,
+    frame_transforms_template,
+    pose_in_frame,
+)
+from rxcomm.io.mcap_io import McapWriter
+from rxcomm.model.robot import Robot
+from rxcomm.schemas.run_log import (
+    FOXGLOVE_RATE_HZ,
+    ROBOT_DESCRIPTION_TOPIC,
+    TCP_DEMAND_TOPIC,
+    TCP_TOPIC,
+    TF_DEMAND_TOPIC,
+    TF_TOPIC,
+    TRACKER_POSE_TOPIC,
+    RunLogTopic,
+)
+
+DEMAND_PREFIX = "demand/"
+
+
+@dataclass(frozen=True)
+class LinkTree:
+    """(parent, child) frame names and Pinocchio frame ids of every link below the root and the TCP."""
+
+    root: str
+    pairs: tuple[tuple[str, str], ...]
+    ids: tuple[tuple[int, int], ...]
+
+    def prefixed(self, prefix: str) -> tuple[tuple[str, str], ...]:
+        """The same tree under ``prefix`` (as a URDF layer's frame prefix names it), its root hung
+        from the unprefixed root: the first pair is (root, prefix + root), at identity."""
+        return ((self.root, prefix + self.root), *((prefix + a, prefix + b) for a, b in self.pairs))
+
+
+def link_tree(robot: Robot) -> LinkTree:
+    """The links of ``robot`` as the URDF chains them (fixed joints included) plus the TCP frame."""
+    m = robot.model
+    keep = [i for i, f in enumerate(m.frames) if f.type == pin.FrameType.BODY or i == robot.tcp_frame_id]
+
+    def parent_link(i: int) -> int:
+        j = m.frames[i].parentFrame
+        while j > 0 and j not in keep:
+            j = m.frames[j].parentFrame
+        return j
+
+    ids = [(parent_link(i), i) for i in keep if parent_link(i) > 0]
+    root = next(m.frames[i].name for i in keep if parent_link(i) == 0)
+    pairs = tuple((m.frames[a].name, m.frames[b].name) for a, b in ids)
+    return LinkTree(root, pairs, tuple(ids))
+
+
+def link_transforms(robot: Robot, tree: LinkTree, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of ``q`` [n, dof]: translation [n, m, 3] (m) and rotation x-y-z-w [n, m, 4] of every
+    child in its parent (``tree.pairs`` order)."""
+    m = robot.model
+    data = robot.create_data()
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n, k = q.shape[0], len(tree.ids)
+    trans, rot = np.zeros((n, k, 3)), np.zeros((n, k, 4))
+    for r in range(n):
+        pin.framesForwardKinematics(m, data, q[r])
+        for c, (a, b) in enumerate(tree.ids):
+            rel = data.oMf[a].actInv(data.oMf[b])
+            trans[r, c] = rel.translation
+            rot[r, c] = pin.Quaternion(rel.rotation).coeffs()  # x, y, z, w
+    return trans, rot
+
+
+def tcp_poses(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """TCP position [n, 3] (m) and orientation x-y-z-w [n, 4] in the base (root link) frame."""
+    m = robot.model
+    data = robot.create_data()
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    pos, rot = np.zeros((len(q), 3)), np.zeros((len(q), 4))
+    for r in range(len(q)):
+        pin.framesForwardKinematics(m, data, q[r])
+        f = data.oMf[robot.tcp_frame_id]
+        pos[r], rot[r] = f.translation, pin.Quaternion(f.rotation).coeffs()
+    return pos, rot
+
+
+class FoxgloveFrames:
+    """The 3D panel's channels of a run log: FK of every k-th sample (k: at most FOXGLOVE_RATE_HZ)."""
+
+    def __init__(self, w: McapWriter, robot: Robot, sample_s: float) -> None:
+        self.w, self.robot, self.sample_s = w, robot, sample_s
+        self.stride = max(1, round(1.0 / (FOXGLOVE_RATE_HZ * sample_s)))
+        self.tree = link_tree(robot)
+        self.n = 0
+        self.n_tracker = 0
+        self._templates: dict[str, str] = {}
+        for topic in (TF_TOPIC, TF_DEMAND_TOPIC):
+            w.add_channel(topic, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
+        for topic in (TCP_TOPIC, TCP_DEMAND_TOPIC):
+            fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
+            w.add_channel(topic, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
+        # The URDF itself, so the 3D panel's URDF layers (source: topic) need no file of their own.
+        w.add_channel(ROBOT_DESCRIPTION_TOPIC, "std_msgs/String", {"data": {}}, schema=STRING_SCHEMA)
+        w.write(ROBOT_DESCRIPTION_TOPIC, 0.0, {"data": robot.urdf_path.read_text()})
+
+    def write(self, first: int, q_demand: np.ndarray, q_actual: np.ndarray) -> None:
+        """Rows ``first…`` of the joint log; writes those whose index is a multiple of the stride."""
+        rows = np.arange(first, first + len(q_actual))
+        pick = (rows % self.stride == 0) & np.all(np.isfinite(q_actual), axis=1)
+        if not pick.any():
+            return
+        t = rows[pick] * self.sample_s
+        ns = self.w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
+        tree, root = self.tree, self.tree.root
+        demand_pairs = list(tree.prefixed(DEMAND_PREFIX))
+        for q, tf_topic, tcp_topic, pairs in (
+            (q_actual[pick], TF_TOPIC, TCP_TOPIC, list(tree.pairs)),
+            (q_demand[pick], TF_DEMAND_TOPIC, TCP_DEMAND_TOPIC, demand_pairs),
+        ):
+            trans, rot = link_transforms(self.robot, tree, q)
+            if tf_topic == TF_DEMAND_TOPIC:  # the prefixed root at the actual root
+                trans = np.concatenate([np.zeros((len(q), 1, 3)), trans], axis=1)
+                rot = np.concatenate([np.tile([0.0, 0.0, 0.0, 1.0], (len(q), 1, 1)), rot], axis=1)
+            pos, ori = tcp_poses(self.robot, q)
+            template = self._templates.setdefault(tf_topic, frame_transforms_template(pairs))
+            for i in range(len(q)):
+                stamp_ns = int(ns[i])
+                self.w.write_json(tf_topic, t[i], frame_transforms_json(template, stamp_ns, trans[i], rot[i]))
+                self.w.write(tcp_topic, t[i], pose_in_frame(stamp_ns, root, pos[i], ori[i]))
+        self.n += int(pick.sum())
+
+    def tracker(self, t_s: np.ndarray, position_m: np.ndarray, quaternion_wxyz: np.ndarray) -> None:
+        """The tracker's TCP as ``/run/tracker_pose`` (foxglove.PoseInFrame in frame ``tracker``), at
+        log times ``t_s`` (s from the start, the joint log's axis), every sample. Once per log."""
+        if self.n_tracker:
+            raise ValueError("tracker poses already written")
+        fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
+        self.w.add_channel(TRACKER_POSE_TOPIC, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
+        t = np.asarray(t_s, dtype=float)
+        ns = self.w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
+        xyzw = np.asarray(quaternion_wxyz, dtype=float)[:, [1, 2, 3, 0]]
+        for i in range(len(t)):
+            self.w.write(
+                TRACKER_POSE_TOPIC, t[i], pose_in_frame(int(ns[i]), "tracker", position_m[i], xyzw[i])
+            )
+        self.n_tracker = len(t)
+
+    def topics(self) -> list[RunLogTopic]:
+        period = self.stride * self.sample_s
+        tf = {"transforms": "foxglove.FrameTransform per link in its parent link (m, quaternion x-y-z-w)"}
+        tcp = {"pose": f"TCP pose in {self.tree.root} (m, quaternion x-y-z-w)"}
+        return [
+            RunLogTopic(topic=TF_TOPIC, period_s=period, n_messages=self.n, fields=tf),
+            RunLogTopic(topic=TF_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tf),
+            RunLogTopic(topic=TCP_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
+            RunLogTopic(topic=TCP_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
+            RunLogTopic(
+                topic=ROBOT_DESCRIPTION_TOPIC, period_s=None, n_messages=1, fields={"data": "the URDF (XML)"}
+            ),
+        ] + (
+            [
+                RunLogTopic(
+                    topic=TRACKER_POSE_TOPIC,
+                    period_s=None,
+                    n_messages=self.n_tracker,
+                    fields={"pose": "the tracker's TCP pose in frame tracker (m, quaternion x-y-z-w)"},
+                )
+            ]
+            if self.n_tracker
+            else []
+        )
