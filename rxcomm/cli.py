@@ -12,12 +12,17 @@ import typer
 
 from rxcomm import __version__
 from rxcomm.stages import (
+    accept,
     calibrate,
     cell_sim,
     excite,
     export,
     identify,
+    import_tracker,
+    iso9283,
     plan_cp,
+    plan_cycles,
+    plan_poses,
     plan_ptp,
     recover_log,
     report,
@@ -63,6 +68,11 @@ app.command("plan-cp")(plan_cp.command)
 app.command("plan-ptp")(plan_ptp.command)
 app.command("report")(report.command)
 app.command("recover-log")(recover_log.command)
+app.command("accept")(accept.command)
+app.command("iso9283")(iso9283.command)
+app.command("plan-poses")(plan_poses.command)
+app.command("plan-cycles")(plan_cycles.command)
+app.command("import-tracker")(import_tracker.command)
 app.command("export")(export.command)
 
 

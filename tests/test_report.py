@@ -247,7 +247,9 @@ def test_report_of_an_empty_build_says_not_measured_and_writes_both_files(tmp_pa
     assert res.exit_code == 0, res.output
     md = (tmp_path / "out" / "report.md").read_text()
     page = (tmp_path / "out" / "report.html").read_text()
-    assert "0 of 8 criteria pass, 0 fail, 8 not measured." in md and 'id="verdict"' in page
+    # the stage targets and the acceptance of the robot as a whole (no verdict.yaml: not measured)
+    assert "0 of 9 criteria pass, 0 fail, 9 not measured." in md and 'id="verdict"' in page
+    assert "| acceptance: factory vs commissioned | not measured |" in md
     for title in ("Geometric calibration", "Dynamic identification", "Every executed run"):
         assert title in md and title in page
     assert "| calibration.yaml in this build | not measured |" in md
@@ -279,3 +281,36 @@ def test_stiffness_from_identified_torques_is_shown_beside_the_prior_torques():
     # A prior pass without a stiffness (its model chose no compliance) says so, never 0.
     text = rep.render("t", "p", [rep.calibration_section(s, [], prior={})])
     assert "prior holding torques | not measured" in text
+
+
+def test_the_acceptance_rows_open_the_verdict_with_factory_commissioned_and_ratio():
+    acceptance = {
+        "rows": [
+            {"criterion": "AP_p", "unit": "m", "factory": 0.0042, "commissioned": 0.00021, "ratio": 0.05,
+             "threshold": "≤ 0.0003 m", "max_commissioned": 0.0003, "max_ratio": None, "verdict": "PASS",
+             "note": "worst of 5: P3, 30 cycles"},
+            {"criterion": "cycle_time", "unit": "s", "factory": 7.83, "commissioned": None, "ratio": None,
+             "threshold": "ratio ≤ 0.7", "max_commissioned": None, "max_ratio": 0.7,
+             "verdict": "not measured", "note": "commissioned: no run log"},
+            {"criterion": "electrical_energy", "unit": "J", "factory": 268.3, "commissioned": 407.8,
+             "ratio": 1.52, "threshold": "ratio ≤ 1", "max_commissioned": None, "max_ratio": 1.0,
+             "verdict": "FAIL", "note": "sum of 2 run(s)"},
+        ],
+        "summary": {"verdict": "FAIL", "n_pass": 1, "n_fail": 1, "n_not_measured": 1},
+    }  # fmt: skip
+    rows = rep.acceptance_verdict(acceptance)
+    assert [r.verdict for r in rows] == [Verdict.passed, Verdict.not_measured, Verdict.failed]
+    verdict = [*rows, *targets.stage_verdicts({}, {})]
+    report = Report("r", "preamble", verdict, [Section("Stage A", [Figure("x", "1 mm")])])
+    md = markdown.render(report)
+    lines = md.splitlines()
+    header = "| criterion | factory | commissioned | ratio | threshold | verdict | note |"
+    assert header in lines and lines.index(header) < md[: md.index("## Stage A")].count("\n")
+    assert "| AP_p | 4.2 mm | 0.21 mm | 0.05 | ≤ 0.3 mm | pass | worst of 5: P3, 30 cycles |" in lines
+    assert (
+        "| cycle_time | 7.83 s | not measured | — | ratio ≤ 0.7 | not measured | commissioned: no run log |"
+        in lines
+    )
+    assert "| electrical_energy | 268.3 J | 407.8 J | 1.52 | ratio ≤ 1 | fail | sum of 2 run(s) |" in lines
+    # the acceptance rows come first, before the stage targets
+    assert md.index("| AP_p |") < md.index("| electrical_energy |") < md.index("| calibration")

@@ -20,4 +20,7 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.run_log:RunLog",
     "rxcomm.schemas.excitation:Excitation",
     "rxcomm.schemas.path:PathSpec",
+    "rxcomm.schemas.iso9283:Iso9283",
+    "rxcomm.schemas.acceptance:AcceptanceThresholds",
+    "rxcomm.schemas.acceptance:Acceptance",
 ]
