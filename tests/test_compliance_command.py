@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rxcomm.calibration.compensation import encoder_angles
-from rxcomm.calibration.fit import holding_torques
+from rxcomm.calibration.compliance import holding_torques
 
 
 def test_encoder_angles_put_the_links_at_the_pose(rx130l):

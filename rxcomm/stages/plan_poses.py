@@ -17,7 +17,7 @@ import typer
 
 from rxcomm import console
 from rxcomm.calibration.compensation import compliance_torque_params, encoder_angles, joint_compliance
-from rxcomm.calibration.fit import load_calibrated_robot
+from rxcomm.calibration.loading import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import save_trajectory_mcap
