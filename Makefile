@@ -102,8 +102,19 @@ MEAS_ARGS = --robot $(ROBOT) --truth $(TRUTH) --speed-fraction 0.5 --interpolati
 $(B)/calib-meas.yaml: $(B)/configs.yaml $(SIM_FILES) $(call params,measure,$(MEAS_ARGS))
 	$(RX) run $< $(MEAS_ARGS) -o $@
 
-CAL_ARGS = --robot $(ROBOT) --cell $(CELL) --urdf-out $(B)/calibrated.urdf
-$(B)/calibration.yaml: $(B)/calib-meas.yaml $(ROBOT_FILES) $(CELL) $(call params,calibrate,$(CAL_ARGS))
+# Two calibrations of the same measurements (architecture §1, "the chain"): first with the prior
+# model's holding torques bending the joints (what is known before identification; its stiffness is
+# scaled by the prior's torque error), then with the identified dynamics' torques: the calibration
+# the planners use. Identification never reads a calibration, so this is not a loop.
+CALPRIOR_ARGS = --robot $(ROBOT) --cell $(CELL)
+$(B)/calibration-prior.yaml: $(B)/calib-meas.yaml $(ROBOT_FILES) $(CELL) \
+		$(call params,calibrate-prior,$(CALPRIOR_ARGS))
+	$(RX) calibrate --measurements $< $(CALPRIOR_ARGS) -o $@
+# Beside it: calibrated.urdf (with the TCP frame) and mdh.yaml + mdh.csv (MDH, zero offsets).
+CAL_ARGS = --robot $(ROBOT) --cell $(CELL) --dynamics $(B)/dynamics.yaml --urdf-out $(B)/calibrated.urdf \
+	--mdh-out $(B)/mdh.yaml
+$(B)/calibration.yaml: $(B)/calib-meas.yaml $(B)/dynamics.yaml $(ROBOT_FILES) $(CELL) \
+		$(call params,calibrate,$(CAL_ARGS))
 	$(RX) calibrate --measurements $< $(CAL_ARGS) -o $@
 
 EXCITE_ARGS = --robot $(ROBOT) --cell $(CELL) $(EXCITE_OPTS) --plot
@@ -155,11 +166,105 @@ PTPRUN_ARGS = $(RUN_SIM) --dynamics $(B)/dynamics.yaml --plot
 $(B)/run-ptp.mcap: $(B)/ptp.mcap $(B)/dynamics.yaml $(SIM_FILES) $(call params,run-ptp,$(PTPRUN_ARGS))
 	$(RX) run $< $(PTPRUN_ARGS) -o $@
 
-# The artefacts `report` reads (rxcomm/stages/report.py): the stages' and every run log of the chain
-# (with their PNGs); it reads no robot file and has no options. It writes report.html beside report.md.
-$(B)/report.md: $(B)/configs.yaml $(B)/calibration.yaml $(B)/excitation.yaml $(B)/dynamics.yaml \
+# ---- the factory state (issue 17): the same robot as delivered, measured the same way -------------------------------
+# Nominal kinematics (no calibration), no feed-forward, a generic controller's timing from the catalogue
+# limits (rxcomm.model.catalogue: prior model + drives.yaml's rated payload, worst case over poses).
+FACTORY_CP_ARGS = --robot $(ROBOT) --path $(CP_PATH) --timing catalogue
+$(B)/factory-cp.mcap: $(STAMP) $(CP_PATH) $(ROBOT_FILES) $(call params,factory-cp,$(FACTORY_CP_ARGS)) | $(B)
+	$(RX) plan-cp $(FACTORY_CP_ARGS) -o $@
+
+FACTORY_PTP_ARGS = --robot $(ROBOT) --timing catalogue
+$(B)/factory-ptp.mcap: $(B)/factory-cp.mcap $(ROBOT_FILES) $(call params,factory-ptp,$(FACTORY_PTP_ARGS))
+	$(RX) plan-ptp --start=$(call QOF,$(B)/factory-cp.yaml,q_start) \
+		--goal=$(call QOF,$(B)/factory-cp.yaml,q_goal) $(FACTORY_PTP_ARGS) -o $@
+
+FACTORY_RUN_ARGS = $(RUN_SIM) --no-feedforward
+$(B)/run-factory-cp.mcap: $(B)/factory-cp.mcap $(SIM_FILES) $(call params,run-factory-cp,$(FACTORY_RUN_ARGS))
+	$(RX) run $< $(FACTORY_RUN_ARGS) -o $@
+
+$(B)/run-factory-ptp.mcap: $(B)/factory-ptp.mcap $(SIM_FILES) $(call params,run-factory-ptp,$(FACTORY_RUN_ARGS))
+	$(RX) run $< $(FACTORY_RUN_ARGS) -o $@
+
+# ---- ISO 9283 in both states, measured by the tracker during motion (rxcomm iso9283) -----------------
+# The pose test (P1 → P5 → P4 → P3 → P2, dwells, catalogue-limit moves in both states: it measures at
+# rest) and the ISO line at 1 m/s (factory: catalogue timing; commissioned: the optimal planner),
+# LINE_CYCLES cycles in one run. The tracker's base frame is the calibration's measured one in both.
+ISO_DIR    ?= $(ROBOT)/paths
+ISO_FILES  := $(ISO_DIR)/iso9283-rectangle.yaml
+ISO_LINE   ?= $(ISO_DIR)/iso9283-line.yaml
+POSE_CYCLES ?= 5
+POSE_ARGS = --robot $(ROBOT) --paths $(ISO_DIR) --cycles $(POSE_CYCLES) --dwell-s 0.4
+$(B)/factory-poses.mcap: $(STAMP) $(ISO_FILES) $(ROBOT_FILES) $(call params,factory-poses,$(POSE_ARGS)) | $(B)
+	$(RX) plan-poses $(POSE_ARGS) -o $@
+
+$(B)/poses.mcap: $(ISO_FILES) $(MODEL) $(ROBOT_FILES) $(call params,poses,$(POSE_ARGS) $(MODEL_ARGS))
+	$(RX) plan-poses $(POSE_ARGS) $(MODEL_ARGS) -o $@
+
+FACTORY_LINE_ARGS = --robot $(ROBOT) --path $(ISO_LINE) --timing catalogue --max-tcp-speed-m-s 1.0
+$(B)/factory-iso-line.mcap: $(STAMP) $(ISO_LINE) $(ROBOT_FILES) \
+		$(call params,factory-iso-line,$(FACTORY_LINE_ARGS)) | $(B)
+	$(RX) plan-cp $(FACTORY_LINE_ARGS) -o $@
+
+LINE_ARGS = --robot $(ROBOT) --path $(ISO_LINE) $(MODEL_ARGS) --max-tcp-speed-m-s 1.0
+$(B)/iso-line.mcap: $(ISO_LINE) $(MODEL) $(ROBOT_FILES) $(call params,iso-line,$(LINE_ARGS))
+	$(RX) plan-cp $(LINE_ARGS) -o $@
+
+# The ISO line's cycles in one plan each (every fresh embedded cell draws the same noise).
+LINE_CYCLES ?= 10
+CYCLE_ARGS = --robot $(ROBOT) --cycles $(LINE_CYCLES)
+$(B)/factory-iso-line-cycles.mcap: $(B)/factory-iso-line.mcap $(ROBOT_FILES) \
+		$(call params,factory-iso-line-cycles,$(CYCLE_ARGS))
+	$(RX) plan-cycles $< $(CYCLE_ARGS) -o $@
+
+$(B)/iso-line-cycles.mcap: $(B)/iso-line.mcap $(B)/dynamics.yaml $(ROBOT_FILES) \
+		$(call params,iso-line-cycles,$(CYCLE_ARGS) --dynamics $(B)/dynamics.yaml)
+	$(RX) plan-cycles $< $(CYCLE_ARGS) --dynamics $(B)/dynamics.yaml -o $@
+
+POSE_RUN = --robot $(ROBOT) --truth $(TRUTH) --approach --interpolation-ratio 8
+$(B)/run-factory-poses.mcap: $(B)/factory-poses.mcap $(SIM_FILES) \
+		$(call params,run-factory-poses,$(POSE_RUN) --no-feedforward)
+	$(RX) run $< $(POSE_RUN) --no-feedforward -o $@
+
+$(B)/run-poses.mcap: $(B)/poses.mcap $(B)/dynamics.yaml $(SIM_FILES) \
+		$(call params,run-poses,$(POSE_RUN) --dynamics $(B)/dynamics.yaml)
+	$(RX) run $< $(POSE_RUN) --dynamics $(B)/dynamics.yaml -o $@
+
+$(B)/run-factory-iso-line.mcap: $(B)/factory-iso-line-cycles.mcap $(SIM_FILES) \
+		$(call params,run-factory-iso-line,$(FACTORY_RUN_ARGS))
+	$(RX) run $< $(FACTORY_RUN_ARGS) -o $@
+
+$(B)/run-iso-line.mcap: $(B)/iso-line-cycles.mcap $(B)/dynamics.yaml $(SIM_FILES) \
+		$(call params,run-iso-line,$(PTPRUN_ARGS))
+	$(RX) run $< $(PTPRUN_ARGS) -o $@
+
+ISO_ARGS = --robot $(ROBOT) --paths $(ISO_DIR) --calibration $(B)/calibration.yaml
+$(B)/iso9283-factory.yaml: $(B)/run-factory-poses.mcap $(B)/run-factory-iso-line.mcap $(B)/calibration.yaml \
+		$(ISO_DIR)/iso9283-*.yaml $(ROBOT_FILES) $(call params,iso9283-factory,$(ISO_ARGS))
+	$(RX) iso9283 $(ISO_ARGS) --pose-log $(B)/run-factory-poses.mcap \
+		--line-log $(B)/run-factory-iso-line.mcap -o $@
+
+$(B)/iso9283.yaml: $(B)/run-poses.mcap $(B)/run-iso-line.mcap $(B)/calibration.yaml \
+		$(ISO_DIR)/iso9283-*.yaml $(ROBOT_FILES) $(call params,iso9283,$(ISO_ARGS))
+	$(RX) iso9283 $(ISO_ARGS) --pose-log $(B)/run-poses.mcap --line-log $(B)/run-iso-line.mcap -o $@
+
+# The verdict: the reference task (the CP path, then the PtP move between its end states) and the
+# ISO 9283 criteria in both states against the thresholds beside the cell. Reads the runs' NAME.yaml.
+ACCEPTANCE ?= $(ROBOT)/acceptance.yaml
+TASK_LOGS  := --factory-log $(B)/run-factory-cp.mcap --factory-log $(B)/run-factory-ptp.mcap \
+	--commissioned-log $(B)/run-ff.mcap --commissioned-log $(B)/run-ptp.mcap
+ACCEPT_ARGS = --thresholds $(ACCEPTANCE) $(TASK_LOGS) \
+	--factory-iso9283 $(B)/iso9283-factory.yaml --commissioned-iso9283 $(B)/iso9283.yaml
+$(B)/verdict.yaml: $(ACCEPTANCE) $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.mcap $(B)/run-ff.mcap \
+		$(B)/run-ptp.mcap $(B)/iso9283-factory.yaml $(B)/iso9283.yaml $(call params,accept,$(ACCEPT_ARGS))
+	$(RX) accept $(ACCEPT_ARGS) -o $@
+
+# The artefacts `report` reads (rxcomm/stages/report.py): the stages', every run log of the chain (with
+# their PNGs) and the verdict; it reads no robot file and has no options. It writes report.html beside.
+$(B)/report.md: $(B)/configs.yaml $(B)/calibration-prior.yaml $(B)/calibration.yaml $(B)/excitation.yaml $(B)/dynamics.yaml \
 		$(B)/cp.mcap $(B)/ptp.mcap $(B)/run-noff.mcap $(B)/run-ff.mcap $(B)/run-ptp.mcap \
-		$(B)/excite-log.mcap $(B)/validation-log.mcap
+		$(B)/excite-log.mcap $(B)/validation-log.mcap $(B)/run-factory-cp.mcap \
+		$(B)/run-factory-ptp.mcap $(B)/run-factory-poses.mcap $(B)/run-poses.mcap \
+		$(B)/run-factory-iso-line.mcap $(B)/run-iso-line.mcap $(B)/verdict.yaml
 	$(RX) report $(B) -o $@
 
 # The main job: the report plus the chain's products it does not read.

@@ -30,6 +30,8 @@ SECTIONS = [
     "bench.logs",
     "bench.plan_ptp",
     "bench.plan_cp",
+    "bench.acceptance",
+    "bench.iso9283",
 ]
 
 

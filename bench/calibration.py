@@ -10,7 +10,8 @@ import numpy as np
 import yaml
 
 from bench.table import Row, median_seconds
-from rxcomm.calibration.fit import MeasurementSet, calibrate
+from rxcomm.calibration.fit import calibrate
+from rxcomm.calibration.measurements import MeasurementSet
 from rxcomm.calibration.pose_selection import select_measurement_poses, select_poses, selection_blocks
 from rxcomm.calibration.workspace import stream_candidates
 from rxcomm.cell.tracker import SimulatedTracker

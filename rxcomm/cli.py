@@ -113,6 +113,35 @@ STAGES: dict[str, Stage] = {
         "Export an artefact for another tool, by its kind",
         "rxcomm export build/cp.mcap -o cp.csv",
     ),
+    "accept": Stage(
+        "accept",
+        "Write the acceptance verdict: each criterion for the factory and the commissioned state.",
+        "rxcomm accept --thresholds samples/rx130l/acceptance.yaml "
+        "--factory-iso9283 build/iso9283-factory.yaml "
+        "--commissioned-iso9283 build/iso9283.yaml -o build/verdict.yaml",
+    ),
+    "iso9283": Stage(
+        "iso9283",
+        "ISO 9283 criteria (AP/RP at P1–P5, AT/RT/AV/RV on the paths, CO on the rectangle) from run logs",
+        "rxcomm iso9283 --robot samples/rx130l --pose-log build/run-poses.mcap -o build/iso9283.yaml",
+    ),
+    "plan-poses": Stage(
+        "plan_poses",
+        "Plan the ISO 9283 pose cycle P1 → P5 → P4 → P3 → P2 at the catalogue limits, for `run`.",
+        "rxcomm plan-poses --robot samples/rx130l --paths samples/rx130l/paths -o build/poses.mcap",
+    ),
+    "plan-cycles": Stage(
+        "plan_cycles",
+        "Repeat a test path's plan for the ISO 9283 cycles, with return moves at the catalogue limits.",
+        "rxcomm plan-cycles build/iso-line.mcap --robot samples/rx130l --cycles 10 "
+        "-o build/iso-line-cycles.mcap",
+    ),
+    "import-tracker": Stage(
+        "import_tracker",
+        "Put a real tracker's CSV export on a run log's time axis and write the log with its /run/tracker",
+        "rxcomm import-tracker build/run-ff.mcap --robot samples/rx130l --tracker-csv tracker.csv "
+        "-o build/run-ff-tracked.mcap",
+    ),
 }
 
 # Commands whose old form took a positional argument that is now an option (docs/cli.md).

@@ -20,6 +20,8 @@ from rxcomm.reporting.document import (
     Section,
     Table,
     Tolerance,
+    Verdict,
+    VerdictRow,
     ratio_note,
 )
 
@@ -184,8 +186,10 @@ def calibration_section(
     tables: Sequence[Mapping],
     parameters: Sequence[Mapping] = (),
     compliance: Sequence[Mapping] = (),
+    prior: Mapping | None = None,
 ) -> Section:
-    """The summary's figures, Table 2, the parameters ± σ and the joint stiffness (calibration.yaml)."""
+    """The summary's figures, Table 2, the parameters ± σ and the joint stiffness (calibration.yaml);
+    `prior`: the summary of the same calibration with the prior model's holding torques, if made."""
     named = [calibration_table(tables), calibration_parameter_table(parameters), compliance_table(compliance)]
     return Section(
         "Geometric calibration (paper §3.1–3.4, Table 2)",
@@ -207,7 +211,7 @@ def calibration_section(
                 _f(s["frames_only_heldout_max_position_error_m"], 1e3, unit="mm"),
             ),
             *baseline_pose_figures(s),
-            *model_figures(s),
+            *model_figures(s, prior),
             Figure("compute time", _f(s["seconds"], unit="s")),
         ],
         tables=[t for t in named if t is not None],
@@ -216,8 +220,9 @@ def calibration_section(
     )
 
 
-def model_figures(s: Mapping) -> list[Figure]:
-    """The tracker noise used, the model the data chose, the rigid model beside it, the stiffness."""
+def model_figures(s: Mapping, prior: Mapping | None = None) -> list[Figure]:
+    """The tracker noise used, the model the data chose, the rigid model beside it, the stiffness
+    (and, from `prior`, the stiffness the prior model's holding torques give)."""
     out = []
     if "tracker_position_sigma_m" in s:
         ori = s.get("tracker_orientation_sigma_rad")
@@ -241,12 +246,30 @@ def model_figures(s: Mapping) -> list[Figure]:
         if key.startswith("stiffness_") and key.endswith("_nm_per_rad") and "_std_" not in key:
             joint = key[len("stiffness_") : -len("_nm_per_rad")]
             std = s.get(f"stiffness_{joint}_std_nm_per_rad")
+            torques = s.get("compliance_torque_model", "prior")
             out.append(
                 Figure(
-                    f"{joint} stiffness (from gravity sag)",
+                    f"{joint} stiffness (from gravity sag, {torques} holding torques)",
                     f"{_f(value, 1e-6)} ± {_f(std, 1e-6)} MN·m/rad",
                 )
             )
+            if prior is not None and torques != "prior":
+                p, p_std = prior.get(key), prior.get(f"stiffness_{joint}_std_nm_per_rad")
+                out.append(
+                    Figure(
+                        f"{joint} stiffness, same measurements, prior holding torques",
+                        "not measured" if p is None else f"{_f(p, 1e-6)} ± {_f(p_std, 1e-6)} MN·m/rad",
+                    )
+                )
+    if s.get("mdh_max_position_residual_m") is not None:
+        out.append(
+            Figure(
+                "what the plain MDH export cannot express (max over sampled poses)",
+                f"{_f(s['mdh_max_position_residual_m'], 1e3, unit='mm')}, "
+                f"{_f(s.get('mdh_max_orientation_residual_rad'), 1e3, unit='mrad')}; with Hayati's β "
+                f"{_f(s.get('mdh_beta_max_position_residual_m'), 1e3, unit='mm')}",
+            )
+        )
     return out
 
 
@@ -464,3 +487,45 @@ def missing_section(title: str, names: Sequence[str]) -> Section:
 def render(title: str, preamble: str, sections: Sequence[Section]) -> str:
     """Markdown of sections alone (no verdict rows): what a test of one section reads."""
     return markdown.render(Report(title, preamble, [], sections))
+
+
+def _accept_value(x: float | None, unit: str) -> str:
+    """A value of the acceptance table: lengths in mm (the ISO 9283 criteria), "not measured" for None."""
+    if x is None:
+        return NOT_MEASURED
+    if unit == "m":
+        return f"{x * 1e3:.3g} mm"
+    return f"{x:.4g}" + {"1": "", "N2m2s": " N²·m²·s"}.get(unit, f" {unit}")
+
+
+ACCEPT_VERDICT = {"PASS": Verdict.passed, "FAIL": Verdict.failed, "not measured": Verdict.not_measured}
+
+
+def acceptance_verdict(acceptance: Mapping | None) -> list[VerdictRow]:
+    """The verdict rows of an `rxcomm/Acceptance` artefact (`rxcomm accept`, plain data): factory,
+    commissioned, ratio, threshold per criterion; one "not measured" row when the build has none."""
+    if acceptance is None:
+        return [
+            VerdictRow(
+                "acceptance: factory vs commissioned", NOT_MEASURED, "acceptance.yaml", Verdict.not_measured,
+                "no verdict.yaml in the build (`rxcomm accept`)",
+            )
+        ]  # fmt: skip
+    out = []
+    for r in acceptance["rows"]:
+        bounds = (
+            [] if r["max_commissioned"] is None else [f"≤ {_accept_value(r['max_commissioned'], r['unit'])}"]
+        )
+        bounds += [] if r["max_ratio"] is None else [f"ratio ≤ {r['max_ratio']:g}"]
+        out.append(
+            VerdictRow(
+                criterion=r["criterion"],
+                measured=_accept_value(r["commissioned"], r["unit"]),
+                threshold=", ".join(bounds),
+                verdict=ACCEPT_VERDICT[r["verdict"]],
+                note=r["note"],
+                factory=_accept_value(r["factory"], r["unit"]),
+                ratio="—" if r["ratio"] is None else f"{r['ratio']:.3g}",
+            )
+        )
+    return out

@@ -9,17 +9,14 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rxcomm.calibration.fit import (
-    CalibrateSettings,
-    MeasurementSet,
-    _fit,
-    _Problem,
-    calibrate,
-    calibrated_urdf_text,
-    load_calibration,
-    read_measurements,
-)
+from rxcomm.calibration.fit import calibrate
+from rxcomm.calibration.lm import fit_problem
+from rxcomm.calibration.loading import load_calibration
+from rxcomm.calibration.measurements import MeasurementSet, read_measurements
 from rxcomm.calibration.pose_selection import select_measurement_poses
+from rxcomm.calibration.residuals import Problem
+from rxcomm.calibration.settings import CalibrateSettings
+from rxcomm.calibration.urdf import calibrated_urdf_text
 from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.cli import app
 from rxcomm.errors import InputError
@@ -29,6 +26,7 @@ from rxcomm.model.kinematics import cardan_xyz, inverse_kinematics, tcp_placemen
 from rxcomm.model.robot import load_robot
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Cell
+from rxcomm.schemas.kinematics import Kinematics
 from rxcomm.schemas.measurements import MeasuredPose, Measurements
 from rxcomm.schemas.truth import CellTruth
 
@@ -107,7 +105,7 @@ def test_identifiable_parameters_recovered_within_3_sigma(campaign):
         role=("fit",) * 200,
     )
     idx = np.array(res.identifiable.indices)
-    proj = _fit(robot, exact, t2b, idx, 5e-5, 1e-4, None, CalibrateSettings())
+    proj = fit_problem(robot, exact, t2b, idx, 5e-5, 1e-4, None, CalibrateSettings())
     assert proj.residual_scale < 1e-9  # the reduced model reproduces the truth exactly
     z = (res.fit.errors.values[idx] - proj.errors.values[idx]) / res.fit.std[idx]
     assert np.max(np.abs(z)) < 3.0, dict(zip(res.identifiable.names, np.round(z, 2), strict=True))
@@ -169,7 +167,7 @@ def test_lm_jacobian_equals_finite_differences(rx130l):
     tracker = SimulatedTracker(rx130l, truth, np.random.default_rng(0))
     ms = _measure(tracker, random_poses(rx130l, 4, np.random.default_rng(1)), ["fit"] * 4)
     idx = np.arange(48)
-    prob = _Problem(rx130l, ms.q, ms.position_m, ms.rotation, t2b, 5e-5, 1e-4, idx, None)
+    prob = Problem(rx130l, ms.q, ms.position_m, ms.rotation, t2b, 5e-5, 1e-4, idx, None)
     x = np.random.default_rng(2).normal(0, 1e-3, 48)
     jac = prob.jacobian(x)
     h = 1e-7
@@ -252,10 +250,19 @@ def test_stage_load_calibration_and_ik_honour_it(tmp_path, rx_meas):
             str(out),
             "--urdf-out",
             str(urdf),
+            "--mdh-out",
+            str(tmp_path / "mdh.yaml"),
         ],
     )
     assert r.exit_code == 0, r.output
     assert time.perf_counter() - t0 < 10
+    # The MDH export is written with its CSV, and the residual it states is in the calibration's summary.
+    kin = read_yaml_artefact(tmp_path / "mdh.yaml", Kinematics)
+    assert "# Craig modified DH" in (tmp_path / "mdh.csv").read_text()
+    assert read_yaml_artefact(out, Calibration).summary["mdh_max_position_residual_m"] == (
+        kin.mdh.max_position_residual_m
+    )
+    assert "MDH + zero offsets" in r.output
     art = read_yaml_artefact(out, Calibration)
     assert art.summary["n_identifiable"] == 30 and art.tracker_to_base_source == "measurements"
     assert art.tracker_noise.source == "measurements" and art.tracker_noise.position_sigma_m == 5e-5

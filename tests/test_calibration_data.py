@@ -7,8 +7,10 @@ import pinocchio as pin
 import pytest
 from typer.testing import CliRunner
 
-from rxcomm.calibration.fit import CalibrateSettings, MeasurementSet, calibrate, read_measurements
+from rxcomm.calibration.fit import calibrate
+from rxcomm.calibration.measurements import MeasurementSet, read_measurements
 from rxcomm.calibration.pose_selection import select_measurement_poses
+from rxcomm.calibration.settings import CalibrateSettings
 from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.cli import app
 from rxcomm.errors import InfeasibleError, InputError
@@ -250,7 +252,7 @@ def test_joint_compliance_is_seen_and_modelled(robot):
     assert bent.tables[("heldout", "rigid")].max_position_error_m == h_rigid.max_position_error_m
     st = truth_parameters(robot, truth)
     tau_true = RobotDynamics(robot, st).gravity_torque(ms.q[:32])
-    from rxcomm.calibration.fit import holding_torques
+    from rxcomm.calibration.compliance import holding_torques
 
     tau_prior = holding_torques(robot, ms.q[:32])
     for name, k in k_true.items():

@@ -113,7 +113,7 @@ def test_completion_is_on_and_completes_commands_and_options():
         done = subprocess.run([str(exe)], env={**os.environ, **env}, capture_output=True, text=True)
         return done.stdout.split()
 
-    assert complete("rxcomm pl", 1) == ["plan-cp", "plan-ptp"]
+    assert complete("rxcomm pl", 1) == ["plan-cp", "plan-ptp", "plan-poses", "plan-cycles"]
     assert complete("rxcomm select-configs --va", 2) == [
         "--validation-poses"
     ]  # hidden aliases are not offered
@@ -149,7 +149,7 @@ def test_the_makefile_spells_every_option_as_docs_cli_md(tmp_path, goal):
     ).stdout
     printed = re.sub(r'\$\(\S*python -c "[^"]*"\)', "VALUE", printed)  # plan-ptp's states from cp.yaml
     tree = command_tree()
-    commands = re.findall(r"bin/rxcomm ([a-z-]+)((?: (?!&&|>)\S+)*)", printed)
+    commands = re.findall(r"bin/rxcomm ([a-z0-9-]+)((?: (?!&&|>)\S+)*)", printed)
     assert {name for name, _ in commands} >= {"select-configs", "calibrate", "identify", "plan-ptp", "run"}
     for name, args in commands:
         used = {a.partition("=")[0] for a in args.split() if a.startswith("-")}

@@ -98,10 +98,11 @@ def test_identified_dynamics_export_is_identify_s_parameter_table(tmp_path, rx13
 
 def test_every_exporter_names_a_real_kind_and_library_call():
     from rxcomm.schemas.dynamics import Dynamics
+    from rxcomm.schemas.kinematics import Kinematics
     from rxcomm.schemas.run_log import RunLog
     from rxcomm.schemas.trajectory import TrajectorySummary
     from rxcomm.stages.export import EXPORTERS, exporter
 
-    assert set(EXPORTERS) == {TrajectorySummary.KIND, RunLog.KIND, Dynamics.KIND}
+    assert set(EXPORTERS) == {TrajectorySummary.KIND, RunLog.KIND, Dynamics.KIND, Kinematics.KIND}
     for kind in EXPORTERS:
         assert callable(exporter(kind)), kind

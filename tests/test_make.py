@@ -25,6 +25,7 @@ ALL = {
     "robot-info.txt",
     "configs.yaml",
     "calib-meas.yaml",
+    "calibration-prior.yaml",
     "calibration.yaml",
     "excitation.yaml",
     "excite-log.mcap",
@@ -36,8 +37,33 @@ ALL = {
     "run-noff.mcap",
     "run-ff.mcap",
     "run-ptp.mcap",
+    "factory-cp.mcap",
+    "factory-ptp.mcap",
+    "run-factory-cp.mcap",
+    "run-factory-ptp.mcap",
+    "factory-poses.mcap",
+    "factory-iso-line.mcap",
+    "poses.mcap",
+    "iso-line.mcap",
+    "factory-iso-line-cycles.mcap",
+    "iso-line-cycles.mcap",
+    "run-factory-poses.mcap",
+    "run-factory-iso-line.mcap",
+    "run-poses.mcap",
+    "run-iso-line.mcap",
+    "iso9283-factory.yaml",
+    "iso9283.yaml",
+    "verdict.yaml",
     "report.md",
 }
+# The factory state (issue 17): catalogue timing of the CP path and the PtP move, run without feed-forward.
+FACTORY_PLANS = {"factory-cp.mcap", "factory-ptp.mcap"}
+FACTORY_RUNS = {"run-factory-cp.mcap", "run-factory-ptp.mcap"}
+# ISO 9283 in both states: the pose cycle and the ISO line, their runs with the tracker, the criteria.
+ISO_RUNS = {"run-factory-poses.mcap", "run-factory-iso-line.mcap", "run-poses.mcap", "run-iso-line.mcap"}
+# what the identified dynamics (and the calibration) feed of it
+ISO_ON_MODEL = {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "run-poses.mcap", "run-iso-line.mcap"}
+ISO_ON_MODEL |= {"iso9283.yaml"}
 # The rules whose command talks to the simulated cell (`run`: it reads truth.yaml) ...
 ON_CELL = {
     "calib-meas.yaml",
@@ -46,25 +72,51 @@ ON_CELL = {
     "run-noff.mcap",
     "run-ff.mcap",
     "run-ptp.mcap",
+    *FACTORY_RUNS,
+    *ISO_RUNS,
 }
 # ... and those downstream of their outputs. select-configs, excite, the validation plan and robot-info
 # never see the cell.
-AFTER_CELL = {"calibration.yaml", "dynamics.yaml", "cp.mcap", "ptp.mcap", "report.md"}
+AFTER_CELL = {
+    "calibration-prior.yaml",
+    "calibration.yaml",
+    "dynamics.yaml",
+    "cp.mcap",
+    "ptp.mcap",
+    "verdict.yaml",
+    "report.md",
+}
+AFTER_CELL |= {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "iso9283-factory.yaml", "iso9283.yaml"}
 # select-configs and what follows the pose set: measurement, calibration, the planners on the
 # calibrated robot, their runs, the report. Excitation, identification's logs and robot-info do not.
 AFTER_POSES = {
     "configs.yaml",
     "calib-meas.yaml",
+    "calibration-prior.yaml",
     "calibration.yaml",
     "cp.mcap",
     "ptp.mcap",
     "run-noff.mcap",
     "run-ff.mcap",
     "run-ptp.mcap",
+    "verdict.yaml",
     "report.md",
+    *ISO_ON_MODEL,
+    "iso9283-factory.yaml",  # the tracker's base frame is the calibration's
 }
-# The CP path feeds plan-cp; plan-ptp starts from its end states.
-AFTER_CP_PATH = {"cp.mcap", "ptp.mcap", "run-noff.mcap", "run-ff.mcap", "run-ptp.mcap", "report.md"}
+# The commissioned plans on the identified, calibrated model and their runs, the verdict, the report.
+AFTER_MODEL = {
+    "cp.mcap",
+    "ptp.mcap",
+    "run-noff.mcap",
+    "run-ff.mcap",
+    "run-ptp.mcap",
+    "verdict.yaml",
+    "report.md",
+    *ISO_ON_MODEL,
+}
+# The CP path feeds plan-cp (both states); plan-ptp starts from its end states.
+AFTER_CP_PATH = AFTER_MODEL - ISO_ON_MODEL | FACTORY_PLANS | FACTORY_RUNS
 # What `make commission` builds, the files `make -q` can vouch for (phony targets are never "up to date").
 PRODUCTS = ["robot-info.txt", "report.md", "run-ptp.mcap"]
 
@@ -126,8 +178,10 @@ def test_a_built_chain_is_up_to_date_and_a_dry_run_changes_nothing(built):
 
 
 def test_the_report_reads_the_ptp_run(built):
-    # `report` shows every run of the build; the PtP run feeds nothing else, so only the report remakes.
-    assert _remade(built, "-W", "build/run-ptp.mcap") == ({"report.md"}, set())
+    # `report` shows every run of the build; the PtP run feeds the verdict (the reference task) and the
+    # report, nothing else; a factory run likewise.
+    assert _remade(built, "-W", "build/run-ptp.mcap") == ({"verdict.yaml", "report.md"}, set())
+    assert _remade(built, "-W", "build/run-factory-ptp.mcap") == ({"verdict.yaml", "report.md"}, set())
 
 
 def test_touching_the_urdf_or_drives_rebuilds_every_rule(built):
@@ -153,10 +207,32 @@ def test_n_poses_on_the_command_line_rebuilds_select_configs_and_what_follows(bu
 def test_other_inputs_rebuild_what_reads_them(built):
     assert _remade(built, "-W", str(ROBOT / "paths/line-near-singularity.yaml"))[0] == AFTER_CP_PATH
     # cell.yaml: select-configs, calibrate, excite and the simulated cell (its tracker's field of view).
-    not_cell = {"robot-info.txt", "validation-plan.mcap"}
+    not_cell = {
+        "robot-info.txt",
+        "validation-plan.mcap",
+        *FACTORY_PLANS,
+        "factory-poses.mcap",
+        "factory-iso-line.mcap",
+        "factory-iso-line-cycles.mcap",
+    }
     assert _remade(built, "-W", str(ROBOT / "cell.yaml"))[0] == ALL - not_cell
-    excite = {"excitation.yaml", "excite-log.mcap", "dynamics.yaml"} | AFTER_CP_PATH
+    # The planners' calibration bends the joints with the identified torques: it follows identify.
+    excite = {"excitation.yaml", "excite-log.mcap", "dynamics.yaml", "calibration.yaml"} | AFTER_MODEL
+    excite.add("iso9283-factory.yaml")  # both states are measured in the calibrated base frame
     assert _remade(built, "EXCITE_OPTS=--starts 3") == (excite, {"excite"})
+    # the ISO line: its plans in both states, their runs, the criteria, the verdict, the report
+    line = {"factory-iso-line.mcap", "iso-line.mcap", "run-factory-iso-line.mcap", "run-iso-line.mcap"}
+    line |= {"factory-iso-line-cycles.mcap", "iso-line-cycles.mcap"}
+    after = {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml", "report.md"}
+    assert _remade(built, "-W", str(ROBOT / "paths/iso9283-line.yaml"))[0] == line | after
+    # the pose cycle's length: its two plans, their runs and what follows
+    poses = {"factory-poses.mcap", "poses.mcap", "run-factory-poses.mcap", "run-poses.mcap"}
+    assert _remade(built, "POSE_CYCLES=3") == (
+        poses | after,
+        {"factory-poses", "poses", "iso9283"} - {"iso9283"},
+    )
+    # the acceptance thresholds: the verdict and the report only
+    assert _remade(built, "-W", str(ROBOT / "acceptance.yaml"))[0] == {"verdict.yaml", "report.md"}
 
 
 def test_a_stamp_is_rewritten_only_when_its_text_changes(built):
@@ -176,3 +252,21 @@ def test_commission_ci_reuses_the_same_rules_in_its_own_dir(built):
     assert _remade(built, goal="commission-ci", build="build-ci") == (set(), set())
     _newer(built / ROBOT / "truth.yaml")
     assert _remade(built, goal="commission-ci", build="build-ci")[0] == ON_CELL | AFTER_CELL
+
+
+def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(built):
+    # The planners' calibration follows identify (its torques bend the joints); nothing upstream of
+    # it, identification included, reads a calibration, and the prior-torque pass feeds the report only.
+    after_cal = {"cp.mcap", "ptp.mcap", "run-noff.mcap", "run-ff.mcap", "run-ptp.mcap", "report.md"}
+    # the commissioned ISO plans and runs, and both states' criteria (measured in the calibrated base frame)
+    after_cal |= {
+        "poses.mcap",
+        "iso-line.mcap",
+        "iso-line-cycles.mcap",
+        "run-poses.mcap",
+        "run-iso-line.mcap",
+    }
+    after_cal |= {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml"}
+    assert _remade(built, "-W", "build/calibration.yaml")[0] == after_cal
+    assert _remade(built, "-W", "build/calibration-prior.yaml")[0] == {"report.md"}
+    assert _remade(built, "-W", "build/dynamics.yaml")[0] == after_cal | {"calibration.yaml"}

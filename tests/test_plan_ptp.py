@@ -12,7 +12,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rxcomm.calibration.fit import load_calibrated_robot
+from rxcomm.calibration.loading import load_calibrated_robot
 from rxcomm.cli import app
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import load_trajectory_mcap

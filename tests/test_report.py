@@ -247,8 +247,70 @@ def test_report_of_an_empty_build_says_not_measured_and_writes_both_files(tmp_pa
     assert res.exit_code == 0, res.output
     md = (tmp_path / "out" / "report.md").read_text()
     page = (tmp_path / "out" / "report.html").read_text()
-    assert "0 of 8 criteria pass, 0 fail, 8 not measured." in md and 'id="verdict"' in page
+    # the stage targets and the acceptance of the robot as a whole (no verdict.yaml: not measured)
+    assert "0 of 9 criteria pass, 0 fail, 9 not measured." in md and 'id="verdict"' in page
+    assert "| acceptance: factory vs commissioned | not measured |" in md
     for title in ("Geometric calibration", "Dynamic identification", "Every executed run"):
         assert title in md and title in page
     assert "| calibration.yaml in this build | not measured |" in md
     assert "| 0 |" not in md
+
+
+def test_stiffness_from_identified_torques_is_shown_beside_the_prior_torques():
+    s = {
+        "n_identifiable": 30,
+        "nominal_heldout_max_position_error_m": 1e-2,
+        "heldout_max_position_error_m": 1.5e-4,
+        "heldout_max_orientation_error_rad": 3e-4,
+        "frames_only_heldout_max_position_error_m": 5e-3,
+        "seconds": 0.1,
+        "compliance_torque_model": "identified",
+        "stiffness_J3_nm_per_rad": 4.3e5,
+        "stiffness_J3_std_nm_per_rad": 4e4,
+    }
+    prior = {"stiffness_J3_nm_per_rad": 5.6e5, "stiffness_J3_std_nm_per_rad": 5e4}
+    s |= {
+        "mdh_max_position_residual_m": 1.47e-3,
+        "mdh_max_orientation_residual_rad": 1.39e-3,
+        "mdh_beta_max_position_residual_m": 1.4e-15,
+    }
+    text = rep.render("t", "p", [rep.calibration_section(s, [], prior=prior)])
+    assert "cannot express (max over sampled poses) | 1.47 mm, 1.39 mrad; with Hayati's β 1.4e-12 mm" in text
+    assert "J3 stiffness (from gravity sag, identified holding torques) | 0.43 ± 0.04 MN·m/rad" in text
+    assert "J3 stiffness, same measurements, prior holding torques | 0.56 ± 0.05 MN·m/rad" in text
+    # A prior pass without a stiffness (its model chose no compliance) says so, never 0.
+    text = rep.render("t", "p", [rep.calibration_section(s, [], prior={})])
+    assert "prior holding torques | not measured" in text
+
+
+def test_the_acceptance_rows_open_the_verdict_with_factory_commissioned_and_ratio():
+    acceptance = {
+        "rows": [
+            {"criterion": "AP_p", "unit": "m", "factory": 0.0042, "commissioned": 0.00021, "ratio": 0.05,
+             "threshold": "≤ 0.0003 m", "max_commissioned": 0.0003, "max_ratio": None, "verdict": "PASS",
+             "note": "worst of 5: P3, 30 cycles"},
+            {"criterion": "cycle_time", "unit": "s", "factory": 7.83, "commissioned": None, "ratio": None,
+             "threshold": "ratio ≤ 0.7", "max_commissioned": None, "max_ratio": 0.7,
+             "verdict": "not measured", "note": "commissioned: no run log"},
+            {"criterion": "electrical_energy", "unit": "J", "factory": 268.3, "commissioned": 407.8,
+             "ratio": 1.52, "threshold": "ratio ≤ 1", "max_commissioned": None, "max_ratio": 1.0,
+             "verdict": "FAIL", "note": "sum of 2 run(s)"},
+        ],
+        "summary": {"verdict": "FAIL", "n_pass": 1, "n_fail": 1, "n_not_measured": 1},
+    }  # fmt: skip
+    rows = rep.acceptance_verdict(acceptance)
+    assert [r.verdict for r in rows] == [Verdict.passed, Verdict.not_measured, Verdict.failed]
+    verdict = [*rows, *targets.stage_verdicts({}, {})]
+    report = Report("r", "preamble", verdict, [Section("Stage A", [Figure("x", "1 mm")])])
+    md = markdown.render(report)
+    lines = md.splitlines()
+    header = "| criterion | factory | commissioned | ratio | threshold | verdict | note |"
+    assert header in lines and lines.index(header) < md[: md.index("## Stage A")].count("\n")
+    assert "| AP_p | 4.2 mm | 0.21 mm | 0.05 | ≤ 0.3 mm | pass | worst of 5: P3, 30 cycles |" in lines
+    assert (
+        "| cycle_time | 7.83 s | not measured | — | ratio ≤ 0.7 | not measured | commissioned: no run log |"
+        in lines
+    )
+    assert "| electrical_energy | 268.3 J | 407.8 J | 1.52 | ratio ≤ 1 | fail | sum of 2 run(s) |" in lines
+    # the acceptance rows come first, before the stage targets
+    assert md.index("| AP_p |") < md.index("| electrical_energy |") < md.index("| calibration")

@@ -409,7 +409,7 @@ def test_pose_campaign_writes_measurements(tmp_path, cell, rx130l):
         expect = [1.0 + 0.1 * np.sin(want[0]), 0.1 * np.sin(want[1]), 0.5 + 0.1 * np.sin(want[2])]
         np.testing.assert_allclose(p["position_m"], expect, atol=2e-6)
     # calibrate reads it
-    from rxcomm.calibration.fit import read_measurements
+    from rxcomm.calibration.measurements import read_measurements
 
     ms = read_measurements(out, rx130l)
     assert ms.n == 3 and ms.valid.all()

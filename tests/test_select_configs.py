@@ -8,14 +8,13 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+from rxcomm.calibration.baselines import evenly_spaced, linear_scan
 from rxcomm.calibration.pose_selection import (
     Criterion,
     _score,
     _Search,
-    evenly_spaced,
     expected_errors,
     information_blocks,
-    linear_scan,
     normalise_to_candidates,
     observation_index,
     select_measurement_poses,

@@ -346,6 +346,8 @@ class GatewayCore:
         """ARMED -> RUNNING at the prefill level; RUNNING -> DONE when drained after end of stream."""
         if self.phase is Phase.ARMED and (self.ring.level >= max(self.prefill, 1) or self.eos):
             self.phase = Phase.RUNNING
+            if (trigger := getattr(self.backend, "stream_started", None)) is not None:
+                trigger()  # the tracker's trigger input, when the backend has a tracker that takes one
             self.trace_active = True
             self.stream_cycle = 0
             self.settle_left = 0

@@ -39,6 +39,7 @@ from rxcomm.cell.gateway_core import CoreLimits, GatewayCore
 from rxcomm.errors import GatewayError
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.net import is_loopback, quiet_pymodbus
+from rxcomm.io.tracker_csv import TrackerExport
 
 VIRTUAL_BATCH_CYCLES = 64
 _log = logging.getLogger("rxcomm.cell")
@@ -215,6 +216,17 @@ class CellServer:
             self._loop.call_soon_threadsafe(self._loop.stop)  # queued even if not yet running
         if self._io_thread is not None:
             self._io_thread.join(timeout=5.0)
+
+    def tracker_export(self) -> TrackerExport | None:
+        """The tracker's samples of the last stream (a simulated cell with a motion tracker), or None.
+
+        The side channel of the simulated cell: a real tracker hands its export over as a file
+        (docs/tracker-csv.md); the gateway protocol carries no tracker stream."""
+        tracker = getattr(self.core.backend, "motion_tracker", None)
+        if tracker is None:
+            return None
+        with self.lock:
+            return tracker.export()
 
     def __enter__(self) -> CellServer:
         return self.start()

@@ -13,7 +13,10 @@ axes, the drives' own standstill, which needs ≈ 8 filter time constants withou
 change (≈ 4 ms at the default filter; a joint creeping slower than one count per that time is at
 most ≈ 0.25 mrad/s). The same standstill ends the gateway's settling in virtual time, so the tracker
 never waits for cycles that will not come; a reading is the pose at that instant, taken together
-with the encoder positions the gateway reports.
+with the encoder positions the gateway reports. While a stream runs, the same tracker also samples
+the moving TCP (`rxcomm.cell.tracker.MotionTracker`, the cell file's `tracker.sample_rate_hz`, the
+truth's `noise.tracker_latency_s`), triggered by the stream start; `CellServer.tracker_export()`
+hands those samples over like a real tracker's export file.
 
 `start_embedded_cell` builds one from a truth file and serves it on loopback: `run` uses it when no
 gateway is given.
@@ -31,7 +34,7 @@ from rxcomm.cell.backend import AxisFeedback, TrackerReading
 from rxcomm.cell.drives import CascadedDrives, DriveGains, DriveTuning, drive_gains
 from rxcomm.cell.plant import Plant
 from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
-from rxcomm.cell.tracker import SimulatedTracker
+from rxcomm.cell.tracker import MotionTracker, SimulatedTracker
 from rxcomm.cell.truth import SimTruth, load_truth
 from rxcomm.errors import InputError
 
@@ -48,6 +51,9 @@ class SimSettings(BaseModel):
     substeps: int = Field(1, ge=1, le=64, description="plant integration steps per drive cycle")
     standstill_rad_s: float = Field(
         1e-6, gt=0, description="tracker: every |velocity estimate| at most this (≤ the gateway's 1e-6)"
+    )
+    tracker_max_samples: int = Field(
+        1_000_000, ge=1, description="tracker samples kept during one stream (1 kHz: ≈ 17 min)"
     )
     tuning: DriveTuning = DriveTuning()
 
@@ -73,7 +79,9 @@ class SimulatedCell:
                 field="q0",
             )
         seed = truth.truth.seed if s.seed is None else s.seed
-        torque_rng, tracker_rng = (np.random.default_rng(ss) for ss in np.random.SeedSequence(seed).spawn(2))
+        torque_rng, tracker_rng, motion_rng = (
+            np.random.default_rng(ss) for ss in np.random.SeedSequence(seed).spawn(3)
+        )
         self._rng = torque_rng
         self._lsb = truth.truth.noise.encoder_lsb_rad
         self._torque_sigma = np.array(truth.truth.noise.torque_noise_nm, dtype=float)
@@ -84,6 +92,17 @@ class SimulatedCell:
         self.drives = CascadedDrives(self.gains, self._encoder())
         visibility = None if truth.cell is None else truth.cell.tracker
         self._tracker = SimulatedTracker(robot, truth.truth, tracker_rng, visibility=visibility)
+        rate = 1000.0 if visibility is None else visibility.sample_rate_hz
+        # Performance tests mount their target facing the tracker: its range and view cone hold,
+        # the calibration probe's cone does not (a TCP pointing down would hide the whole ISO cube).
+        facing = None if visibility is None else visibility.model_copy(update={"probe_half_angle_rad": np.pi})
+        self.motion_tracker = MotionTracker(
+            SimulatedTracker(robot, truth.truth, motion_rng, visibility=facing),
+            rate,
+            truth.truth.noise.tracker_latency_s,
+            n,
+            max_samples=s.tracker_max_samples,
+        )
         self._n = n
         self._rated = np.array(robot.tau_cont, dtype=float)
         self._enabled = np.zeros(n, dtype=bool)
@@ -133,7 +152,12 @@ class SimulatedCell:
             following_error_rad=(position_demand_rad - enc) * enabled,
         )
         self.cycles += 1
+        self.motion_tracker.step(self.cycles * self.cycle_s, self.plant.q)
         return self._fb
+
+    def stream_started(self) -> None:
+        """The gateway starts a stream (before its first cycle): the tracker's trigger input."""
+        self.motion_tracker.trigger(self.cycles * self.cycle_s)
 
     def tracker(self) -> TrackerReading | None:
         if not self.standing_still():

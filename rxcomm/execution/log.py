@@ -28,6 +28,7 @@ from rxcomm.io.files import part_path
 from rxcomm.io.mcap_io import McapWriter, number_field, recover_mcap, vector_field
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
+from rxcomm.model.energy import motion_energy
 from rxcomm.model.kinematics import frame_placement
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.plain import sha256_file
@@ -36,8 +37,11 @@ from rxcomm.schemas.run_log import (
     GATEWAY_TOPIC,
     JOINT_FIELDS,
     JOINTS_TOPIC,
+    TRACKER_FIELDS,
+    TRACKER_TOPIC,
     RunLog,
     RunLogTopic,
+    TrackerChannel,
 )
 
 FLUSH_PERIOD_S = 0.5  # wall time between chunks handed to the OS: what a killed run can lose
@@ -101,10 +105,21 @@ def run_summary(robot: Robot, result: RunResult, tcp_error: np.ndarray | None = 
             "max_tcp_error_m": _nanmax(tcp),
             "rms_tcp_error_m": float(np.sqrt(np.nanmean(tcp**2))),
             "duration_s": (log.n_records - 1) * log.plan.sample_s,
+            # from the measured torques and encoder positions of the recorded motion (approach excluded)
+            **motion_energy(
+                robot, np.arange(log.n_records) * log.plan.sample_s, log.q_actual, log.tau_actual
+            ),
         }
     else:
         # Nothing was recorded (stopped before the first trace record): not measured, not zero.
-        out |= {"max_lag_rad": None, "rms_lag_rad": None, "max_tcp_error_m": None, "duration_s": 0.0}
+        out |= {
+            "max_lag_rad": None,
+            "rms_lag_rad": None,
+            "max_tcp_error_m": None,
+            "duration_s": 0.0,
+            "tau_squared_integral_nm2_s": None,
+            "electrical_energy_j": None,
+        }
     out |= {
         "outcome": result.outcome,
         "stop_reason": None if result.error is None else str(result.error),
@@ -181,11 +196,17 @@ class RunLogWriter:
         self.n_joint = 0  # /run/joints rows written
         self.n_gw = 0
         self._tcp: list[np.ndarray] = []
+        self._tracker: TrackerChannel | None = None
         self._foxglove: FoxgloveFrames | None = None
 
     @property
     def part_path(self) -> Path:
         return part_path(self.path)
+
+    @property
+    def begun(self) -> bool:
+        """The stream started and the log is open."""
+        return self._w is not None
 
     def begin(self, plan: StreamPlan, ratio: int, cycle_s: float) -> None:
         if self._w is not None:
@@ -251,6 +272,21 @@ class RunLogWriter:
             self._w.flush()
             self.n_gw += n
 
+    def tracker(
+        self,
+        t_tracker_s: np.ndarray,
+        position_m: np.ndarray,
+        quaternion_wxyz: np.ndarray,
+        channel: TrackerChannel,
+    ) -> None:
+        """The ``/run/tracker`` channel: samples stamped on the tracker clock, put on the joint log's
+        time axis by ``channel.offset_s`` (samples before the stream start are dropped). Once, before
+        ``close``."""
+        assert self._w is not None
+        if self._tracker is not None:
+            raise ValueError("tracker channel already written")
+        self._tracker = write_tracker_channel(self._w, t_tracker_s, position_m, quaternion_wxyz, channel)
+
     def close(self, result: RunResult) -> tuple[Path, dict[str, Any]]:
         """Write the rest of ``result.log`` and the summary; returns (the file written, the summary).
 
@@ -312,8 +348,21 @@ class RunLogWriter:
                     topic=JOINTS_TOPIC, period_s=sample_s, n_messages=self.n_joint, fields=JOINT_FIELDS
                 ),
                 RunLogTopic(topic=GATEWAY_TOPIC, period_s=None, n_messages=self.n_gw, fields=GATEWAY_FIELDS),
+                *(
+                    [
+                        RunLogTopic(
+                            topic=TRACKER_TOPIC,
+                            period_s=1.0 / self._tracker.rate_hz,
+                            n_messages=self._tracker.n_samples,
+                            fields=TRACKER_FIELDS,
+                        )
+                    ]
+                    if self._tracker is not None
+                    else []
+                ),
                 *(self._foxglove.topics() if self._foxglove is not None else ()),
             ],
+            "tracker": self._tracker,
         }
 
 
@@ -338,6 +387,39 @@ def write_run_log(
 def _joint_schema(n: int) -> dict[str, dict[str, Any]]:
     return {
         k: number_field(d) if k.startswith("tcp_") else vector_field(n, d) for k, d in JOINT_FIELDS.items()
+    }
+
+
+def write_tracker_channel(
+    w: McapWriter,
+    t_tracker_s: np.ndarray,
+    position_m: np.ndarray,
+    quaternion_wxyz: np.ndarray,
+    channel: TrackerChannel,
+) -> TrackerChannel:
+    """Add ``/run/tracker`` to `w`: the samples at t = t_tracker_s − offset_s (those before the
+    stream start dropped); returns `channel` with the samples kept."""
+    t = np.asarray(t_tracker_s) - channel.offset_s
+    keep = t >= 0
+    w.add_channel(TRACKER_TOPIC, "rxcomm.RunTracker", tracker_schema())
+    w.write_arrays(
+        TRACKER_TOPIC,
+        t[keep],
+        {
+            "position_m": np.asarray(position_m)[keep],
+            "quaternion_wxyz": np.asarray(quaternion_wxyz)[keep],
+            "t_tracker_s": np.asarray(t_tracker_s)[keep],
+        },
+        digits=12,  # a tracker clock may count from its power-on: 0.1 µs at 10^5 s
+    )
+    w.flush()
+    return channel.model_copy(update={"n_samples": int(keep.sum())})
+
+
+def tracker_schema() -> dict[str, dict[str, Any]]:
+    sizes = {"position_m": 3, "quaternion_wxyz": 4}
+    return {
+        k: vector_field(sizes[k], d) if k in sizes else number_field(d) for k, d in TRACKER_FIELDS.items()
     }
 
 

@@ -12,7 +12,14 @@ from rxcomm.errors import InputError
 from rxcomm.io.mcap_io import TopicData, read_mcap
 from rxcomm.io.validate import check_kind, validate_model
 from rxcomm.schemas.envelope import Artefact
-from rxcomm.schemas.run_log import FOXGLOVE_VIEW_TOPICS, GATEWAY_TOPIC, JOINT_FIELDS, JOINTS_TOPIC, RunLog
+from rxcomm.schemas.run_log import (
+    FOXGLOVE_VIEW_TOPICS,
+    GATEWAY_TOPIC,
+    JOINT_FIELDS,
+    JOINTS_TOPIC,
+    TRACKER_TOPIC,
+    RunLog,
+)
 
 
 @dataclass(frozen=True)
@@ -22,6 +29,7 @@ class RunLogData:
     envelope: dict[str, Any]
     joints: TopicData
     gateway: TopicData | None
+    tracker: TopicData | None = None  # /run/tracker, when a tracker measured during the motion
 
     @property
     def summary(self) -> dict[str, Any]:
@@ -48,4 +56,4 @@ def read_run_log(path: str | Path, fields: Iterable[str] = tuple(JOINT_FIELDS)) 
     for name in fields if len(joints) else ():
         if name not in joints.fields:
             raise InputError("field missing", file=path, field=f"{JOINTS_TOPIC}.{name}")
-    return RunLogData(env, joints, contents.topics.get(GATEWAY_TOPIC))
+    return RunLogData(env, joints, contents.topics.get(GATEWAY_TOPIC), contents.topics.get(TRACKER_TOPIC))

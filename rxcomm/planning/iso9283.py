@@ -2,18 +2,20 @@
 
 `iso9283_cube` finds the largest cube (edges parallel to the base axes) the TCP reaches on one IK branch
 away from singularities; `iso9283_paths` lays the standard's line, rectangle and circles in the cube's
-inclined test plane as path specs.
+inclined test plane as path specs; `pose_cycle_trajectory` is the pose test's plan through P1–P5
+(`pose_cycle_joints`), each move timed by a caller's policy (`cycloidal_move`: joint limits only).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
 from rxcomm.errors import InputError
+from rxcomm.io.trajectory import Trajectory
 from rxcomm.model.kinematics import BranchSelector, solve_branch_ik
 from rxcomm.model.robot import Robot
 from rxcomm.planning.paths import rpy_matrix, unit_vector
@@ -219,3 +221,135 @@ def iso9283_paths(
             **common,
         ),
     }
+
+
+# --- the pose cycle (ISO 9283 §7.2.1: P1 → P5 → P4 → P3 → P2, n cycles) ------------------------
+POSE_CYCLE_ORDER = ("P1", "P5", "P4", "P3", "P2")
+
+MoveFn = Callable[[np.ndarray, np.ndarray], Trajectory]
+"""A rest-to-rest joint move q_from → q_to sampled from t = 0: the timing policy (catalogue limits,
+identified dynamics …) is the caller's."""
+
+
+def pose_cycle_joints(robot: Robot, cube: Iso9283Cube, branch: Branch | None = None) -> dict[str, np.ndarray]:
+    """Joint angles (rad) of P1–P5 with the cube's orientation on the IK `branch`, each solved by
+    continuation from P1 (the same branch as the cube search)."""
+    selector = BranchSelector(robot, branch or Branch())
+    data = robot.create_data()
+    rot = rpy_matrix(cube.rpy_rad)
+    p1 = cube.points_m["P1"]
+    q1 = solve_branch_ik(robot, data, pin.SE3(rot, p1), selector, n_starts=32)
+    if q1 is None:
+        raise InputError("P1 of the test cube is not reachable on the branch", field="branch")
+    out = {"P1": q1}
+    for name in POSE_CYCLE_ORDER[1:]:
+        p, q = cube.points_m[name], q1
+        for k in range(1, 11):
+            q = solve_branch_ik(robot, data, pin.SE3(rot, p1 + (p - p1) * k / 10), selector, seed=q)
+            if q is None:
+                raise InputError(f"{name} of the test cube is not reachable on the branch", field="branch")
+        out[name] = q
+    return out
+
+
+def pose_cycle_trajectory(
+    joints: dict[str, np.ndarray], n_cycles: int, dwell_s: float, move: MoveFn, sample_s: float
+) -> tuple[Trajectory, list[str]]:
+    """The pose-cycle plan: a dwell of `dwell_s` at P1, then `n_cycles` × (P5, P4, P3, P2, P1) each
+    reached by `move` and held for `dwell_s` (the tracker measures in the dwell). Returns the
+    trajectory (sampled every `sample_s`) and the poses in the order visited."""
+    if n_cycles < 1 or dwell_s <= 0:
+        raise InputError("needs n_cycles ≥ 1 and dwell_s > 0", field="n_cycles")
+    order = ["P1"] + [p for _ in range(n_cycles) for p in (*POSE_CYCLE_ORDER[1:], "P1")]
+    n_dwell = max(2, int(round(dwell_s / sample_s)))
+    qs, qds, qdds = [], [], []
+
+    def hold(q: np.ndarray) -> None:
+        qs.append(np.tile(q, (n_dwell, 1)))
+        qds.append(np.zeros((n_dwell, len(q))))
+        qdds.append(np.zeros((n_dwell, len(q))))
+
+    hold(joints[order[0]])
+    for a, b in zip(order[:-1], order[1:], strict=True):
+        m = move(joints[a], joints[b])
+        if abs(float(np.median(np.diff(m.t))) - sample_s) > 1e-9 * max(1.0, sample_s):
+            raise InputError(
+                f"the move is sampled at {np.median(np.diff(m.t))} s, not {sample_s} s", field="move"
+            )
+        qs.append(m.q[1:])
+        qds.append(m.qd[1:])
+        qdds.append(m.qdd[1:])
+        hold(joints[b])
+    q = np.concatenate(qs)
+    t = np.arange(len(q)) * sample_s
+    return Trajectory(t, q, np.concatenate(qds), np.concatenate(qdds)), order
+
+
+def cycloidal_move(qd_max: np.ndarray, qdd_max: np.ndarray, sample_s: float) -> MoveFn:
+    """A synchronised rest-to-rest move with a cycloidal profile s = τ − sin(2πτ)/(2π) (acceleration
+    zero at both ends, so the torque has no step), as short as the joint velocity and acceleration
+    limits (rad/s, rad/s²; e.g. a maker's catalogue values) allow for the slowest joint: per joint
+    T ≥ 2 Δ / qd_max and T ≥ sqrt(2π Δ / qdd_max)."""
+    vmax, amax = np.asarray(qd_max, dtype=float), np.asarray(qdd_max, dtype=float)
+
+    def move(q0: np.ndarray, q1: np.ndarray) -> Trajectory:
+        dq = np.asarray(q1, dtype=float) - np.asarray(q0, dtype=float)
+        d = np.abs(dq)
+        duration = max(float(np.max(2 * d / vmax)), float(np.max(np.sqrt(2 * np.pi * d / amax))), sample_s)
+        n = int(np.ceil(duration / sample_s))
+        duration = n * sample_s
+        tau = np.arange(n + 1) / n
+        w = 2 * np.pi
+        s = tau - np.sin(w * tau) / w
+        sd = (1 - np.cos(w * tau)) / duration
+        sdd = w * np.sin(w * tau) / duration**2
+        t = tau * duration
+        return Trajectory(t, q0 + np.outer(s, dq), np.outer(sd, dq), np.outer(sdd, dq))
+
+    return move
+
+
+def cube_from_rectangle(spec: PathSpec) -> Iso9283Cube:
+    """The test cube back from its `iso9283-rectangle` path (P2, P3, P4, P5, P2): P2 and P4 lie a
+    tenth of the diagonal C1–C3 in from its ends, P3 and P5 likewise on C2–C4, P1 is the centre."""
+    pts = getattr(spec.geometry, "points_m", None)
+    if pts is None or len(pts) != 5:
+        raise InputError("an ISO 9283 rectangle has the points P2, P3, P4, P5, P2", field="geometry.points_m")
+    p2, p3, p4, p5 = (np.asarray(p, dtype=float) for p in pts[:4])
+    d13, d24 = (p4 - p2) / 0.8, (p5 - p3) / 0.8
+    c1, c2 = p2 - 0.1 * d13, p3 - 0.1 * d24
+    corners = np.array([c1, c2, c1 + d13, c2 + d24])
+    centre = (p2 + p4) / 2
+    side = float(np.linalg.norm(d13) / np.sqrt(3.0))
+    rpy = spec.orientation.start
+    points = {"P1": centre, "P2": p2, "P3": p3, "P4": p4, "P5": p5}
+    return Iso9283Cube(centre, side, tuple(float(a) for a in rpy), corners, points)
+
+
+def repeat_cycles(
+    traj: Trajectory, n_cycles: int, dwell_s: float, move: MoveFn, sample_s: float
+) -> Trajectory:
+    """`n_cycles` runs of a rest-to-rest trajectory (a test path) in one plan: each followed by a
+    dwell, a return `move` to its start and a dwell (not after the last), so that one run log holds
+    the standard's repeated cycles (the simulated cell's noise differs from cycle to cycle there,
+    not from one fresh cell to the next)."""
+    if n_cycles < 1 or dwell_s <= 0:
+        raise InputError("needs n_cycles ≥ 1 and dwell_s > 0", field="n_cycles")
+    if abs(float(np.median(np.diff(traj.t))) - sample_s) > 1e-9 * max(1.0, sample_s):
+        raise InputError(f"the trajectory is sampled at {np.median(np.diff(traj.t))} s, not {sample_s} s")
+    n_dwell = max(2, int(round(dwell_s / sample_s)))
+    back = move(traj.q[-1], traj.q[0])
+    zeros = np.zeros((n_dwell, traj.q.shape[1]))
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = [(traj.q, traj.qd, traj.qdd)]
+    for _ in range(n_cycles - 1):
+        parts.append((np.tile(traj.q[-1], (n_dwell, 1)), zeros, zeros))
+        parts.append((back.q[1:], back.qd[1:], back.qdd[1:]))
+        parts.append((np.tile(traj.q[0], (n_dwell, 1)), zeros, zeros))
+        parts.append((traj.q[1:], traj.qd[1:], traj.qdd[1:]))
+    q = np.concatenate([p[0] for p in parts])
+    return Trajectory(
+        np.arange(len(q)) * sample_s,
+        q,
+        np.concatenate([p[1] for p in parts]),
+        np.concatenate([p[2] for p in parts]),
+    )

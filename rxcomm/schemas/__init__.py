@@ -16,7 +16,11 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.configs:Configs",
     "rxcomm.schemas.measurements:Measurements",
     "rxcomm.schemas.calibration:Calibration",
+    "rxcomm.schemas.kinematics:Kinematics",
     "rxcomm.schemas.run_log:RunLog",
     "rxcomm.schemas.excitation:Excitation",
     "rxcomm.schemas.path:PathSpec",
+    "rxcomm.schemas.iso9283:Iso9283",
+    "rxcomm.schemas.acceptance:AcceptanceThresholds",
+    "rxcomm.schemas.acceptance:Acceptance",
 ]

@@ -4,7 +4,7 @@
 `tool.*`; m and rad) with their standard deviations; parameters that the measurements cannot
 identify are fixed at 0 (`estimated: false`) and listed in `dropped` with the reason. The errors are
 relative to `tracker_to_base`, the nominal pose of the robot base in the tracker frame that was used.
-`rxcomm.calibration.fit.load_calibration` returns (ErrorModel, tracker_to_base) from this file.
+`rxcomm.calibration.loading.load_calibration` returns (ErrorModel, tracker_to_base) from this file.
 
 `error_tables` is the paper's Table 2: per pose set (fit, held out) and model (nominal, calibrated,
 base + tool frames only) the max |e| and peak-to-peak of e for x, y, z (m: measured − predicted TCP

@@ -89,6 +89,9 @@ class TrackerSpec(Strict):
     measures: Literal["pose", "position"] = Field("pose", description="6D probe (pose) or position only")
     position_sigma_m: float = Field(5e-5, gt=0, description="datasheet position noise (1σ), m")
     orientation_sigma_rad: float = Field(1e-4, gt=0, description="datasheet orientation noise (1σ), rad")
+    sample_rate_hz: float = Field(
+        1000.0, gt=0, le=10000, description="rate of the tracker's samples while the robot moves, Hz"
+    )
 
     @model_validator(mode="after")
     def _check(self) -> TrackerSpec:

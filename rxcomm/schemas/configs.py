@@ -5,7 +5,7 @@ the exchange algorithm, then `validation` poses (random feasible candidates not 
 `calibrate` holds out, then — with `select-configs --measure-baseline` — the naive set as `baseline`
 poses, which `calibrate` fits on its own to report the held-out error it would have left.
 `baseline_poses_rad` is that naive set, always written: the paper's "linear scan" of the joint grid
-(from `baseline_centre_rad`, one joint swept at a time; `rxcomm.calibration.pose_selection.linear_scan`).
+(from `baseline_centre_rad`, one joint swept at a time; `rxcomm.calibration.baselines.linear_scan`).
 `evenly_spaced_poses_rad` is a second reference of the same size, evenly spaced candidates in grid
 order (as diverse as a random draw of the candidates).
 

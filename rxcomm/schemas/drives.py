@@ -34,6 +34,12 @@ class JointDrive(Strict):
     acceleration_max_rad_per_s2: float = Field(gt=0, description="joint acceleration limit, rad/s²")
     coulomb_friction_nm: float = Field(ge=0, description="prior Coulomb friction, N·m")
     viscous_friction_nm_s_per_rad: float = Field(ge=0, description="prior viscous friction, N·m·s/rad")
+    winding_resistance_ohm: float | None = Field(
+        None,
+        ge=0,
+        description="motor winding resistance of the DC-equivalent motor, Ω (copper loss R·I² with "
+        "I = τ_m / k_t); absent: a run's electrical energy is not measured",
+    )
 
     @field_validator("gear_ratio")
     @classmethod
@@ -79,6 +85,16 @@ class ToolFrame(Strict):
     rpy_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
+class RatedPayload(Strict):
+    """The payload a maker rates the arm for: a point mass at the flange (the catalogue limits hold
+    with it at every pose)."""
+
+    mass_kg: float = Field(gt=0, description="rated payload mass, kg")
+    com_m: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="its centre of mass in the TCP's parent frame (the flange), m"
+    )
+
+
 class Drives(Strict):
     kind: Literal["rxcomm/Drives"]
     schema_version: Literal[1]
@@ -91,6 +107,9 @@ class Drives(Strict):
         None,
         description="dimensionless C with motor angle = diag(gear_ratio)·C·q (e.g. a J5–J6 wrist coupling); "
         "identity when absent",
+    )
+    rated_payload: RatedPayload | None = Field(
+        None, description="the maker's rated payload (catalogue limits); absent: none (0 kg)"
     )
     friction: Literal["joint", "motor", "both"] | None = Field(
         None,

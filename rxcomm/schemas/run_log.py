@@ -12,7 +12,11 @@ joint side, SI):
   (m/s, the planned TCP speed; logs written before it existed are refused by the default reader);
 - ``/run/gateway`` once per exchanged block (≈ every 6·R drive cycles): ``status`` (register 30 bits),
   ``error``, ``execute_index``, ``write_index``, ``buffer_level`` (setpoints), ``lead_s``,
-  ``round_trip_s``, ``wall_s`` (master clock since the stream start).
+  ``round_trip_s``, ``wall_s`` (master clock since the stream start);
+- ``/run/tracker`` (optional, when a tracker measured during the motion; `RunLog.tracker` says how):
+  ``position_m`` (m, TCP position in the tracker frame), ``quaternion_wxyz`` (TCP orientation in the
+  tracker frame), ``t_tracker_s`` (s, the tracker's own time stamp); the message time is the stamp
+  aligned to the joint log, t = t_tracker_s − ``tracker.offset_s`` (docs/tracker-csv.md).
 
 For Foxglove's 3D panel, at most ``FOXGLOVE_RATE_HZ`` (every k-th joint sample): ``/run/tf`` and
 ``/run/tf_demand`` (``foxglove.FrameTransforms``: FK of q_actual with the URDF's link names, FK of
@@ -37,6 +41,7 @@ from rxcomm.schemas.envelope import Artefact, Sha256Hex
 # The MCAP side of the contract: topics and their fields (unit, meaning).
 JOINTS_TOPIC = "/run/joints"
 GATEWAY_TOPIC = "/run/gateway"
+TRACKER_TOPIC = "/run/tracker"
 TF_TOPIC = "/run/tf"
 TF_DEMAND_TOPIC = "/run/tf_demand"
 TCP_TOPIC = "/run/tcp"
@@ -75,6 +80,12 @@ GATEWAY_FIELDS = {
     "wall_s": "s, master wall clock since the stream start",
 }
 
+TRACKER_FIELDS = {
+    "position_m": "m, TCP position in the tracker frame",
+    "quaternion_wxyz": "1, TCP orientation in the tracker frame (w, x, y, z)",
+    "t_tracker_s": "s, the tracker's own time stamp (its clock); message time = t_tracker_s − offset_s",
+}
+
 
 class RunLogTopic(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -83,6 +94,31 @@ class RunLogTopic(BaseModel):
     period_s: float | None = Field(description="message period, s (None: irregular)")
     n_messages: int = Field(ge=0)
     fields: dict[str, str] = Field(description="field name -> unit and meaning")
+
+
+class TrackerChannel(BaseModel):
+    """How the ``/run/tracker`` samples were taken and put on the joint log's time axis."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    source: Literal["simulated-cell", "csv"] = Field(
+        description="the simulated cell's tracker during the run, or a real tracker's CSV export"
+    )
+    source_file: str | None = Field(None, description="the CSV export's file name (source csv)")
+    rate_hz: float = Field(gt=0, description="tracker sample rate, Hz (median of the stamps' spacing)")
+    n_samples: int = Field(ge=0)
+    alignment: Literal["trigger", "cross-correlation", "trigger+cross-correlation"] = Field(
+        description="trigger: the stamp of the stream-start trigger; cross-correlation: of the TCP speed "
+        "seen by the tracker with the speed of FK(q_actual); trigger+cross-correlation: the trigger, "
+        "refined by the cross-correlation (the tracker's latency)"
+    )
+    offset_s: float = Field(description="s, joint-log time = t_tracker_s − offset_s")
+    trigger_offset_s: float | None = Field(
+        None, description="s, the offset the trigger alone gave (None: no trigger)"
+    )
+    correlation: float | None = Field(
+        None, description="peak normalised cross-correlation of the speed profiles (None: not used)"
+    )
 
 
 class RunLog(Artefact):
@@ -110,3 +146,6 @@ class RunLog(Artefact):
     gateway: str = Field(description="HOST:PORT the run streamed to")
     embedded_cell: bool = Field(description="the gateway was a simulated cell started by `run` itself")
     topics: list[RunLogTopic]
+    tracker: TrackerChannel | None = Field(
+        None, description="the /run/tracker channel, when a tracker measured during the motion"
+    )

@@ -65,6 +65,9 @@ class NoiseTruth(Strict):
     torque_noise_nm: list[float] = Field(description="std of motor torque measurement, joint side, N·m")
     tracker_position_sigma_m: float = Field(ge=0)
     tracker_orientation_sigma_rad: float = Field(ge=0)
+    tracker_latency_s: float = Field(
+        0.0, ge=0, le=1.0, description="the tracker stamps a sample this late (its clock vs the cell's), s"
+    )
 
 
 class CellTruth(Strict):

@@ -1,8 +1,8 @@
 """`rxcomm calibrate`: geometric calibration from tracker measurements (paper §3.1–3.2, architecture §7).
 
 Reads the robot and a measurements file (a `rxcomm/Measurements` artefact written by `run`, or a
-tracker CSV — see `rxcomm.calibration.fit.CSV_HELP`), fits the identifiable geometric error parameters
-and writes `calibration.yaml` (kind `rxcomm/Calibration`: parameters ± σ, what was dropped and why,
+tracker CSV — see `rxcomm.calibration.measurements.CSV_HELP`), fits the identifiable geometric error
+parameters and writes `calibration.yaml` (kind `rxcomm/Calibration`: parameters ± σ, what was dropped and why,
 the paper's Table 2 before/after on fitted and held-out poses, the base + tool baseline, and — when
 the file has `baseline` poses — the same calibration from those, judged on the same held-out poses)
 and, with `--urdf-out`, a calibrated URDF (load it with `load_robot(ROBOT_DIR, urdf=...)`).
@@ -15,40 +15,25 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
+import pinocchio as pin
 import typer
 
 from rxcomm import console
-from rxcomm.calibration.fit import (
-    CalibrateSettings,
-    CalibrationResult,
-    FitResult,
-    calibrate,
-    read_measurements,
-    write_calibrated_urdf,
-)
+from rxcomm.calibration.artefact import calibration_artefact, compliance_estimates
+from rxcomm.calibration.exports import kinematics_artefact, write_kinematics
+from rxcomm.calibration.fit import CalibrationResult, calibrate
+from rxcomm.calibration.measurements import read_measurements
+from rxcomm.calibration.settings import CalibrateSettings
+from rxcomm.calibration.urdf import write_calibrated_urdf
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.base_parameters import load_dynamics
-from rxcomm.model.geometric_errors import parameter_names, placement_to_se3, se3_to_xyz_rpy
+from rxcomm.model.geometric_errors import placement_to_se3
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
-from rxcomm.schemas.calibration import (
-    BaselineFit,
-    Calibration,
-    CandidateModel,
-    ComplianceEstimate,
-    DroppedParameter,
-    ErrorRow,
-    ErrorTable,
-    ModelSelection,
-    ParameterEstimate,
-    TrackerNoise,
-)
-from rxcomm.schemas.cell import Cell, Placement
-
-QUANTITIES = (("x", "m"), ("y", "m"), ("z", "m"), ("alpha", "rad"), ("beta", "rad"), ("gamma", "rad"))
+from rxcomm.schemas.cell import Cell
 
 
 class Model(StrEnum):
@@ -64,199 +49,6 @@ class Loss(StrEnum):
     soft_l1 = "soft_l1"
     huber = "huber"
     cauchy = "cauchy"
-
-
-def _estimates(robot: Robot, fit: FitResult, only: set[str] | None = None) -> list[ParameterEstimate]:
-    out = []
-    for i, name in enumerate(parameter_names(robot)):
-        if only is not None and name not in only:
-            continue
-        est = bool(fit.estimated[i])
-        out.append(
-            ParameterEstimate(
-                name=name,
-                value=float(fit.errors.values[i]),
-                std=float(fit.std[i]) if est else None,
-                estimated=est,
-            )
-        )
-    return out
-
-
-def _model_selection(robot: Robot, res: CalibrationResult) -> ModelSelection:
-    names = parameter_names(robot)
-    cands = [
-        CandidateModel(
-            name=c.name,
-            n_parameters=c.n_parameters,
-            parameters=[names[i] for i in c.idx] + [f"{robot.joint_names[j]}.compliance" for j in c.comp],
-            cv_weighted_misfit=c.cv_misfit,
-            cv_standard_error=c.cv_se,
-            cv_rms_position_error_m=c.cv_rms_position_m,
-            cv_rms_orientation_error_rad=c.cv_rms_orientation_rad,
-            chosen=c.name == res.model,
-            note=c.note,
-        )
-        for c in res.candidates
-    ]
-    return ModelSelection(
-        folds=min(res.settings.cv_folds, int(res.fit_idx.size)),
-        rule="auto: the simplest candidate within one paired standard error of the best cross-validated "
-        "misfit"
-        if res.settings.model == "auto"
-        else f"given: {res.settings.model}",
-        chosen=res.model,
-        candidates=cands,
-    )
-
-
-def _compliance(robot: Robot, fit: FitResult) -> list[ComplianceEstimate]:
-    if fit.compliance is None:
-        return []
-    return [
-        ComplianceEstimate(
-            joint=robot.joint_names[j],
-            compliance_rad_per_nm=float(fit.compliance[j]),
-            std=float(fit.compliance_std[j]),
-            stiffness_nm_per_rad=float(1.0 / fit.compliance[j]) if fit.compliance[j] > 0 else None,
-        )
-        for j in np.flatnonzero(np.isfinite(fit.compliance_std))
-    ]
-
-
-def calibration_artefact(
-    robot: Robot,
-    res: CalibrationResult,
-    inputs: dict[str, Path],
-    urdf_out: Path | None,
-    noise_source: str | None = None,
-) -> Calibration:
-    """`noise_source`: where a given σ came from (option, cell); None: the result's own source."""
-    tables = []
-    for (pose_set, model), st in res.tables.items():
-        rows = []
-        for k, (q, unit) in enumerate(QUANTITIES):
-            if unit == "rad" and st.max_orientation_error_rad is None:
-                continue
-            rows.append(
-                ErrorRow(
-                    quantity=q,
-                    unit=unit,
-                    max_abs=float(st.max_abs[k]),
-                    peak_to_peak=float(st.peak_to_peak[k]),
-                    rms=float(st.rms[k]),
-                )
-            )
-        tables.append(
-            ErrorTable(
-                pose_set=pose_set,
-                model=model,
-                n_poses=st.n_poses,
-                max_position_error_m=st.max_position_error_m,
-                rms_position_error_m=st.rms_position_error_m,
-                max_orientation_error_rad=st.max_orientation_error_rad,
-                rows=rows,
-            )
-        )
-
-    def stat(pose_set: str, model: str, attr: str):
-        st = res.tables.get((pose_set, model))
-        return None if st is None else getattr(st, attr)
-
-    source = res.noise.source if res.noise.source != "settings" else (noise_source or "option")
-    summary = {
-        "n_identifiable": len(res.identifiable),
-        "fit_max_position_error_m": stat("fit", "calibrated", "max_position_error_m"),
-        "fit_max_orientation_error_rad": stat("fit", "calibrated", "max_orientation_error_rad"),
-        "heldout_max_position_error_m": stat("heldout", "calibrated", "max_position_error_m"),
-        "heldout_max_orientation_error_rad": stat("heldout", "calibrated", "max_orientation_error_rad"),
-        "nominal_heldout_max_position_error_m": stat("heldout", "nominal", "max_position_error_m"),
-        "nominal_heldout_max_orientation_error_rad": stat("heldout", "nominal", "max_orientation_error_rad"),
-        "frames_only_heldout_max_position_error_m": stat("heldout", "frames_only", "max_position_error_m"),
-        "frames_only_heldout_max_orientation_error_rad": stat(
-            "heldout", "frames_only", "max_orientation_error_rad"
-        ),
-        "nominal_fit_max_position_error_m": stat("fit", "nominal", "max_position_error_m"),
-        "rigid_heldout_max_position_error_m": stat("heldout", "rigid", "max_position_error_m"),
-        "model": res.model,
-        "tracker_position_sigma_m": res.noise.position_sigma_m,
-        "tracker_orientation_sigma_rad": res.noise.orientation_sigma_rad,
-        "tracker_sigma_source": source,
-        "n_undetermined": len(res.undetermined),
-        "compliance_torque_model": "identified" if "dynamics" in inputs else "prior",
-        "heldout_rms_position_error_m": stat("heldout", "calibrated", "rms_position_error_m"),
-        "n_fit": int(res.fit_idx.size),
-        "n_heldout": int(res.heldout_idx.size),
-        "n_outliers": int(res.outlier_idx.size),
-        "residual_scale": res.fit.residual_scale,
-        "jacobian_cond": res.fit.cond,
-        "function_evaluations": res.fit.iterations,
-        "seconds": res.seconds,
-    }
-    for c in res.candidates:
-        summary[f"cv_rms_position_error_{c.name.replace('+', '_')}_m"] = c.cv_rms_position_m
-    for est in _compliance(robot, res.fit):
-        summary[f"stiffness_{est.joint}_nm_per_rad"] = est.stiffness_nm_per_rad
-        summary[f"stiffness_{est.joint}_std_nm_per_rad"] = (
-            None if est.stiffness_nm_per_rad is None else est.std * est.stiffness_nm_per_rad**2
-        )
-    base = res.baseline
-    baseline_fit = None
-    ids = list(res.identifiable.indices)
-    if base is not None:
-        summary |= {
-            "n_baseline_poses": base.n_poses,
-            "baseline_poses_heldout_max_position_error_m": stat(
-                "heldout", "baseline_poses", "max_position_error_m"
-            ),
-            "baseline_poses_heldout_max_orientation_error_rad": stat(
-                "heldout", "baseline_poses", "max_orientation_error_rad"
-            ),
-            "baseline_poses_heldout_rms_position_error_m": stat(
-                "heldout", "baseline_poses", "rms_position_error_m"
-            ),
-            "baseline_poses_worse_p_value": base.worse_p_value,
-            # How much less certain each identifiable parameter is from the baseline poses.
-            "baseline_poses_median_std_ratio": None
-            if base.fit is None
-            else float(np.median(base.fit.std[ids] / res.fit.std[ids])),
-        }
-        baseline_fit = BaselineFit(
-            n_poses=base.n_poses,
-            parameters=[] if base.fit is None else _estimates(robot, base.fit),
-            fit_poses=base.fit_idx.tolist(),
-            outlier_poses=base.outlier_idx.tolist(),
-            worse_p_value=base.worse_p_value,
-            note=base.note,
-        )
-    xyz, rpy = se3_to_xyz_rpy(res.tracker_to_base)
-    frames = {n for n in parameter_names(robot) if n.startswith(("base.", "tool."))}
-    return Calibration(
-        **Calibration.envelope(inputs, res.settings, summary),
-        robot=robot.name,
-        joint_names=list(robot.joint_names),
-        measurement=res.measurement,
-        tracker_to_base=Placement(xyz_m=tuple(xyz), rpy_rad=tuple(rpy)),
-        tracker_to_base_source=res.tracker_to_base_source,
-        parameters=_estimates(robot, res.fit),
-        dropped=[DroppedParameter(name=n, reason=r) for n, r in res.identifiable.dropped],
-        frames_only_parameters=_estimates(robot, res.frames_only, frames),
-        error_tables=tables,
-        fit_poses=res.fit_idx.tolist(),
-        heldout_poses=res.heldout_idx.tolist(),
-        outlier_poses=res.outlier_idx.tolist(),
-        baseline_fit=baseline_fit,
-        calibrated_urdf=None if urdf_out is None else str(urdf_out),
-        tracker_noise=TrackerNoise(
-            position_sigma_m=res.noise.position_sigma_m,
-            orientation_sigma_rad=res.noise.orientation_sigma_rad,
-            source=source,
-        ),
-        model_selection=_model_selection(robot, res),
-        compliance=_compliance(robot, res.fit),
-        undetermined=list(res.undetermined),
-        notes=list(res.notes),
-    )
 
 
 def print_table(res: CalibrationResult) -> None:
@@ -293,7 +85,7 @@ def print_model_and_noise(robot: Robot, res: CalibrationResult, source: str) -> 
             f"   {mark} {c.name:<16}{c.n_parameters:3d} p   {c.cv_rms_position_m * 1e3:.4g} mm{o}"
             f"   misfit {c.cv_misfit:.4g} ± {c.cv_se or 0.0:.2g}"
         )
-    for est in _compliance(robot, res.fit):
+    for est in compliance_estimates(robot, res.fit):
         k = "–" if est.stiffness_nm_per_rad is None else f"{est.stiffness_nm_per_rad:.4g} N·m/rad"
         out.print(
             f"  {est.joint}: compliance {est.compliance_rad_per_nm:.4g} ± {est.std:.2g} rad/(N·m), "
@@ -326,7 +118,16 @@ def command(
     ],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output calibration.yaml.")],
     urdf_out: Annotated[
-        Path | None, typer.Option("--urdf-out", help="Also write the calibrated URDF here.")
+        Path | None,
+        typer.Option("--urdf-out", help="Also write the calibrated URDF here (with the TCP as link 'tcp')."),
+    ] = None,
+    mdh_out: Annotated[
+        Path | None,
+        typer.Option(
+            "--mdh-out",
+            help="Also write the calibrated kinematics as modified DH parameters and joint zero offsets "
+            "here (YAML, and a CSV beside it), with the residual MDH cannot express.",
+        ),
     ] = None,
     cell: Annotated[
         Path | None,
@@ -372,6 +173,7 @@ def command(
         measurements,
         output,
         urdf_out=urdf_out,
+        mdh_out=mdh_out,
         cell=cell,
         holdout=holdout,
         loss=loss.value,
@@ -384,6 +186,47 @@ def command(
     )
 
 
+def _cell_and_noise(
+    cell: Path | None, tracker_sigma: str | None, inputs: dict[str, Path]
+) -> tuple[pin.SE3 | None, dict[str, float], str | None]:
+    """(the cell's tracker_to_base guess, noise settings, where the noise came from): the cell's
+    tracker, overridden by `--tracker-sigma`; None: the measurements' or estimated."""
+    t2b, overrides, source = None, {}, None
+    if cell is not None:
+        tr = read_yaml_model(cell, Cell).tracker
+        t2b = placement_to_se3(tr.tracker_to_base.xyz_m, tr.tracker_to_base.rpy_rad)
+        overrides = {
+            "position_sigma_m": tr.position_sigma_m,
+            "orientation_sigma_rad": tr.orientation_sigma_rad,
+        }
+        inputs["cell"] = Path(cell)
+        source = "cell"
+    sp, so = _parse_sigma(tracker_sigma)
+    if sp is not None:
+        overrides, source = {"position_sigma_m": sp, "orientation_sigma_rad": so}, "option"
+    return t2b, {k: v for k, v in overrides.items() if v is not None}, source
+
+
+def _write_exports(
+    robot: Robot, res: CalibrationResult, inputs: dict[str, Path], urdf_out: Path | None, mdh_out: Path | None
+) -> dict[str, object]:
+    """The calibrated URDF (with the TCP frame) and the MDH + zero-offset tables; returns the MDH
+    residuals for the calibration's summary."""
+    if urdf_out is not None:
+        Path(urdf_out).parent.mkdir(parents=True, exist_ok=True)
+        write_calibrated_urdf(robot, res.fit.errors, urdf_out)
+    if mdh_out is None:
+        return {}
+    Path(mdh_out).parent.mkdir(parents=True, exist_ok=True)
+    with console.err.status("calibrate: fitting the MDH tables"):
+        kin = kinematics_artefact(robot, res.fit.errors, inputs)
+    _, csv_path = write_kinematics(mdh_out, kin)
+    console.out.print(f"  MDH + zero offsets → {mdh_out}, {csv_path}")
+    for note in kin.notes:
+        console.out.print(f"  [yellow]note:[/yellow] {note}")
+    return {k: v for k, v in kin.summary.items() if k.startswith("mdh_")}
+
+
 @console.stage_command
 def run(
     robot_dir: Path,
@@ -391,6 +234,7 @@ def run(
     output: Path,
     *,
     urdf_out: Path | None = None,
+    mdh_out: Path | None = None,
     cell: Path | None = None,
     holdout: float | None = None,
     loss: str = "linear",
@@ -404,7 +248,7 @@ def run(
     """The stage as a function (tests call it): returns the summary written to `output`."""
     output = Path(output)
     check_outputs(
-        {"output": output, "urdf-out": urdf_out},
+        {"output": output, "urdf-out": urdf_out, "mdh-out": mdh_out},
         {"measurements": measurements, "cell": cell, **robot_files(robot_dir)},
     )
     robot = load_robot(robot_dir)
@@ -414,24 +258,7 @@ def run(
         "drives": robot.drives_path,
         "measurements": Path(measurements),
     }
-    t2b = None
-    overrides: dict[str, float] = {}
-    noise_source = None
-    if cell is not None:
-        cell_model = read_yaml_model(cell, Cell)
-        tr = cell_model.tracker
-        t2b = placement_to_se3(tr.tracker_to_base.xyz_m, tr.tracker_to_base.rpy_rad)
-        overrides = {
-            "position_sigma_m": tr.position_sigma_m,
-            "orientation_sigma_rad": tr.orientation_sigma_rad,
-        }
-        inputs["cell"] = Path(cell)
-        noise_source = "cell"
-    sp, so = _parse_sigma(tracker_sigma)
-    if sp is not None:
-        overrides = {"position_sigma_m": sp, "orientation_sigma_rad": so}
-        noise_source = "option"
-    overrides = {k: v for k, v in overrides.items() if v is not None}
+    t2b, overrides, noise_source = _cell_and_noise(cell, tracker_sigma, inputs)
     settings = settings_from_options(
         CalibrateSettings,
         dict(
@@ -451,11 +278,10 @@ def run(
         inputs["dynamics"] = Path(dynamics)
     with console.phase(f"calibrate: fitting {robot.name} to {ms.n} poses"):
         res = calibrate(robot, ms, settings, tracker_to_base=t2b, dynamics=params)
-    art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)
     output.parent.mkdir(parents=True, exist_ok=True)
-    if urdf_out is not None:
-        Path(urdf_out).parent.mkdir(parents=True, exist_ok=True)
-        write_calibrated_urdf(robot, res.fit.errors, urdf_out)
+    exported = _write_exports(robot, res, inputs, urdf_out, mdh_out)
+    art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)
+    art = art.model_copy(update={"summary": {**art.summary, **exported}})
     write_yaml_artefact(output, art)
     console.summary_table(f"calibrate → {output}", art.summary)
     print_table(res)

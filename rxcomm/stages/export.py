@@ -4,7 +4,8 @@ The artefact says what it is (its envelope ``kind``, in the MCAP's metadata or t
 maps each kind to the library call that writes its export. A trajectory (``plan-cp``, ``plan-ptp``,
 ``excite --trajectory-out``) becomes the controller CSV (t, q, q̇, q̈, τ_ff per joint); a run log (also
 a stopped run's ``.mcap.part``) its ``/run/joints`` as CSV; a ``dynamics.yaml`` its base parameters ± σ
-(``identify --params-out``'s table). Other kinds plug in here with one entry.
+(``identify --params-out``'s table); a ``calibrate --mdh-out`` kinematics YAML its MDH + zero-offset
+table. Other kinds plug in here with one entry.
 """
 
 from __future__ import annotations
@@ -29,6 +30,11 @@ EXPORTERS: dict[str, tuple[str, str, str]] = {
         "identified parameters ± σ CSV",
         ".csv",
         "rxcomm.identification.export:export_dynamics_csv",
+    ),
+    "rxcomm/Kinematics": (
+        "calibrated MDH + zero-offset CSV",
+        ".csv",
+        "rxcomm.calibration.exports:export_kinematics_csv",
     ),
 }
 

@@ -19,14 +19,16 @@ import typer
 from rich.markup import escape
 
 from rxcomm import console, plotting
-from rxcomm.calibration.fit import load_calibrated_robot
+from rxcomm.calibration.loading import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs
 from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
+from rxcomm.model.catalogue import catalogue_limits
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import parse_numbers
+from rxcomm.planning.catalogue_timing import filtered_path_deviation_m, plan_cp_catalogue
 from rxcomm.planning.cp import CpPlan, CpSettings, path_deviation_m, plan_cp
 from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
 from rxcomm.planning.paths import load_path
@@ -38,6 +40,11 @@ from rxcomm.schemas.trajectory import TrajectorySummary
 class Method(StrEnum):
     nlp = "nlp"
     toppra = "toppra"
+
+
+class Timing(StrEnum):
+    optimal = "optimal"
+    catalogue = "catalogue"
 
 
 # --- inputs -----------------------------------------------------------------------------------------
@@ -212,6 +219,14 @@ def command(
     iso_rpy_deg: Annotated[
         str, typer.Option(help="TCP orientation for --iso9283: URDF roll,pitch,yaw in degrees.")
     ] = "180,0,0",
+    timing: Annotated[
+        Timing,
+        typer.Option(
+            help="optimal: the planner under the model's torque limits; catalogue: a generic controller's "
+            "toppra timing from the catalogue joint speeds/accelerations of the prior model with the rated "
+            "payload (no torque limits; --method, --k2, --torque-rate do not apply)."
+        ),
+    ] = Timing.optimal,
 ) -> None:
     """Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`."""
     if iso9283 is not None:
@@ -231,6 +246,7 @@ def command(
         tcp_speed_max=tcp_speed_max,
         tcp_acceleration_max=tcp_acceleration_max,
         plot=plot,
+        timing=timing.value,
     )
 
 
@@ -256,6 +272,7 @@ def run(
     tcp_speed_max: float | None = None,
     tcp_acceleration_max: float | None = None,
     plot: bool = False,
+    timing: str = "optimal",
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written beside the MCAP."""
     t_all = time.perf_counter()
@@ -272,6 +289,9 @@ def run(
     )
     robot = load_robot(robot_dir)
     inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}
+    catalogue = catalogue_limits(robot) if timing == "catalogue" else None  # the maker's: prior, nominal
+    if catalogue is not None:
+        method, torque_rate, k2 = "toppra", False, 0.0
     if calibration is not None:
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
@@ -284,38 +304,51 @@ def run(
             torque_rate=torque_rate,
             method=method,
             intervals=intervals,
-            tcp_speed_max_m_s=tcp_speed_max if tcp_speed_max is not None else spec.limits.tcp_speed_max_m_s,
-            tcp_acceleration_max_m_s2=tcp_acceleration_max
-            if tcp_acceleration_max is not None
-            else spec.limits.tcp_acceleration_max_m_s2,
+            tcp_speed_max_m_s=_given_or(tcp_speed_max, spec.limits.tcp_speed_max_m_s),
+            tcp_acceleration_max_m_s2=_given_or(tcp_acceleration_max, spec.limits.tcp_acceleration_max_m_s2),
         ),
         {name: name.replace("_", "-") for name in CpSettings.model_fields},
     )
     if dynamics is not None:
         inputs["dynamics"] = Path(dynamics)
     dyn = PlanDynamics.load(robot, dynamics, settings.coulomb_eps_rad_s)
-    with console.phase(f"plan-cp: {spec.name or path.name} ({settings.method}, N = {intervals})") as status:
-        plan = plan_cp(robot, cpath, dyn, settings, progress=lambda m: status.update(f"plan-cp: {m}"))
+    label = f"plan-cp: {spec.name or path.name} ({timing if catalogue else settings.method}, N = {intervals})"
+    plan = _timed_plan(robot, cpath, dyn, settings, catalogue, label)
     summary = summary_of(plan, robot)
-    summary["seconds"] = time.perf_counter() - t_all
     run_settings = {
         **settings.model_dump(mode="json"),
         "dynamics_model": "identified" if dynamics is not None else "prior",
         "calibrated": calibration is not None,
         "branch": plan.joint_path.labels,
+        "timing": timing,
     }
+    if catalogue is not None:  # how the limits were found; what the setpoint filter rounds off
+        run_settings["catalogue"] = catalogue.as_dict()
+        summary["max_filter_deviation_m"] = filtered_path_deviation_m(robot, plan, cpath)
+    summary["seconds"] = time.perf_counter() - t_all
     env = TrajectorySummary.envelope(inputs, run_settings, summary)
     output.parent.mkdir(parents=True, exist_ok=True)
     save_trajectory_mcap(output, trajectory_of(plan), env, robot.joint_names)
     console.summary_table(f"plan-cp → {output}", summary)
     _print_active(plan)
     if plot:
-        png = plot_cp(
-            plan,
-            robot,
-            output.with_suffix(".png"),
-            f"{spec.name or path.stem}: {plan.duration_s:.3f} s ({plan.method}, k2 = {k2:g}), "
-            f"{plan.active_fraction:.1%} with a limit active",
-        )
-        console.out.print(f"plot: {png}")
+        title = f"{spec.name or path.stem}: {plan.duration_s:.3f} s ({plan.method}, k2 = {k2:g}), "
+        title += f"{plan.active_fraction:.1%} with a limit active"
+        console.out.print(f"plot: {plot_cp(plan, robot, output.with_suffix('.png'), title)}")
     return summary
+
+
+def _given_or(option: float | None, default: float | None) -> float | None:
+    return option if option is not None else default
+
+
+def _timed_plan(robot, cpath, dyn, settings, catalogue, label: str) -> CpPlan:
+    """The optimal plan, or with catalogue limits the generic controller's (`--timing catalogue`)."""
+    with console.phase(label) as status:
+
+        def say(m: str) -> None:
+            status.update(f"plan-cp: {m}")
+
+        if catalogue is None:
+            return plan_cp(robot, cpath, dyn, settings, progress=say)
+        return plan_cp_catalogue(robot, cpath, catalogue, dyn, settings, progress=say)

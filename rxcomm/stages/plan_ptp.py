@@ -16,16 +16,18 @@ import numpy as np
 import typer
 
 from rxcomm import console, plotting
-from rxcomm.calibration.fit import load_calibrated_robot
+from rxcomm.calibration.loading import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.trajectory import save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.model.base_parameters import load_dynamics
+from rxcomm.model.catalogue import catalogue_limits
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.kinematics import solve_pose_ik
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import POSE_PREFIX, parse_numbers, radians_text
+from rxcomm.planning.catalogue_timing import plan_ptp_catalogue
 from rxcomm.planning.ptp import PtpNotConverged, PtpResult, kinematic_fallback, plan_ptp
 from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
 from rxcomm.schemas.path import Branch
@@ -45,6 +47,11 @@ class Elbow(StrEnum):
 class Wrist(StrEnum):
     positive = "positive"
     negative = "negative"
+
+
+class Timing(StrEnum):
+    optimal = "optimal"
+    catalogue = "catalogue"
 
 
 # --- inputs -----------------------------------------------------------------------------------------
@@ -194,6 +201,10 @@ def command(
         typer.Option(help="If the solver fails, write the fastest feasible ruckig profile (still exit 3)."),
     ] = False,
     plot: Annotated[bool, typer.Option(help="Write NAME.png: normalised torques and velocities.")] = False,
+    timing: Annotated[
+        Timing,
+        typer.Option(help="optimal: the OCP; catalogue: the factory's ruckig profile (model.catalogue)."),
+    ] = Timing.optimal,
 ) -> None:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
     start, goal = (
@@ -217,6 +228,7 @@ def command(
         compile_=compile_,
         fallback=fallback,
         plot=plot,
+        timing=timing.value,
     )
 
 
@@ -240,10 +252,10 @@ def run(
     compile_: bool = False,
     fallback: bool = False,
     plot: bool = False,
+    timing: str = "optimal",
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written beside the MCAP."""
-    t_all = time.perf_counter()
-    output = Path(output)
+    t_all, output = time.perf_counter(), Path(output)
     if output.suffix != ".mcap":
         raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
     check_outputs(
@@ -278,7 +290,10 @@ def run(
         "options": options.model_dump(mode="json"),
         "dynamics_model": "identified" if params is not None else "prior",
         "calibrated": calibration is not None,
+        "timing": timing,
     }
+    if timing == "catalogue":
+        return _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, output, inputs, settings, t_all)
     with console.phase(f"plan-ptp: solving the OCP (N = {intervals})"):
         try:
             result = plan_ptp(robot, dyn, q_start, q_goal, options)
@@ -314,6 +329,34 @@ def _planning_model(
         params = load_dynamics(dynamics, robot)
         inputs["dynamics"] = Path(dynamics)
     return robot, params, inputs
+
+
+def _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, output, inputs, settings, t_all) -> dict:
+    """The factory's move: the catalogue limits of the nominal prior robot, ruckig's profile."""
+    catalogue = catalogue_limits(load_robot(robot_dir))
+    t0 = time.perf_counter()
+    traj, report = plan_ptp_catalogue(robot, dyn, q_start, q_goal, catalogue)
+    solve_s = time.perf_counter() - t0
+    limit, joint, t_worst, _ = report.worst()
+    summary: dict[str, object] = {
+        "duration_s": traj.duration_s,
+        "solve_seconds": solve_s,
+        "max_limit_ratio": report.max_ratio,
+        "active_fraction": report.active_fraction(),
+        "q_start": np.asarray(q_start).tolist(),
+        "q_goal": np.asarray(q_goal).tolist(),
+        "tau_squared_integral_nm2_s": float(np.trapezoid(np.sum(traj.tau_ff**2, axis=1), traj.t)),
+        "worst_limit": f"{limit} {joint} at {t_worst:.4f} s",
+        "limits_checked": ", ".join(report.ratios),
+        "fallback": False,
+        **{f"max_{k}_ratio": v for k, v in report.max_by_limit().items()},
+        "seconds": time.perf_counter() - t_all,
+    }
+    env = TrajectorySummary.envelope(inputs, {**settings, "catalogue": catalogue.as_dict()}, summary)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    save_trajectory_mcap(output, traj, env)
+    console.summary_table(f"plan-ptp (catalogue timing) → {output}", summary)
+    return summary
 
 
 def _write_fallback(robot, dyn, q_start, q_goal, options, output, inputs, settings, error) -> None:

@@ -23,6 +23,7 @@ from rxcomm.io.files import atomic_write_text, check_outputs
 from rxcomm.io.yaml_io import load_yaml, read_yaml_artefact
 from rxcomm.reporting import html, markdown
 from rxcomm.reporting.document import Report, Section, VerdictRow
+from rxcomm.schemas.acceptance import Acceptance
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.dynamics import Dynamics
@@ -85,8 +86,14 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
             s["configs.yaml"], _img(build, "configs.png"), cfg["criterion"]
         )
     if cal:
+        # The prior-torque pass of the same measurements (optional: not every chain makes it).
+        prior = _load(build / "calibration-prior.yaml", Calibration)
         out["calibration.yaml"] = rep.calibration_section(
-            cal["summary"], cal["error_tables"], cal["parameters"], cal.get("compliance", [])
+            cal["summary"],
+            cal["error_tables"],
+            cal["parameters"],
+            cal.get("compliance", []),
+            None if prior is None else prior["summary"],
         )
     if s["excitation.yaml"]:
         exc_tol = tol.get("excitation", rep.DEFAULT_TOLERANCE)
@@ -141,8 +148,10 @@ def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Re
         ("The robot (named by no artefact here)" if robot is None else f"Robot `{robot}`")
         + f" commissioned against the simulated cell by rxcomm {__version__} on "
         f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC. Every figure is read from the artefacts in this directory "
-        "(their envelopes hold the sha256 of every input). The verdict is against the stage targets "
-        "(rxcomm/report_targets.py); the paper comparison closes the report."
+        "(their envelopes hold the sha256 of every input). The verdict opens with the robot accepted as a "
+        "whole (factory vs commissioned state, `rxcomm accept` against acceptance.yaml; factory: nominal "
+        "kinematics, no feed-forward, a generic controller's timing from the catalogue limits), then the "
+        "stage targets (rxcomm/report_targets.py); the paper comparison closes the report."
     )
     if missing:
         preamble += f"\n\nNot produced in this build: {', '.join(missing)}."
@@ -186,7 +195,8 @@ def run(build_dir: Path, output: Path | None = None) -> list[str]:
     # the report reads the build's artefacts and embeds its figures: none of them may be an output
     artefacts = {p.name: p for p in sorted(build_dir.iterdir()) if p.suffix in (".yaml", ".mcap", ".png")}
     check_outputs({"output": output, "html": page}, artefacts)
-    report, missing = build_report(build_dir)
+    verdict = _load(build_dir / "verdict.yaml", Acceptance)  # factory vs commissioned (`rxcomm accept`)
+    report, missing = build_report(build_dir, rep.acceptance_verdict(verdict))
     output.parent.mkdir(parents=True, exist_ok=True)
     # Markdown links the figures where they are, relative to the report's own directory
     prefix = Path(os.path.relpath(build_dir.resolve(), output.resolve().parent))

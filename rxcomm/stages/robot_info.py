@@ -47,6 +47,7 @@ def stretched_pose(robot: Robot) -> np.ndarray:
 
 def robot_facts(robot: Robot) -> dict[str, object]:
     """The figures `robot-info` prints, as a flat mapping (SI units)."""
+    from rxcomm.model.catalogue import catalogue_limits
     from rxcomm.model.dynamics import RobotDynamics, prior_parameters
     from rxcomm.model.geometric_errors import identifiable_count
 
@@ -70,6 +71,14 @@ def robot_facts(robot: Robot) -> dict[str, object]:
         ),
         "identifiable_geometric_tcp_position_only": identifiable_count(robot, position_only=True),
     }
+    if robot.drives.rated_payload is not None:  # what a generic controller may use (model.catalogue)
+        cat = catalogue_limits(robot)
+        facts |= {
+            "rated_payload_kg": cat.payload_kg,
+            "catalogue_velocity_rad_s": cat.v_max.tolist(),
+            "catalogue_acceleration_rad_s2": cat.a_max.tolist(),
+            "catalogue_bound_by": ", ".join(sorted(set(cat.bound_by))),
+        }
     return facts
 
 
@@ -125,4 +134,12 @@ def run(robot_dir: Path) -> dict[str, object]:
         f"measurement, {facts['identifiable_geometric_position_only']} with the position of an off-axis "
         f"point ({facts['identifiable_geometric_tcp_position_only']} with the TCP position), of 48 modelled"
     )
+    if "catalogue_velocity_rad_s" in facts:
+        out.print(
+            f"  catalogue limits (rated payload {facts['rated_payload_kg']:g} kg, worst case of the prior "
+            f"model, bound by {facts['catalogue_bound_by']}'s peak torque):"
+        )
+        v = np.degrees(facts["catalogue_velocity_rad_s"])
+        out.print("    vmax°/s      " + " ".join(f"{x:7.1f}" for x in v))
+        out.print("    amax rad/s²  " + " ".join(f"{x:7.2f}" for x in facts["catalogue_acceleration_rad_s2"]))
     return facts

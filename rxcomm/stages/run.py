@@ -16,6 +16,7 @@ from typing import Annotated, Any
 import typer
 
 from rxcomm import console, plotting
+from rxcomm.acceptance.alignment import tracker_channel
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.campaign import (
     CampaignResult,
@@ -98,8 +99,8 @@ def check_joint_names(cfg: Configs, path: Path, robot: Robot) -> Configs:
 @contextlib.contextmanager
 def connect(
     gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool
-) -> Iterator[tuple[GatewayClient, bool]]:
-    """A connected client (and whether the cell is embedded); stops an embedded cell on exit."""
+) -> Iterator[tuple[GatewayClient, Any]]:
+    """A connected client and the embedded cell's server (None: a gateway); stops an embedded cell on exit."""
     server = None
     if gateway is None:
         try:
@@ -122,7 +123,7 @@ def connect(
         client = GatewayClient(host, port, timeout_s=REQUEST_TIMEOUT_S, allow_remote=allow_remote)
         client.connect()
         try:
-            yield client, server is not None
+            yield client, server
         finally:
             client.close()
     finally:
@@ -152,6 +153,21 @@ def _with_context(error: RxcommError, note: str, written: Path | None) -> Rxcomm
     if isinstance(error, SafetyStop):
         return SafetyStop(text)
     return error
+
+
+def record_tracker(server: Any, sink: RunLogWriter, result: Any, robot: Robot) -> None:
+    """The embedded cell's tracker samples of this run, aligned, as the log's /run/tracker channel."""
+    export = server.tracker_export()
+    log = result.log
+    if export is None or export.n < 2 or log is None or log.n_records < 2 or not sink.begun:
+        return
+    sample_s = result.ratio * result.cycle_s
+    try:
+        channel = tracker_channel(robot, export, log.q_actual[: log.n_records], sample_s)
+    except InputError as e:  # no alignment: the run stands, without a tracker channel
+        console.err.print(f"warning: tracker samples not recorded: {e}")
+        return
+    sink.tracker(export.t_s, export.position_m, export.quaternion_wxyz, channel)
 
 
 # --- the stage ------------------------------------------------------------------------------------
@@ -226,7 +242,8 @@ def execute(
                 feedforward=feedforward,
                 limit_tolerance=settings.limit_tolerance,
             )
-            with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, embedded):
+            with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, server):
+                embedded = server is not None
                 # The log is written while the robot moves: a killed run leaves NAME.mcap.part.
                 sink = RunLogWriter(
                     output,
@@ -243,6 +260,8 @@ def execute(
                 )
                 try:
                     result = run_trajectory(client, robot, prepared, params, settings, update, sink)
+                    if server is not None:
+                        record_tracker(server, sink, result, robot)
                 except BaseException:
                     sink.abandon()
                     raise
@@ -262,7 +281,8 @@ def execute(
         )
         part = output.with_name(output.name + ".part")
         roles = [p.role for p in cfg.poses]
-        with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, embedded):
+        with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, server):
+            embedded = server is not None
             env_settings = {
                 **settings_c.model_dump(mode="json"),
                 "model": model_name,

@@ -1,0 +1,157 @@
+"""The acceptance verdict: factory vs commissioned, criterion by criterion (issue 17).
+
+Pure functions over what the stages measured: the ISO 9283 criteria of each state
+(`rxcomm.schemas.iso9283.Iso9283`, from the tracker) and the run-log summaries of each state's
+reference task (its cycle time and energy figures, `rxcomm.execution.log.run_summary`). A value that
+was not measured stays None and its verdict is "not measured", never PASS and never a zero.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from rxcomm.schemas.acceptance import TASK_CRITERIA, Threshold, VerdictRow
+from rxcomm.schemas.iso9283 import Iso9283
+
+SPEED_TOLERANCE = 0.05  # an ISO path criterion matches a threshold's command speed within ±5 %
+TASK_SUMMARY_KEYS = {
+    "cycle_time": "duration_s",
+    "tau_squared_integral": "tau_squared_integral_nm2_s",
+    "electrical_energy": "electrical_energy_j",
+}
+
+
+@dataclass(frozen=True)
+class Measured:
+    """A value (None: not measured) and what it rests on or why it is missing."""
+
+    value: float | None
+    note: str = ""
+
+
+def task_value(criterion: str, runs: Sequence[Mapping]) -> Measured:
+    """A reference-task figure: the sum over its runs' summaries (a missing or null figure in any
+    run, or no run at all, is not measured; a run that did not complete is not measured either)."""
+    if not runs:
+        return Measured(None, "no run log of the reference task")
+    key = TASK_SUMMARY_KEYS[criterion]
+    total = 0.0
+    for i, s in enumerate(runs):
+        if s.get("outcome", "completed") != "completed":
+            return Measured(None, f"run {i + 1} ended {s.get('outcome')!r}")
+        v = s.get(key)
+        if v is None:
+            return Measured(None, f"run {i + 1} has no {key}")
+        total += float(v)
+    return Measured(total, f"sum of {len(runs)} run(s)")
+
+
+def iso_value(threshold: Threshold, iso: Iso9283 | None) -> Measured:
+    """The worst |value| of the ISO criterion over the matching targets (and command speed)."""
+    if iso is None:
+        return Measured(None, "no ISO 9283 measurement of this state")
+    rows = [c for c in iso.criteria if c.key == threshold.criterion]
+    if threshold.target is not None:
+        rows = [c for c in rows if c.target == threshold.target]
+    v_cmd = threshold.command_speed_m_per_s
+    if v_cmd is not None:
+        speeds = sorted({c.command_speed_m_per_s for c in rows if c.command_speed_m_per_s is not None})
+        near = [
+            c
+            for c in rows
+            if c.command_speed_m_per_s is not None
+            and abs(c.command_speed_m_per_s - v_cmd) <= SPEED_TOLERANCE * v_cmd
+        ]
+        if speeds and not near:
+            at = ", ".join(f"{v:.3g}" for v in speeds)
+            return Measured(None, f"measured at a command speed of {at} m/s only, not {v_cmd:g} m/s")
+        rows = near or rows  # no speed at all: every row is unmeasured, and says why below
+    if not rows:
+        return Measured(None, "not in the ISO 9283 artefact")
+    measured = [c for c in rows if c.value is not None]
+    if len(measured) < len(rows):
+        missing = [c for c in rows if c.value is None]
+        return Measured(None, f"{missing[0].target}: {missing[0].note or 'not measured'}")
+    worst = max(measured, key=lambda c: abs(c.value))
+    cycles = f", {worst.cycles} cycle{'s' if worst.cycles != 1 else ''}" if worst.cycles else ""
+    return Measured(abs(worst.value), f"worst of {len(rows)}: {worst.target}{cycles}")
+
+
+def label(t: Threshold) -> str:
+    out = t.criterion + (f" {t.target}" if t.target else "")
+    if t.command_speed_m_per_s is not None:
+        out += f" at {t.command_speed_m_per_s:g} m/s"
+    return out
+
+
+def threshold_text(t: Threshold) -> str:
+    parts = []
+    if t.max_commissioned is not None:
+        parts.append(f"≤ {t.max_commissioned:g} {t.unit}")
+    if t.max_ratio is not None:
+        parts.append(f"ratio ≤ {t.max_ratio:g}")
+    return ", ".join(parts)
+
+
+def verdict_row(t: Threshold, factory: Measured, commissioned: Measured) -> VerdictRow:
+    """PASS when every bound the threshold sets holds, FAIL when one does not, "not measured" when a
+    value a bound needs is missing (the ratio needs both states)."""
+    f, c = factory.value, commissioned.value
+    ratio = abs(c) / abs(f) if f is not None and c is not None and f != 0 else None
+    missing = []
+    if c is None:
+        missing.append(f"commissioned: {commissioned.note}")
+    if t.max_ratio is not None and ratio is None:
+        missing.append(f"factory: {factory.note}" if f is None else "factory value is 0")
+    if len(missing) == 2 and f is None and factory.note == commissioned.note:
+        missing = [f"both states: {factory.note}"]
+    if missing:
+        verdict = "not measured"
+    else:
+        ok = (t.max_commissioned is None or abs(c) <= t.max_commissioned) and (
+            t.max_ratio is None or ratio <= t.max_ratio
+        )
+        verdict = "PASS" if ok else "FAIL"
+    note = "; ".join(missing) if missing else commissioned.note
+    if f is None and not any(m.startswith(("factory", "both")) for m in missing):
+        note += f"; factory: {factory.note}"  # e.g. it could not run at the command speed
+    return VerdictRow(
+        criterion=label(t),
+        unit=t.unit,
+        factory=f,
+        commissioned=c,
+        ratio=ratio,
+        threshold=threshold_text(t),
+        max_commissioned=t.max_commissioned,
+        max_ratio=t.max_ratio,
+        verdict=verdict,
+        note=note,
+    )
+
+
+def acceptance_rows(
+    thresholds: Sequence[Threshold],
+    factory_runs: Sequence[Mapping],
+    commissioned_runs: Sequence[Mapping],
+    factory_iso: Iso9283 | None,
+    commissioned_iso: Iso9283 | None,
+) -> list[VerdictRow]:
+    """One verdict row per threshold, in the thresholds' order."""
+    rows = []
+    for t in thresholds:
+        if t.criterion in TASK_CRITERIA:
+            f, c = task_value(t.criterion, factory_runs), task_value(t.criterion, commissioned_runs)
+        else:
+            f, c = iso_value(t, factory_iso), iso_value(t, commissioned_iso)
+        rows.append(verdict_row(t, f, c))
+    return rows
+
+
+def overall(rows: Sequence[VerdictRow]) -> dict[str, object]:
+    """The summary: FAIL if any row fails, PASS if all pass, else incomplete (some not measured)."""
+    n_pass = sum(r.verdict == "PASS" for r in rows)
+    n_fail = sum(r.verdict == "FAIL" for r in rows)
+    n_nm = len(rows) - n_pass - n_fail
+    verdict = "FAIL" if n_fail else ("PASS" if n_nm == 0 else "incomplete")
+    return {"verdict": verdict, "n_pass": n_pass, "n_fail": n_fail, "n_not_measured": n_nm}

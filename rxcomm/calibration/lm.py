@@ -1,0 +1,312 @@
+"""Levenberg–Marquardt fit of the weighted residual and its covariance, and the fitter that applies
+one model (parameters, base, noise) to pose subsets: outlier removal, noise from the residuals
+(variance components), k-fold cross-validation, the baseline-pose comparison.
+
+`scipy.optimize.least_squares` (`lm`; `trf` with a robust loss) with the analytic Jacobian,
+standard deviations from s²·(JᵀJ)⁻¹ with s² the residual variance per degree of freedom.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pinocchio as pin
+import scipy.linalg
+import scipy.optimize
+import scipy.stats
+
+from rxcomm.calibration.compliance import TAU_REF_NM
+from rxcomm.calibration.measurements import MeasurementSet
+from rxcomm.calibration.residuals import Problem
+from rxcomm.calibration.settings import CalibrateSettings
+from rxcomm.errors import InfeasibleError, InputError
+from rxcomm.model.geometric_errors import (
+    ErrorModel,
+    IdentifiableSet,
+    identification_jacobians,
+    measurement_scaling,
+    parameter_names,
+)
+from rxcomm.model.robot import Robot
+
+
+@dataclass(frozen=True)
+class FitResult:
+    errors: ErrorModel
+    std: np.ndarray  # [48], NaN for fixed parameters
+    estimated: np.ndarray  # [48] bool
+    residual_scale: float  # sqrt(χ²/dof) of the weighted residuals
+    iterations: int
+    cond: float  # of the scaled Jacobian at the solution
+    compliance: np.ndarray | None = None  # [n] rad/(N·m), 0 for rigid joints; None: rigid model
+    compliance_std: np.ndarray | None = None  # [n], NaN for joints not fitted
+    x: np.ndarray | None = None  # the solution vector (warm starts)
+
+    def link_angles(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The links' angles of this model at encoder angles q under holding torques τ."""
+        return q if self.compliance is None else q - tau * self.compliance
+
+
+def at_links(ms: MeasurementSet, fit: FitResult, tau: np.ndarray) -> MeasurementSet:
+    """`ms` with the joint angles the fit's model puts the links at (compliance deflection)."""
+    return ms if fit.compliance is None else replace(ms, q=fit.link_angles(ms.q, tau))
+
+
+def fit_problem(
+    robot: Robot,
+    ms: MeasurementSet,
+    t2b: pin.SE3,
+    idx: np.ndarray,
+    sigma_p: float,
+    sigma_o: float,
+    point: np.ndarray | None,
+    settings: CalibrateSettings,
+    x0: np.ndarray | None = None,
+    tau: np.ndarray | None = None,
+    comp: tuple[int, ...] = (),
+) -> FitResult:
+    idx = np.asarray(idx, dtype=int)
+    prob = Problem(robot, ms.q, ms.position_m, ms.rotation, t2b, sigma_p, sigma_o, idx, point, tau, comp)
+    k = len(idx) + len(comp)
+    x0 = np.zeros(k) if x0 is None else np.asarray(x0, dtype=float)
+    m = prob.residual(x0).size
+    if m <= k:
+        raise InputError(f"{m} equations for {k} parameters: too few poses", file=ms.source)
+    if settings.loss == "linear":
+        sol = scipy.optimize.least_squares(
+            prob.residual, x0, jac=prob.jacobian, method="lm", max_nfev=settings.max_iterations * (k + 1)
+        )
+    else:
+        sol = scipy.optimize.least_squares(
+            prob.residual,
+            x0,
+            jac=prob.jacobian,
+            method="trf",
+            loss=settings.loss,
+            f_scale=3.0,
+            max_nfev=settings.max_iterations,
+        )
+    if not sol.success:
+        raise InfeasibleError(f"calibration did not converge: {sol.message}")
+    jac = prob.jacobian(sol.x)
+    res = prob.residual(sol.x)
+    dof = m - k
+    s2 = float(res @ res) / dof
+    sv = np.linalg.svd(jac * (1 / np.linalg.norm(jac, axis=0)), compute_uv=False)
+    cov = s2 * np.linalg.pinv(jac.T @ jac)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    names = parameter_names(robot)
+    std = np.full(len(names), np.nan)
+    std[idx] = sd[: len(idx)]
+    est = np.zeros(len(names), dtype=bool)
+    est[idx] = True
+    compliance = compliance_std = None
+    if comp:
+        compliance, compliance_std = np.zeros(robot.n), np.full(robot.n, np.nan)
+        compliance[list(comp)] = sol.x[len(idx) :] / TAU_REF_NM
+        compliance_std[list(comp)] = sd[len(idx) :] / TAU_REF_NM
+    return FitResult(
+        prob.errors(sol.x),
+        std,
+        est,
+        math.sqrt(s2),
+        int(sol.nfev),
+        float(sv[0] / sv[-1]),
+        compliance,
+        compliance_std,
+        np.array(sol.x),
+    )
+
+
+def rank_check(robot: Robot, ms: MeasurementSet, ident: IdentifiableSet, point: np.ndarray | None) -> None:
+    """Refuse a fit pose set that cannot identify the structurally identifiable parameters."""
+    po = ms.position_only
+    jac = identification_jacobians(robot, ms.q, None, None, po, point)
+    row_w, col_s = measurement_scaling(robot, po)
+    idx = list(ident.indices)
+    a = (jac * row_w[None, :, None]).reshape(-1, len(parameter_names(robot)))[:, idx] * col_s[idx]
+    a = a / np.maximum(np.linalg.norm(a, axis=0), 1e-300)
+    _, r, piv = scipy.linalg.qr(a, mode="economic", pivoting=True)
+    diag = np.abs(np.diag(r))
+    weak = piv[diag < 1e-8 * diag[0]] if diag.size else []
+    if len(weak):
+        names = [ident.names[i] for i in weak]
+        raise InputError(
+            f"the {ms.n} fit poses cannot identify {len(names)} of the {len(idx)} identifiable parameters "
+            f"(rank-deficient pose set; e.g. {names[:6]}): measure more varied poses (rxcomm select-configs)",
+            file=ms.source,
+            field="poses",
+        )
+
+
+@dataclass(frozen=True)
+class BaselineComparison:
+    """The full calibration fitted to the `baseline` poses instead (a reference set such as
+    select-configs' linear scan), judged on the same held-out measurements as the main fit.
+
+    `worse_p_value`: one-sided Wilcoxon signed-rank test that the baseline fit misses the held-out
+    poses by more than the main fit, pose by pose, in the fit's own metric (the weighted residual:
+    position /σ_p, orientation /σ_o); small means measurably worse. `fit` is None when the baseline
+    poses cannot identify the parameters; `note` then says why."""
+
+    n_poses: int
+    fit: FitResult | None
+    fit_idx: np.ndarray
+    outlier_idx: np.ndarray
+    worse_p_value: float | None
+    note: str | None = None
+
+
+@dataclass(frozen=True)
+class Fitter:
+    """One weighted fit setting (model, base, noise, parameters) applied to pose subsets."""
+
+    robot: Robot
+    ms: MeasurementSet
+    t2b: pin.SE3
+    idx: np.ndarray  # geometric parameters (into the 48)
+    sigma_p: float
+    sigma_o: float
+    point: np.ndarray | None
+    settings: CalibrateSettings
+    need: int  # the fewest poses the parameters need
+    tau: np.ndarray  # [N, n] prior holding torques of all poses of `ms`
+    comp: tuple[int, ...] = ()  # compliant joints
+    x0: np.ndarray | None = None
+
+    def problem(self, poses: np.ndarray) -> Problem:
+        sub = self.ms.subset(poses)
+        return Problem(
+            self.robot,
+            sub.q,
+            sub.position_m,
+            sub.rotation,
+            self.t2b,
+            self.sigma_p,
+            self.sigma_o,
+            np.asarray(self.idx),
+            self.point,
+            self.tau[poses],
+            self.comp,
+        )
+
+    def fit(self, poses: np.ndarray, x0: np.ndarray | None = None) -> FitResult:
+        return fit_problem(
+            self.robot,
+            self.ms.subset(poses),
+            self.t2b,
+            self.idx,
+            self.sigma_p,
+            self.sigma_o,
+            self.point,
+            self.settings,
+            self.x0 if x0 is None else x0,
+            self.tau[poses],
+            self.comp,
+        )
+
+    def residuals(self, poses: np.ndarray, fit: FitResult) -> np.ndarray:
+        """[n, rows]: the weighted residuals (position /σ_p, orientation /σ_o) of `fit` at `poses`."""
+        return self.problem(poses).residual(fit.x).reshape(poses.size, -1)
+
+    def fit_dropping_outliers(self, poses: np.ndarray) -> tuple[FitResult, np.ndarray, np.ndarray]:
+        """(fit, the poses it used, the flagged poses). A pose with a component beyond outlier_sigma
+        robust σ (MAD of all weighted residual components) is flagged. One blunder smears into its
+        neighbours' residuals through the fit, so when dropping, the worst pose only is removed and
+        the rest refitted, until none is beyond (at most a quarter of the poses)."""
+        result = self.fit(poses)
+        flagged: list[int] = []
+        while True:
+            res = self.residuals(poses, result)
+            scale = max(1.4826 * float(np.median(np.abs(res))), 1e-12)
+            worst = np.max(np.abs(res), axis=1)
+            beyond = worst > self.settings.outlier_sigma * scale
+            if not np.any(beyond):
+                break
+            if not self.settings.drop_outliers:
+                flagged += poses[beyond].tolist()
+                break
+            k = int(np.argmax(worst))
+            flagged.append(int(poses[k]))
+            poses = np.delete(poses, k)
+            if poses.size < self.need or len(flagged) > max(1, poses.size // 4):
+                raise InputError(
+                    f"{len(flagged)} outlier poses ({flagged[:10]}) leave {poses.size} fit poses: the "
+                    f"measurements do not fit the model (need {self.need} good poses)",
+                    file=self.ms.source,
+                    field="poses",
+                )
+            result = self.fit(poses, result.x)
+        return result, poses, np.array(sorted(flagged), dtype=int)
+
+    def noise_from_residuals(self, poses: np.ndarray, robust: bool, rounds: int = 6) -> Fitter:
+        """This fitter with σ_p, σ_o estimated from the fit's residuals (variance components):
+        per group s² = Σ r_k² / Σ (1 − h_k) (Förstner), h the hat-matrix diagonal, so the redundancy
+        the fit leaves each row is accounted for; `robust`: the scale 1.4826·median|r_k/√(1 − h_k)|
+        instead, which a blunder does not inflate. Repeated until the weights settle."""
+        f = self
+        fit = None
+        for _ in range(rounds):
+            fit = f.fit(poses, None if fit is None else fit.x)
+            prob = f.problem(poses)
+            jac, res = prob.jacobian(fit.x), prob.residual(fit.x)
+            qm, _ = np.linalg.qr(jac)
+            red = np.maximum(1.0 - np.sum(qm**2, axis=1), 1e-6).reshape(poses.size, -1)
+            z = np.abs(res.reshape(poses.size, -1)) / np.sqrt(red)
+            if robust:
+                k_p = 1.4826 * float(np.median(z[:, :3]))
+                k_o = 1.4826 * float(np.median(z[:, 3:])) if z.shape[1] == 6 else 1.0
+            else:
+                k_p = math.sqrt(float(np.mean(z[:, :3] ** 2 * red[:, :3])) / float(np.mean(red[:, :3])))
+                k_o = 1.0
+                if z.shape[1] == 6:
+                    k_o = math.sqrt(float(np.mean(z[:, 3:] ** 2 * red[:, 3:])) / float(np.mean(red[:, 3:])))
+            f = replace(f, sigma_p=f.sigma_p * k_p, sigma_o=f.sigma_o * k_o)
+            if abs(k_p - 1) < 0.01 and abs(k_o - 1) < 0.01:
+                break
+        return f
+
+    def compare_baseline(self, poses: np.ndarray, heldout: np.ndarray, main: FitResult) -> BaselineComparison:
+        """The same calibration from the baseline poses; a set that cannot identify the parameters
+        is reported, not raised (it is a reference, not the user's calibration)."""
+        none = np.array([], dtype=int)
+        try:
+            if poses.size < self.need:
+                raise InputError(f"{poses.size} valid poses, the parameters need at least {self.need}")
+            names = parameter_names(self.robot)
+            sub = IdentifiableSet(tuple(self.idx), tuple(names[i] for i in self.idx), (), 0, 0.0, 0.0, 0.0)
+            rank_check(self.robot, self.ms.subset(poses), sub, self.point)
+            fit, used, flagged = self.fit_dropping_outliers(poses)
+        except InputError as e:
+            return BaselineComparison(int(poses.size), None, none, none, None, note=e.reason)
+        except InfeasibleError as e:
+            return BaselineComparison(int(poses.size), None, none, none, None, note=str(e))
+        p_value = None
+        if heldout.size:
+            diff = self.weighted_misfit(heldout, fit) - self.weighted_misfit(heldout, main)
+            if np.any(diff != 0):
+                p_value = float(scipy.stats.wilcoxon(diff, alternative="greater").pvalue)
+        return BaselineComparison(int(poses.size), fit, used, flagged, p_value)
+
+    def weighted_misfit(self, poses: np.ndarray, fit: FitResult) -> np.ndarray:
+        """Per pose, ‖r‖² of the weighted residual as the fit weighs it, of `fit`'s parameters."""
+        return np.sum(self.residuals(poses, fit) ** 2, axis=1)
+
+    def cross_validate(self, poses: np.ndarray, full: FitResult, folds: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Per pose of `poses`: (weighted misfit, position error² m², orientation error² rad²) when its
+        fold was held out; each fold's fit starts from `full` (the fit of all poses)."""
+        mis = np.empty(poses.size)
+        e_p = np.empty(poses.size)
+        e_o = np.full(poses.size, np.nan)
+        for k in np.unique(folds):
+            test, train = poses[folds == k], poses[folds != k]
+            fit = self.fit(train, full.x)
+            r = self.residuals(test, fit)
+            sel = folds == k
+            mis[sel] = np.sum(r**2, axis=1)
+            e_p[sel] = np.sum((r[:, :3] * self.sigma_p) ** 2, axis=1)
+            if r.shape[1] == 6:
+                e_o[sel] = np.sum((r[:, 3:] * self.sigma_o) ** 2, axis=1)
+        return mis, e_p, e_o

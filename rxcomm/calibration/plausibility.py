@@ -1,0 +1,124 @@
+"""Checks that a calibration describes this robot, and what the user should be told.
+
+Before the fit: orientations that no rigid tool explains (angle convention). After it: positions
+still far from the robot (wrong robot, joint order, units), a tool far from drives.yaml's TCP,
+residuals far above a given noise, parameters the data cannot determine, and a calibration worse
+than the nominal model on the held-out poses (`InfeasibleError`, exit 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pinocchio as pin
+
+from rxcomm.calibration.frames import DataFrames
+from rxcomm.calibration.lm import FitResult, Fitter, at_links
+from rxcomm.calibration.measurements import MeasurementSet
+from rxcomm.calibration.residuals import ErrorStats, pose_errors
+from rxcomm.errors import InfeasibleError, InputError
+from rxcomm.model.geometric_errors import characteristic_length_m, parameter_names
+from rxcomm.model.robot import Robot
+
+# The tool correction beyond which drives.yaml's TCP is called wrong on the console.
+TOOL_WARNING_M, TOOL_WARNING_RAD = 0.005, 0.02
+# A rigid tool leaves at most this rms orientation after the closed-form frames (else: angle convention).
+RIGID_TOOL_RAD = 0.05
+# After the fit, positions further than this (median) from the robot's mean the wrong robot or data.
+FITTED_MEDIAN_LIMIT_M = 0.01
+
+
+def check_rigid_tool(data: DataFrames, ms: MeasurementSet) -> None:
+    """InputError when the best base and tool rotations leave the orientations far off."""
+    if data.rotation_rms_rad is None or data.rotation_rms_rad <= RIGID_TOOL_RAD:
+        return
+    conv = f" (read as {ms.angle_convention})" if ms.angle_convention else ""
+    raise InputError(
+        f"the measured orientations{conv} do not fit a rigid tool: with the best base and tool "
+        f"rotations they are still {np.degrees(data.rotation_rms_rad):.1f}° rms off. Check the angle "
+        "convention: alpha/beta/gamma columns are Cardan x-y-z (R = Rx·Ry·Rz), roll/pitch/yaw "
+        "columns R = Rz·Ry·Rx, or give quaternion columns qw, qx, qy, qz (docs/calibrate-csv.md)",
+        file=ms.source,
+        field="orientation",
+    )
+
+
+def check_fits_robot(
+    robot: Robot, ms_fit: MeasurementSet, result: FitResult, tau: np.ndarray, t2b: pin.SE3, point
+) -> None:
+    """What base, tool and joint errors cannot explain is the wrong robot or data (InputError)."""
+    e_fit, _ = pose_errors(robot, at_links(ms_fit, result, tau), result.errors, t2b, point)
+    med = float(np.median(np.linalg.norm(e_fit, axis=1)))
+    if med > FITTED_MEDIAN_LIMIT_M:
+        raise InputError(
+            f"after fitting base, tool and joint errors the measured positions are still {med * 1e3:.0f} mm "
+            "(median) from the robot's: wrong robot, joint order or signs, units, or joint angles that do "
+            "not belong to the positions",
+            file=ms_fit.source,
+            field="position_m",
+        )
+
+
+def fit_notes(result: FitResult, position_only: bool, noise_given: bool) -> list[str]:
+    """Notes on the tool offset folded in, residuals above a given noise, position-only data."""
+    notes = []
+    tool = pin.exp6(result.errors.twist("tool"))
+    rot = float(np.linalg.norm(pin.log3(tool.rotation)))
+    if np.linalg.norm(tool.translation) > TOOL_WARNING_M or (not position_only and rot > TOOL_WARNING_RAD):
+        notes.append(
+            f"the tool (TCP) is {np.linalg.norm(tool.translation) * 1e3:.1f} mm"
+            + ("" if position_only else f" / {np.degrees(rot):.2f}°")
+            + " from drives.yaml's tcp: the calibration folds it in (update drives.yaml's tcp)"
+        )
+    if noise_given and result.residual_scale > 3:
+        notes.append(
+            f"residuals are {result.residual_scale:.1f}× the given tracker noise: the noise spec is "
+            "optimistic or the model misses an effect"
+        )
+    if position_only:
+        notes.append("position-only measurements: orientation is not measured, not scored, not calibrated")
+    return notes
+
+
+def undetermined_parameters(
+    robot: Robot, idx: tuple[int, ...], comp: tuple[int, ...], result: FitResult, limit_m: float
+) -> list[str]:
+    """Parameters whose σ at the TCP (m; rotations × the characteristic length) exceeds `limit_m`,
+    and compliances known to worse than 30 %."""
+    names = parameter_names(robot)
+    length = characteristic_length_m(robot)
+    lever = np.tile(np.array([1, 1, 1, length, length, length]), robot.n + 2)
+    out = [names[i] for i in idx if result.std[i] * lever[i] > limit_m]
+    for j in comp:
+        if not result.compliance_std[j] < 0.3 * abs(result.compliance[j]):
+            out.append(f"{robot.joint_names[j]}.compliance")
+    return out
+
+
+def check_beats_nominal(
+    fitter: Fitter, result: FitResult, heldout: np.ndarray, tables: dict[tuple[str, str], ErrorStats]
+) -> None:
+    """InfeasibleError (exit 3) when the calibration misses the held-out poses by more than the
+    nominal model, in the fit's own weighted metric."""
+    if not heldout.size:
+        return
+    rigid_nominal = replace(fitter, idx=np.array([], dtype=int), comp=())
+    r_nominal = rigid_nominal.problem(heldout).residual(np.zeros(0)).reshape(heldout.size, -1)
+    nominal_mis = float(np.mean(np.sum(r_nominal**2, axis=1)))
+    cal_mis = float(np.mean(fitter.weighted_misfit(heldout, result)))
+    if cal_mis < nominal_mis:
+        return
+    nom, cal = tables[("heldout", "nominal")], tables[("heldout", "calibrated")]
+    ori = ""
+    if nom.max_orientation_error_rad is not None:
+        ori = (
+            f", max orientation {np.degrees(nom.max_orientation_error_rad):.3f}° → "
+            f"{np.degrees(cal.max_orientation_error_rad):.3f}°"
+        )
+    raise InfeasibleError(
+        f"the calibration is worse than the nominal model on the {heldout.size} held-out poses "
+        f"(rms position {nom.rms_position_error_m * 1e3:.3f} → {cal.rms_position_error_m * 1e3:.3f} mm"
+        f"{ori}): the measurements do not describe this robot as modelled (angle convention, joint "
+        "order, a moving tracker?); nothing written"
+    )

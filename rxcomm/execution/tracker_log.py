@@ -1,0 +1,72 @@
+"""A real tracker's export joins a finished run log: a copy of ``NAME.mcap`` with ``/run/tracker``
+(docs/tracker-csv.md). The alignment (`rxcomm.acceptance.alignment`) is the caller's."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from rxcomm.errors import InputError
+from rxcomm.execution.log import _gateway_schema, _joint_schema, write_tracker_channel
+from rxcomm.io.mcap_io import McapWriter, read_mcap
+from rxcomm.io.yaml_io import read_yaml_artefact, summary_yaml_path, write_summary_yaml
+from rxcomm.schemas.plain import sha256_file
+from rxcomm.schemas.run_log import (
+    GATEWAY_TOPIC,
+    JOINTS_TOPIC,
+    TRACKER_FIELDS,
+    TRACKER_TOPIC,
+    RunLog,
+    RunLogTopic,
+    TrackerChannel,
+)
+
+
+def attach_tracker(
+    src: str | Path,
+    out: str | Path,
+    t_tracker_s: np.ndarray,
+    position_m: np.ndarray,
+    quaternion_wxyz: np.ndarray,
+    channel: TrackerChannel,
+    inputs: Mapping[str, str | Path],
+) -> Path:
+    """A copy of the finished run log `src` (``NAME.mcap`` + ``NAME.yaml``) as `out` (+ its YAML) with
+    a ``/run/tracker`` channel: how a real tracker's export enters the log after the run. `inputs`
+    (name → file, e.g. the CSV) join the envelope's."""
+    src, out = Path(src), Path(out)
+    summary_yaml_path(out)
+    meta = read_yaml_artefact(summary_yaml_path(src), RunLog)
+    if meta.tracker is not None:
+        raise InputError("the log has a tracker channel already", file=src, field="tracker")
+    contents = read_mcap(src)
+    env = dict(contents.envelope)
+    env["inputs"] = {**env.get("inputs", {}), **{k: sha256_file(p) for k, p in inputs.items()}}
+    schemas = {JOINTS_TOPIC: _joint_schema(len(meta.joint_names)), GATEWAY_TOPIC: _gateway_schema()}
+    w = McapWriter(out, env)
+    try:
+        for topic, schema in schemas.items():
+            w.add_channel(
+                topic, contents.topics[topic].schema_title if topic in contents.topics else topic, schema
+            )
+            if topic in contents.topics:
+                td = contents.topics[topic]
+                w.write_arrays(topic, td.t, td.fields, digits=10)
+        kept = write_tracker_channel(w, t_tracker_s, position_m, quaternion_wxyz, channel)
+    except BaseException:
+        w.abort()
+        raise
+    topics = [t for t in meta.topics if t.topic != TRACKER_TOPIC] + [
+        RunLogTopic(
+            topic=TRACKER_TOPIC, period_s=1.0 / kept.rate_hz, n_messages=kept.n_samples, fields=TRACKER_FIELDS
+        )
+    ]
+    data = {**meta.model_dump(mode="json"), "inputs": env["inputs"], "mcap_file": out.name, "topics": topics}
+    data["tracker"] = kept
+
+    def write_yaml(part: Path) -> None:
+        write_summary_yaml(out, RunLog.model_validate({**data, "mcap_sha256": sha256_file(part)}))
+
+    return w.finish(before_rename=write_yaml)

@@ -1,0 +1,110 @@
+"""`rxcomm accept`: the verdict of the commissioning, factory vs commissioned (issue 17).
+
+Reads the acceptance thresholds (``samples/ROBOT/acceptance.yaml``, kind `rxcomm/AcceptanceThresholds`),
+the run logs of the reference task in each state (``--factory-log``, ``--commissioned-log``, repeated:
+their ``NAME.yaml`` summaries give cycle time and energy) and optionally each state's ISO 9283
+criteria (``--factory-iso9283``, ``--commissioned-iso9283``, kind `rxcomm/Iso9283`), and writes
+``verdict.yaml`` (kind `rxcomm/Acceptance`): criterion, factory, commissioned, ratio, threshold,
+verdict. Anything not given is "not measured", and the summary's verdict is then "incomplete".
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from rxcomm import console
+from rxcomm.acceptance.verdict import acceptance_rows, overall
+from rxcomm.errors import InputError
+from rxcomm.io.files import check_outputs, mcap_summary_path
+from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
+from rxcomm.schemas.acceptance import Acceptance, AcceptanceThresholds
+from rxcomm.schemas.iso9283 import Iso9283
+from rxcomm.schemas.run_log import RunLog
+
+
+def _summary_file(log: Path) -> Path:
+    """A run log is named by its MCAP or its summary YAML; the summary is what is read."""
+    return mcap_summary_path(log) if log.suffix == ".mcap" else log
+
+
+def command(
+    thresholds: Annotated[
+        Path,
+        typer.Option("--thresholds", help="acceptance.yaml beside the cell (rxcomm/AcceptanceThresholds)."),
+    ],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="verdict.yaml to write (rxcomm/Acceptance).")
+    ],
+    factory_log: Annotated[
+        list[Path] | None,
+        typer.Option(help="Run log (NAME.mcap or NAME.yaml) of the reference task, factory state; repeat."),
+    ] = None,
+    commissioned_log: Annotated[
+        list[Path] | None,
+        typer.Option(help="Run log of the reference task, commissioned state; repeat, same moves."),
+    ] = None,
+    factory_iso9283: Annotated[
+        Path | None, typer.Option(help="ISO 9283 criteria of the factory state (rxcomm/Iso9283).")
+    ] = None,
+    commissioned_iso9283: Annotated[
+        Path | None, typer.Option(help="ISO 9283 criteria of the commissioned state (rxcomm/Iso9283).")
+    ] = None,
+) -> None:
+    """Write the acceptance verdict: each criterion for the factory and the commissioned state."""
+    run(thresholds, output, factory_log or [], commissioned_log or [], factory_iso9283, commissioned_iso9283)
+
+
+@console.stage_command
+def run(
+    thresholds: Path,
+    output: Path,
+    factory_logs: list[Path],
+    commissioned_logs: list[Path],
+    factory_iso9283: Path | None = None,
+    commissioned_iso9283: Path | None = None,
+) -> dict[str, object]:
+    """The stage as a function (tests call it): returns the summary."""
+    output = Path(output)
+    f_files = [_summary_file(Path(p)) for p in factory_logs]
+    c_files = [_summary_file(Path(p)) for p in commissioned_logs]
+    inputs = {
+        "thresholds": Path(thresholds),
+        **{f"factory_log_{i + 1}": p for i, p in enumerate(f_files)},
+        **{f"commissioned_log_{i + 1}": p for i, p in enumerate(c_files)},
+        "factory_iso9283": factory_iso9283,
+        "commissioned_iso9283": commissioned_iso9283,
+    }
+    check_outputs({"output": output}, inputs)
+    for name, p in inputs.items():
+        if p is not None and not Path(p).exists():
+            raise InputError("file not found", file=p, field=name.replace("_", "-"))
+    if len(f_files) != len(c_files):
+        raise InputError(
+            f"{len(f_files)} factory and {len(c_files)} commissioned run logs: the reference task is the "
+            "same moves in both states",
+            field="commissioned-log",
+        )
+    spec = read_yaml_model(thresholds, AcceptanceThresholds)
+    f_runs = [read_yaml_artefact(p, RunLog).summary for p in f_files]
+    c_runs = [read_yaml_artefact(p, RunLog).summary for p in c_files]
+    f_iso = read_yaml_artefact(factory_iso9283, Iso9283) if factory_iso9283 else None
+    c_iso = read_yaml_artefact(commissioned_iso9283, Iso9283) if commissioned_iso9283 else None
+    rows = acceptance_rows(spec.criteria, f_runs, c_runs, f_iso, c_iso)
+    summary = overall(rows)
+    settings = {"factory_logs": [p.name for p in f_files], "commissioned_logs": [p.name for p in c_files]}
+    used = {k: Path(v) for k, v in inputs.items() if v is not None}
+    artefact = Acceptance(**Acceptance.envelope(used, settings, summary), rows=rows)
+    write_yaml_artefact(output, artefact)
+    console.out.print(f"acceptance → {output}: {summary['verdict']}")
+    for r in rows:
+        ratio = "—" if r.ratio is None else f"{r.ratio:.3g}"
+        f = "not measured" if r.factory is None else f"{r.factory:.4g}"
+        c = "not measured" if r.commissioned is None else f"{r.commissioned:.4g}"
+        console.out.print(
+            f"  {r.criterion:32s} {f:>13s} → {c:>13s} {r.unit:5s} ratio {ratio:>6s}  "
+            f"{r.threshold:18s} {r.verdict}"
+        )
+    return summary

@@ -1,0 +1,84 @@
+"""`rxcomm plan-cycles PLAN`: a test path's plan repeated for the ISO 9283 cycles (issue 17).
+
+ISO 9283 measures a path over repeated cycles (10 for AT/RT). The simulated cell draws the same noise
+in every fresh run, so the cycles go into one plan: PLAN (a trajectory MCAP, e.g. `plan-cp`'s ISO
+line), then per further cycle a dwell, a return move to its start (cycloidal, at the catalogue
+limits of `model.catalogue`) and a dwell (`planning.iso9283.repeat_cycles`). Writes ``NAME.mcap``
+with ``NAME.yaml`` beside it for `run`; `rxcomm iso9283` splits the log into its cycles.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+
+from rxcomm import console
+from rxcomm.errors import InputError
+from rxcomm.io.files import check_outputs
+from rxcomm.io.trajectory import Trajectory, load_trajectory_mcap, save_trajectory_mcap
+from rxcomm.model.base_parameters import load_dynamics
+from rxcomm.model.catalogue import catalogue_limits
+from rxcomm.model.limits import check_limits
+from rxcomm.model.robot import load_robot, robot_files
+from rxcomm.planning.iso9283 import cycloidal_move, repeat_cycles
+from rxcomm.planning.ptp_problem import PtpDynamics
+from rxcomm.schemas.trajectory import TrajectorySummary
+
+
+def command(
+    plan: Annotated[Path, typer.Argument(help="The trajectory of one cycle (NAME.mcap, e.g. from plan-cp).")],
+    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")],
+    cycles: Annotated[int, typer.Option(help="Cycles of the path (ISO 9283: 10).")] = 10,
+    dwell_s: Annotated[float, typer.Option(help="Hold at each end of the path, s.")] = 0.3,
+    dynamics: Annotated[
+        Path | None, typer.Option(help="dynamics.yaml: the plan's torques (default: the prior model).")
+    ] = None,
+) -> None:
+    """Repeat a test path's plan for the ISO 9283 cycles, with return moves at the catalogue limits."""
+    run(plan, robot_dir, output, cycles=cycles, dwell_s=dwell_s, dynamics=dynamics)
+
+
+@console.stage_command
+def run(
+    plan: Path, robot_dir: Path, output: Path, *, cycles: int = 10, dwell_s: float = 0.3, dynamics=None
+) -> dict[str, object]:
+    """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    t_all, plan, output = time.perf_counter(), Path(plan), Path(output)
+    if output.suffix != ".mcap":
+        raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    check_outputs({"output": output}, {"plan": plan, "dynamics": dynamics, **robot_files(robot_dir)})
+    one, env = load_trajectory_mcap(plan)
+    robot = load_robot(robot_dir)
+    catalogue = catalogue_limits(robot)
+    sample_s = float(np.median(np.diff(one.t)))
+    rep = repeat_cycles(
+        one, cycles, dwell_s, cycloidal_move(catalogue.v_max, catalogue.a_max, sample_s), sample_s
+    )
+    params = None if dynamics is None else load_dynamics(dynamics, robot)
+    tau = PtpDynamics.from_parameters(robot, params).torque(rep.q, rep.qd, rep.qdd)
+    traj = Trajectory(rep.t, rep.q, rep.qd, rep.qdd, tau)
+    report = check_limits(robot, traj.t, traj.q, traj.qd, traj.qdd, tau)
+    summary = {
+        "duration_s": traj.duration_s,
+        "solve_seconds": time.perf_counter() - t_all,
+        "max_limit_ratio": report.max_ratio,
+        "active_fraction": report.active_fraction(),
+        "q_start": traj.q[0].tolist(),
+        "q_goal": traj.q[-1].tolist(),
+        "n_cycles": cycles,
+        "cycle_duration_s": one.duration_s,
+        "seconds": time.perf_counter() - t_all,
+    }
+    inputs = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
+    inputs |= {} if dynamics is None else {"dynamics": Path(dynamics)}
+    settings = {"cycles": cycles, "dwell_s": dwell_s, "return_moves": "cycloidal at the catalogue limits",
+                "plan_settings": env.get("settings", {})}  # fmt: skip
+    output.parent.mkdir(parents=True, exist_ok=True)
+    save_trajectory_mcap(output, traj, TrajectorySummary.envelope(inputs, settings, summary))
+    console.summary_table(f"plan-cycles → {output}", summary)
+    return summary

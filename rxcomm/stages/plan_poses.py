@@ -1,0 +1,135 @@
+"""`rxcomm plan-poses`: the ISO 9283 pose-cycle plan through P1–P5 (ISO 9283 §7.2.1, issue 17).
+
+Reads the robot, its ISO 9283 paths (`plan-cp --iso9283`: the iso9283-rectangle spec defines the
+test cube) and optionally a calibration (the poses' IK on the calibrated robot), and writes the plan
+`run` executes: ``NAME.mcap`` with ``NAME.yaml`` beside it: a dwell at P1, then N cycles of
+P5 → P4 → P3 → P2 → P1, each move a cycloidal profile at the catalogue limits (`model.catalogue`),
+each pose held for the dwell the tracker measures in (`rxcomm iso9283 --pose-log`).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from rxcomm import console
+from rxcomm.calibration.compensation import compliance_torque_params, encoder_angles, joint_compliance
+from rxcomm.calibration.loading import load_calibrated_robot
+from rxcomm.errors import InputError
+from rxcomm.io.files import check_outputs
+from rxcomm.io.trajectory import save_trajectory_mcap
+from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
+from rxcomm.model.base_parameters import load_dynamics
+from rxcomm.model.catalogue import catalogue_limits
+from rxcomm.model.robot import load_robot, robot_files
+from rxcomm.planning.catalogue_timing import pose_cycle_plan
+from rxcomm.planning.ptp_problem import PtpDynamics
+from rxcomm.schemas.calibration import Calibration
+from rxcomm.schemas.path import PathSpec
+from rxcomm.schemas.trajectory import TrajectorySummary
+
+PLAN_CYCLES = 8  # the plan is sampled every 8 drive cycles: it dwells and moves slowly (run resamples)
+
+
+def command(
+    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")],
+    paths: Annotated[
+        Path | None, typer.Option(help="Directory of the ISO 9283 path specs (default ROBOT/paths).")
+    ] = None,
+    calibration: Annotated[
+        Path | None, typer.Option(help="calibration.yaml: the poses' IK on the calibrated robot.")
+    ] = None,
+    dynamics: Annotated[
+        Path | None, typer.Option(help="dynamics.yaml: the plan's torques (default: the prior model).")
+    ] = None,
+    cycles: Annotated[int, typer.Option(help="Pose cycles (ISO 9283: 30).")] = 30,
+    dwell_s: Annotated[float, typer.Option(help="Hold at each pose, s (the tracker measures in it).")] = 0.5,
+) -> None:
+    """Plan the ISO 9283 pose cycle P1 → P5 → P4 → P3 → P2 at the catalogue limits, for `run`."""
+    run(
+        robot_dir,
+        output,
+        paths=paths,
+        calibration=calibration,
+        dynamics=dynamics,
+        cycles=cycles,
+        dwell_s=dwell_s,
+    )
+
+
+@console.stage_command
+def run(
+    robot_dir: Path,
+    output: Path,
+    *,
+    paths: Path | None = None,
+    calibration: Path | None = None,
+    dynamics: Path | None = None,
+    cycles: int = 30,
+    dwell_s: float = 0.5,
+) -> dict[str, object]:
+    """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    t_all, output = time.perf_counter(), Path(output)
+    if output.suffix != ".mcap":
+        raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    rectangle = (Path(paths) if paths is not None else Path(robot_dir) / "paths") / "iso9283-rectangle.yaml"
+    check_outputs(
+        {"output": output},
+        {"rectangle": rectangle, "calibration": calibration, "dynamics": dynamics, **robot_files(robot_dir)},
+    )
+    if not rectangle.is_file():
+        raise InputError("no iso9283-rectangle.yaml (write them with plan-cp --iso9283)", file=rectangle)
+    nominal = load_robot(robot_dir)
+    catalogue = catalogue_limits(nominal)  # the maker's, as the factory state's timing
+    robot = nominal if calibration is None else load_calibrated_robot(nominal, calibration)
+    params = None if dynamics is None else load_dynamics(dynamics, robot)
+    command, compliance = _commanded(nominal, calibration, params)
+    spec = read_yaml_model(rectangle, PathSpec)
+    sample_s = PLAN_CYCLES * robot.drives.cycle_s
+    t0 = time.perf_counter()
+    traj, order, report = pose_cycle_plan(
+        robot, spec, catalogue, PtpDynamics.from_parameters(robot, params), cycles, dwell_s, sample_s, command
+    )
+    summary = {
+        "duration_s": traj.duration_s,
+        "solve_seconds": time.perf_counter() - t0,
+        "max_limit_ratio": report.max_ratio,
+        "active_fraction": report.active_fraction(),
+        "q_start": traj.q[0].tolist(),
+        "q_goal": traj.q[-1].tolist(),
+        "n_cycles": cycles,
+        "dwell_s": dwell_s,
+        "order": " ".join(order),
+        "seconds": time.perf_counter() - t_all,
+    }
+    inputs = {"urdf": nominal.urdf_path, "drives": nominal.drives_path, "rectangle": rectangle}
+    inputs |= {k: Path(v) for k, v in (("calibration", calibration), ("dynamics", dynamics)) if v is not None}
+    settings = {
+        "timing": "catalogue (cycloidal moves)",
+        "catalogue": catalogue.as_dict(),
+        "calibrated": calibration is not None,
+        "compliance_compensated_rad_per_nm": compliance,
+        "dynamics_model": "identified" if dynamics is not None else "prior",
+        "sample_s": sample_s,
+    }
+    output.parent.mkdir(parents=True, exist_ok=True)
+    save_trajectory_mcap(output, traj, TrajectorySummary.envelope(inputs, settings, summary))
+    console.summary_table(f"plan-poses → {output}", {k: v for k, v in summary.items() if k != "order"})
+    return summary
+
+
+def _commanded(nominal, calibration: Path | None, params):
+    """With a calibration that found joint compliance: the encoder angles that hold each link at its
+    IK pose (`calibration.compliance`), and the compliances used; else none."""
+    if calibration is None:
+        return None, None
+    art = read_yaml_artefact(calibration, Calibration)
+    c = joint_compliance(nominal, art)
+    if not c.any():
+        return None, None
+    torque_params = compliance_torque_params(art, params)
+    return (lambda q: encoder_angles(nominal, q, c, torque_params)), c.tolist()
