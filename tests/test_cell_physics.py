@@ -14,7 +14,8 @@ import pinocchio as pin
 import pytest
 
 from rxcomm.cell.drives import drive_gains
-from rxcomm.cell.gateway_core import GatewayCore, Phase
+from rxcomm.cell.gateway_core import GatewayCore
+from rxcomm.cell.gateway_machine import Phase
 from rxcomm.cell.plant import Plant, _pgs, friction_step
 from rxcomm.cell.sim import SimSettings, SimulatedCell, simulated_cell
 from rxcomm.cell.truth import load_truth

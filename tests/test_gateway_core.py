@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from rxcomm.cell.backend import AxisFeedback, IdealBackend
-from rxcomm.cell.gateway_core import Accept, CoreLimits, GatewayCore, Phase, SetpointRing
+from rxcomm.cell.gateway_core import GatewayCore
+from rxcomm.cell.gateway_machine import CoreLimits, Phase
+from rxcomm.cell.rings import Accept, SetpointRing
 from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.registers import Control, DriveState, ErrorCode, Status

@@ -35,7 +35,8 @@ from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from rxcomm.cell.backend import CellBackend
-from rxcomm.cell.gateway_core import CoreLimits, GatewayCore
+from rxcomm.cell.gateway_core import GatewayCore
+from rxcomm.cell.gateway_machine import CoreLimits
 from rxcomm.errors import GatewayError
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.net import is_loopback, quiet_pymodbus
