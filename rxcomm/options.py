@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Annotated
+
 import numpy as np
+import typer
 
 from rxcomm.errors import InputError
+
+# The robot every stage works on: one option, one name, one help text (docs/cli.md).
+RobotDir = Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")]
 
 
 def parse_numbers(text: str, count: int, field: str, unit: str = "") -> np.ndarray:

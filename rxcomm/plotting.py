@@ -15,6 +15,15 @@ def pyplot() -> ModuleType:
     return plt
 
 
+def save_figure(fig, path, dpi: int = 110, rect: tuple[float, float, float, float] | None = None):
+    """Lay the figure out (within `rect` of the canvas when a title needs room), write it cropped to
+    what is drawn, and free it: a stage draws many figures in one process."""
+    fig.tight_layout(rect=rect)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    pyplot().close(fig)
+    return path
+
+
 # A limit "binds" in a figure when its series reaches this fraction of the bound: drawn in colour and
 # named in the legend; the others are drawn faded, so the eye finds what sets the timing.
 BINDS = 0.9

@@ -4,10 +4,25 @@ paper's figures beside ours, and says "not measured" for what the build lacks.""
 import base64
 import re
 
-from rxcomm import report as rep
-from rxcomm import report_targets as targets
 from rxcomm.reporting import html, markdown
+from rxcomm.reporting.calibration import (
+    calibration_parameter_table,
+    calibration_section,
+    calibration_table,
+    compliance_table,
+)
 from rxcomm.reporting.document import Figure, Report, Section, Verdict, ratio_verdict
+from rxcomm.reporting.identification import dynamics_parameter_table, dynamics_section
+from rxcomm.reporting.markdown import render_sections
+from rxcomm.reporting.runs import execution_section, trajectory_section
+from rxcomm.reporting.targets import (
+    StageTargets,
+    acceptance_verdict,
+    identification_row,
+    runs_row,
+    stage_verdicts,
+    verdict_note,
+)
 
 
 def test_calibration_table_has_papers_numbers_and_ours_in_mm_and_degrees():
@@ -27,12 +42,12 @@ def test_calibration_table_has_papers_numbers_and_ours_in_mm_and_degrees():
         }
         for m in ("nominal", "calibrated", "frames_only")
     ]
-    table = rep.calibration_table(tables)
+    table = calibration_table(tables)
     assert ["y", "2.000 mm", "2.000 mm", "±2.000 mm", "2.000 mm", "19.026 → 0.31 mm"] in table.rows
     assert table.rows[3][1] == "0.057 °"  # 1 mrad
     assert "naive-poses max" not in table.header
     naive = {**tables[1], "model": "baseline_poses"}
-    table = rep.calibration_table([*tables, naive])
+    table = calibration_table([*tables, naive])
     assert "naive-poses max" in table.header
     assert [
         "y",
@@ -48,7 +63,7 @@ def test_calibration_table_has_papers_numbers_and_ours_in_mm_and_degrees():
 def test_render_shows_ours_in_the_stage_and_the_paper_beside_ours_at_the_end():
     ff = {"max_lag_rad": [1e-4] * 6, "max_tcp_error_m": 1e-4, "underruns": 0}
     noff = {"max_lag_rad": [1e-3] * 6, "max_tcp_error_m": 2e-3, "underruns": 0}
-    text = rep.render("t", "p", [rep.execution_section(ff, noff, "run-ff.png")])
+    text = render_sections("t", "p", [execution_section(ff, noff, "run-ff.png")])
     stage, paper = text.split("## Comparison with the paper")
     assert "| lag reduction by feed-forward (worst joint) | ×10.0 |" in stage and "model-based ≪" not in stage
     assert "| lag reduction by feed-forward (worst joint) | ×10.0 | Fig. 2: model-based ≪ standard |" in paper
@@ -64,7 +79,7 @@ def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_meas
         "frames_only_heldout_max_position_error_m": 5e-3,
         "seconds": 0.1,
     }
-    assert "naive" not in rep.render("t", "p", [rep.calibration_section(s, [])])
+    assert "naive" not in render_sections("t", "p", [calibration_section(s, [])])
     s |= {
         "n_baseline_poses": 32,
         "heldout_rms_position_error_m": 9e-5,
@@ -74,7 +89,7 @@ def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_meas
         "baseline_poses_worse_p_value": 2.5e-7,
         "baseline_poses_median_std_ratio": 4.1,
     }
-    text = rep.render("t", "p", [rep.calibration_section(s, [])])
+    text = render_sections("t", "p", [calibration_section(s, [])])
     assert "| 0.15 / 0.32 mm, 0.0172 / 0.0344 ° |" in text
     assert "0.09 / 0.16 mm; p = 2.5e-07" in text and "×4.1" in text
 
@@ -92,7 +107,7 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
         "rows_per_parameter": 12.4,
         "seconds": 0.2,
     }
-    text = rep.render("t", "p", [rep.dynamics_section(s, None)])
+    text = render_sections("t", "p", [dynamics_section(s, None)])
     assert "[0.64, 0.39, 0.13, not scored, 0.046, 0.076] N·m" in text
     assert "[0.2, 0.1, 0.1, not scored, 0.4, 1.2] %" in text
     assert "0.9999, 0.9989]" in text and "no standstill" in text and "10 Hz; 12.4" in text
@@ -105,7 +120,7 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
         "cutoff_hz": 40.0,
         "cutoff_choice": "auto: least mean cross-validated held-out NRMSE (5 Hz: 0.45 %, 40 Hz: 0.14 %)",
     }
-    text = rep.render("t", "p", [rep.dynamics_section(s, None)])
+    text = render_sections("t", "p", [dynamics_section(s, None)])
     assert "[0.45, 0.4, 0.17, 0.04, 0.019, 0.02] N·m / [0.49, 0.42, 0.18, 0.042, 0.022, 0.021] N·m" in text
     assert (
         "40 Hz (auto: least mean cross-validated held-out NRMSE (5 Hz: 0.45 %, 40 Hz: 0.14 %)); 12.4" in text
@@ -126,8 +141,8 @@ def test_a_limit_ratio_above_one_is_flagged_within_tolerance_or_as_a_violation()
     missing = ratio_verdict("cp", None, 1e-3, "run")
     assert missing.verdict is Verdict.not_measured and missing.measured == "not measured"
     # the same flag beside the figure in the stage section
-    sec = rep.trajectory_section("cp", _TRAJ | {"max_limit_ratio": 1.0006}, None, "1.04 s")
-    assert "1.0006 (0.06 % above the limit: within the tolerance" in rep.render("t", "", [sec])
+    sec = trajectory_section("cp", _TRAJ | {"max_limit_ratio": 1.0006}, None, "1.04 s")
+    assert "1.0006 (0.06 % above the limit: within the tolerance" in render_sections("t", "", [sec])
 
 
 _TRAJ = {"duration_s": 1.4648, "max_limit_ratio": 0.99, "active_fraction": 0.96, "solve_seconds": 2.4}
@@ -139,16 +154,16 @@ def test_trajectory_section_names_the_binding_limit_and_every_limits_ratio():
         "max_acceleration_ratio": 0.99,
         "worst_limit": "acceleration joint_4",
     }
-    text = rep.render("t", "", [rep.trajectory_section("cp", s, None, "1.04 s")])
+    text = render_sections("t", "", [trajectory_section("cp", s, None, "1.04 s")])
     assert "| max ratio per limit | velocity 0.9490, acceleration 0.9900 |" in text
     assert "| binding limit | acceleration joint_4 |" in text
 
 
 def test_the_verdict_of_an_empty_build_is_not_measured_throughout_never_zero():
-    rows = targets.stage_verdicts({}, {})
+    rows = stage_verdicts({}, {})
     assert len(rows) == 8 and all(r.verdict is Verdict.not_measured for r in rows)
     assert all(r.measured == "not measured" for r in rows)
-    assert targets.verdict_note(rows) == "0 of 8 criteria pass, 0 fail, 8 not measured."
+    assert verdict_note(rows) == "0 of 8 criteria pass, 0 fail, 8 not measured."
 
 
 def test_stage_verdicts_against_the_targets():
@@ -165,7 +180,7 @@ def test_stage_verdicts_against_the_targets():
         "run-ptp.yaml": {"summary": {"outcome": "stopped", "underruns": 2}},
         "sim.yaml": {"summary": {"outcome": "completed", "underruns": "not applicable (virtual time)"}},
     }
-    rows = {r.criterion.split(":")[0] + r.criterion[-12:]: r for r in targets.stage_verdicts(summaries, runs)}
+    rows = {r.criterion.split(":")[0] + r.criterion[-12:]: r for r in stage_verdicts(summaries, runs)}
     by = list(rows.values())
     pos, ori, r2, ff, exc, cp, ptp, run = by
     assert pos.verdict is Verdict.failed and pos.measured == "0.6 mm" and pos.note == "missed by 0.1 mm"
@@ -178,13 +193,13 @@ def test_stage_verdicts_against_the_targets():
     assert run.verdict is Verdict.failed and run.measured == "2 of 3 completed, 2 underruns"
     assert run.note == "not completed: run-ptp.yaml; underruns not applicable (virtual time) in 1 of 3"
     virtual = {"a.yaml": runs["sim.yaml"]}
-    assert targets.runs_row(virtual).measured == "1 of 1 completed, underruns not applicable (virtual time)"
-    strict = targets.StageTargets(validation_r2_min=0.98)
-    assert targets.identification_row(summaries["dynamics"], strict).verdict is Verdict.failed
+    assert runs_row(virtual).measured == "1 of 1 completed, underruns not applicable (virtual time)"
+    strict = StageTargets(validation_r2_min=0.98)
+    assert identification_row(summaries["dynamics"], strict).verdict is Verdict.failed
 
 
 def test_parameter_tables_carry_sigma_in_stated_units():
-    dyn = rep.dynamics_parameter_table(
+    dyn = dynamics_parameter_table(
         [
             {"name": "joint_2.mcx_R", "independent": "joint_2.mcx", "value": -2.0, "relative_std": 0.01},
             {"name": "joint_1.Izz_R", "independent": "joint_1.Izz", "value": 4.0, "relative_std": None},
@@ -192,7 +207,7 @@ def test_parameter_tables_carry_sigma_in_stated_units():
     )
     assert dyn.rows[0] == ["joint_2.mcx_R", "-2 ± 0.02", "kg·m", "1 %"]
     assert dyn.rows[1] == ["joint_1.Izz_R", "4 (σ not measured)", "kg·m²", "not measured"]
-    cal = rep.calibration_parameter_table(
+    cal = calibration_parameter_table(
         [
             {"name": "base.tx", "value": -2.1e-3, "std": 1.3e-5, "estimated": True},
             {"name": "joint_2.rx", "value": -5.8e-4, "std": 9.8e-6, "estimated": True},
@@ -204,7 +219,7 @@ def test_parameter_tables_carry_sigma_in_stated_units():
         ["joint_2.rx", "-0.58 ± 0.0098", "mrad"],
         ["held at 0, not identifiable (1)", "joint_1.tx", ""],
     ]
-    stiff = rep.compliance_table(
+    stiff = compliance_table(
         [{"joint": "joint_2", "compliance_rad_per_nm": 1e-6, "std": 1e-7, "stiffness_nm_per_rad": 1e6}]
     )
     assert stiff.rows == [["joint_2", "1 ± 0.1", "1 ± 0.1"]]  # µrad/(N·m), MN·m/rad: σ_k/k = σ_c/c
@@ -217,12 +232,12 @@ PNG = base64.b64decode(
 
 
 def test_html_is_self_contained_opens_with_the_verdict_and_embeds_every_figure():
-    verdict = targets.stage_verdicts({"cp": {"max_limit_ratio": 1.0015}}, {})
+    verdict = stage_verdicts({"cp": {"max_limit_ratio": 1.0015}}, {})
     sections = [
         Section("Stage A", [Figure("x", "1 mm", "2 mm")], image="a.png"),
         Section("Stage B", [Figure("y", "not measured")], image="gone.png"),
     ]
-    report = Report("r", "made `here`", verdict, sections, targets.verdict_note(verdict))
+    report = Report("r", "made `here`", verdict, sections, verdict_note(verdict))
     png = PNG
     page = html.render(report, lambda name: png if name == "a.png" else None)
     assert page.index('id="verdict"') < page.index("Stage A") < page.index('id="paper"')
@@ -274,12 +289,12 @@ def test_stiffness_from_identified_torques_is_shown_beside_the_prior_torques():
         "mdh_max_orientation_residual_rad": 1.39e-3,
         "mdh_beta_max_position_residual_m": 1.4e-15,
     }
-    text = rep.render("t", "p", [rep.calibration_section(s, [], prior=prior)])
+    text = render_sections("t", "p", [calibration_section(s, [], prior=prior)])
     assert "cannot express (max over sampled poses) | 1.47 mm, 1.39 mrad; with Hayati's β 1.4e-12 mm" in text
     assert "J3 stiffness (from gravity sag, identified holding torques) | 0.43 ± 0.04 MN·m/rad" in text
     assert "J3 stiffness, same measurements, prior holding torques | 0.56 ± 0.05 MN·m/rad" in text
     # A prior pass without a stiffness (its model chose no compliance) says so, never 0.
-    text = rep.render("t", "p", [rep.calibration_section(s, [], prior={})])
+    text = render_sections("t", "p", [calibration_section(s, [], prior={})])
     assert "prior holding torques | not measured" in text
 
 
@@ -298,9 +313,9 @@ def test_the_acceptance_rows_open_the_verdict_with_factory_commissioned_and_rati
         ],
         "summary": {"verdict": "FAIL", "n_pass": 1, "n_fail": 1, "n_not_measured": 1},
     }  # fmt: skip
-    rows = rep.acceptance_verdict(acceptance)
+    rows = acceptance_verdict(acceptance)
     assert [r.verdict for r in rows] == [Verdict.passed, Verdict.not_measured, Verdict.failed]
-    verdict = [*rows, *targets.stage_verdicts({}, {})]
+    verdict = [*rows, *stage_verdicts({}, {})]
     report = Report("r", "preamble", verdict, [Section("Stage A", [Figure("x", "1 mm")])])
     md = markdown.render(report)
     lines = md.splitlines()

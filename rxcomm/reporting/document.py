@@ -109,3 +109,8 @@ def ratio_note(ratio: float | None, tolerance: float, tolerance_source: str) -> 
     """The figure text of a limit ratio, flagged when above 1 (see `ratio_verdict`)."""
     row = ratio_verdict("", ratio, tolerance, tolerance_source)
     return row.measured + (f" ({row.note})" if row.note else "")
+
+
+def missing_section(title: str, names: Sequence[str]) -> Section:
+    """A stage whose artefacts this build lacks: its figures are not measured, said so."""
+    return Section(title, [Figure(f"{', '.join(names)} in this build", NOT_MEASURED)])

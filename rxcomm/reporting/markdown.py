@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from rxcomm.reporting.document import Report, Table, VerdictRow
+from rxcomm.reporting.document import Report, Section, Table, VerdictRow
 
 
 def _cell(text: object) -> str:
@@ -53,3 +53,8 @@ def render(report: Report, image_prefix: str = "") -> str:
     out += ["## Comparison with the paper", "", report.paper_note, ""]
     out += _table(["stage", "figure", "rxcomm", "paper"], report.paper_rows())
     return "\n".join(out) + "\n"
+
+
+def render_sections(title: str, preamble: str, sections: Sequence[Section]) -> str:
+    """Markdown of sections alone (no verdict rows): what a test of one section reads."""
+    return render(Report(title, preamble, [], sections))

@@ -32,7 +32,7 @@ from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.geometric_errors import placement_to_se3
 from rxcomm.model.robot import Robot, load_robot, robot_files
-from rxcomm.options import parse_numbers
+from rxcomm.options import RobotDir, parse_numbers
 from rxcomm.schemas.cell import Cell
 
 
@@ -111,7 +111,7 @@ def _parse_sigma(text: str | None) -> tuple[float | None, float | None]:
 
 
 def command(
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: RobotDir,
     measurements: Annotated[
         Path,
         typer.Option(help="Measurements: a rxcomm/Measurements YAML (from run) or a tracker CSV."),

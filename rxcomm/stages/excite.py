@@ -30,7 +30,7 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.limits import TorqueRateLimit, check_limits
 from rxcomm.model.robot import Robot, load_robot, robot_files
-from rxcomm.options import parse_numbers, radians_text, radians_value
+from rxcomm.options import RobotDir, parse_numbers, radians_text, radians_value
 from rxcomm.schemas.cell import AllowedRegion, Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
 from rxcomm.schemas.plain import sha256_file
@@ -114,14 +114,11 @@ def plot_excitation(
         f"excitation: cond {design.cond:.2f} (random feasible {design.baseline_cond:.0f}), "
         f"{design.samples.duration_s:.2f} s; every constraint as value / the bound the design obeyed"
     )
-    fig.tight_layout()
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return plotting.save_figure(fig, path, dpi=100)
 
 
 def command(
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: RobotDir,
     cell: Annotated[
         Path, typer.Option(help="cell.yaml: its allowed_region bounds tool, wrist centre, elbow.")
     ],

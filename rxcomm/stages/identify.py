@@ -32,6 +32,7 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
 from rxcomm.model.base_parameters import dynamics_artefact_fields, dynamics_from_artefact
 from rxcomm.model.robot import Robot, load_robot, robot_files
+from rxcomm.options import RobotDir
 from rxcomm.schemas.dynamics import Dynamics
 
 
@@ -89,10 +90,7 @@ def plot_validation(robot: Robot, result: Identification, path: Path) -> Path:
     handles = [*axes[0, 0].get_legend_handles_labels()[0], *axes[1, 0].get_legend_handles_labels()[0]]
     fig.legend(handles=handles, loc="upper right", fontsize=8, ncol=3, bbox_to_anchor=(1.0, 1.0))
     fig.suptitle(f"validation ({val.source})", x=0.02, ha="left")
-    fig.tight_layout(rect=(0, 0, 1, 0.96))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return plotting.save_figure(fig, path, dpi=110, rect=(0, 0, 1, 0.96))
 
 
 # Options whose help needs more than a line
@@ -135,7 +133,7 @@ ValidateOption = Annotated[
 
 
 def command(
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: RobotDir,
     log: Annotated[
         Path | None, typer.Option(help="Run log MCAP (rxcomm run) or a robot CSV (docs/identify-csv.md).")
     ] = None,

@@ -23,6 +23,7 @@ from rxcomm.io.run_log import read_run_log
 from rxcomm.io.tracker_csv import read_tracker_csv
 from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.model.robot import load_robot, robot_files
+from rxcomm.options import RobotDir
 from rxcomm.schemas.run_log import RunLog, TrackerChannel
 
 
@@ -82,7 +83,7 @@ def command(
     tracker_csv: Annotated[
         Path, typer.Option("--tracker-csv", help="The tracker's export (docs/tracker-csv.md).")
     ],
-    robot: Annotated[Path, typer.Option("--robot", help="Robot directory (URDF + drives.yaml).")],
+    robot: RobotDir,
     output: Annotated[
         Path, typer.Option("-o", "--output", help="The run log with /run/tracker (NAME.mcap).")
     ],

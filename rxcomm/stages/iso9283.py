@@ -22,6 +22,7 @@ from rxcomm.io.files import check_outputs
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
 from rxcomm.model.geometric_errors import placement_to_se3
 from rxcomm.model.robot import load_robot, robot_files
+from rxcomm.options import RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283
@@ -140,14 +141,11 @@ def plot_criteria(art: Iso9283, out: Path) -> Path:
         ax.set_title(title)
         ax.legend()
     fig.suptitle(f"ISO 9283 — {art.robot}")
-    fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return plotting.save_figure(fig, out, dpi=110)
 
 
 def command(
-    robot: Annotated[Path, typer.Option("--robot", help="Robot directory (URDF + drives.yaml).")],
+    robot: RobotDir,
     output: Annotated[Path, typer.Option("-o", "--output", help="The criteria YAML.")] = Path("iso9283.yaml"),
     pose_log: Annotated[
         list[Path] | None,

@@ -27,7 +27,7 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
 from rxcomm.model.catalogue import catalogue_limits
 from rxcomm.model.robot import Robot, load_robot, robot_files
-from rxcomm.options import parse_numbers
+from rxcomm.options import RobotDir, parse_numbers
 from rxcomm.planning.catalogue_timing import filtered_path_deviation_m, plan_cp_catalogue
 from rxcomm.planning.cp import CpPlan, CpSettings, path_deviation_m, plan_cp
 from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
@@ -117,10 +117,7 @@ def plot_cp(plan: CpPlan, robot: Robot, path: Path, title: str) -> Path:
     for ax in axes[:2]:
         ax.grid(alpha=0.3)
     fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return plotting.save_figure(fig, path, dpi=120)
 
 
 def _print_active(plan: CpPlan) -> None:
@@ -170,7 +167,7 @@ def write_iso9283(robot: Robot, out_dir: Path, cell: Path | None, rpy_deg: str) 
 
 # --- the stage --------------------------------------------------------------------------------------
 def command(
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: RobotDir,
     path: Annotated[
         Path | None, typer.Option("--path", help="Path file (kind rxcomm/Path), TCP in the base frame.")
     ] = None,

@@ -24,6 +24,7 @@ from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.catalogue import catalogue_limits
 from rxcomm.model.limits import check_limits
 from rxcomm.model.robot import load_robot, robot_files
+from rxcomm.options import RobotDir
 from rxcomm.planning.iso9283 import cycloidal_move, repeat_cycles
 from rxcomm.planning.ptp_problem import PtpDynamics
 from rxcomm.schemas.trajectory import TrajectorySummary
@@ -31,7 +32,7 @@ from rxcomm.schemas.trajectory import TrajectorySummary
 
 def command(
     plan: Annotated[Path, typer.Argument(help="The trajectory of one cycle (NAME.mcap, e.g. from plan-cp).")],
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: RobotDir,
     output: Annotated[Path, typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")],
     cycles: Annotated[int, typer.Option(help="Cycles of the path (ISO 9283: 10).")] = 10,
     dwell_s: Annotated[float, typer.Option(help="Hold at each end of the path, s.")] = 0.3,

@@ -25,6 +25,7 @@ from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.catalogue import catalogue_limits
 from rxcomm.model.robot import load_robot, robot_files
+from rxcomm.options import RobotDir
 from rxcomm.planning.catalogue_timing import pose_cycle_plan
 from rxcomm.planning.ptp_problem import PtpDynamics
 from rxcomm.schemas.calibration import Calibration
@@ -35,7 +36,7 @@ PLAN_CYCLES = 8  # the plan is sampled every 8 drive cycles: it dwells and moves
 
 
 def command(
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: RobotDir,
     output: Annotated[Path, typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")],
     paths: Annotated[
         Path | None, typer.Option(help="Directory of the ISO 9283 path specs (default ROBOT/paths).")

@@ -26,7 +26,7 @@ from rxcomm.model.catalogue import catalogue_limits
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.kinematics import solve_pose_ik
 from rxcomm.model.robot import Robot, load_robot, robot_files
-from rxcomm.options import POSE_PREFIX, parse_numbers, radians_text
+from rxcomm.options import POSE_PREFIX, RobotDir, parse_numbers, radians_text
 from rxcomm.planning.catalogue_timing import plan_ptp_catalogue
 from rxcomm.planning.ptp import PtpNotConverged, PtpResult, kinematic_fallback, plan_ptp
 from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
@@ -134,15 +134,12 @@ def plot_ptp(result: PtpResult, limits: PtpLimits, joint_names, path: Path, titl
         plotting.limit_panel(ax, rep.t, {name: ratios[name]}, cols, what=name.replace("_", " ") + " / limit")
     axes[-1, 0].set_xlabel("t [s]")
     fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return plotting.save_figure(fig, path, dpi=110)
 
 
 # --- the stage --------------------------------------------------------------------------------------
 def command(
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: RobotDir,
     output: Annotated[
         Path, typer.Option("-o", "--output", help="Output trajectory NAME.mcap (+ NAME.yaml).")
     ],

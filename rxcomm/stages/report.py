@@ -16,13 +16,22 @@ from typing import Annotated
 import typer
 
 from rxcomm import __version__, console
-from rxcomm import report as rep
-from rxcomm import report_targets as targets
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_outputs
 from rxcomm.io.yaml_io import load_yaml, read_yaml_artefact
 from rxcomm.reporting import html, markdown
-from rxcomm.reporting.document import Report, Section, VerdictRow
+from rxcomm.reporting.calibration import calibration_section, configs_section
+from rxcomm.reporting.document import (
+    DEFAULT_TOLERANCE,
+    Report,
+    Section,
+    Tolerance,
+    VerdictRow,
+    missing_section,
+)
+from rxcomm.reporting.identification import dynamics_section, excitation_section
+from rxcomm.reporting.runs import execution_section, ptp_vs_cp_figure, runs_section, trajectory_section
+from rxcomm.reporting.targets import acceptance_verdict, stage_verdicts, verdict_note
 from rxcomm.schemas.acceptance import Acceptance
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.configs import Configs
@@ -67,7 +76,7 @@ def run_logs(build: Path) -> dict[str, dict]:
     return out
 
 
-def _tolerances(runs: dict[str, dict]) -> dict[str, rep.Tolerance]:
+def _tolerances(runs: dict[str, dict]) -> dict[str, Tolerance]:
     out = {}
     for key, log in EXECUTED_BY.items():
         tol = runs.get(log, {}).get("settings", {}).get("limit_tolerance")
@@ -82,13 +91,11 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
     cfg, cal, dyn = a["configs.yaml"], a["calibration.yaml"], a["dynamics.yaml"]
     out: dict[str, Section] = {}
     if cfg:
-        out["configs.yaml"] = rep.configs_section(
-            s["configs.yaml"], _img(build, "configs.png"), cfg["criterion"]
-        )
+        out["configs.yaml"] = configs_section(s["configs.yaml"], _img(build, "configs.png"), cfg["criterion"])
     if cal:
         # The prior-torque pass of the same measurements (optional: not every chain makes it).
         prior = _load(build / "calibration-prior.yaml", Calibration)
-        out["calibration.yaml"] = rep.calibration_section(
+        out["calibration.yaml"] = calibration_section(
             cal["summary"],
             cal["error_tables"],
             cal["parameters"],
@@ -96,34 +103,32 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
             None if prior is None else prior["summary"],
         )
     if s["excitation.yaml"]:
-        exc_tol = tol.get("excitation", rep.DEFAULT_TOLERANCE)
-        out["excitation.yaml"] = rep.excitation_section(
+        exc_tol = tol.get("excitation", DEFAULT_TOLERANCE)
+        out["excitation.yaml"] = excitation_section(
             s["excitation.yaml"], _img(build, "excitation.png"), exc_tol
         )
     if dyn:
-        out["dynamics.yaml"] = rep.dynamics_section(
+        out["dynamics.yaml"] = dynamics_section(
             dyn["summary"], _img(build, "dynamics.png"), dyn["base_parameters"], dyn["friction"]
         )
     for key, paper in (("cp", "1.04 s (straight line passing near a singularity)"), ("ptp", "0.67 s")):
         if s[f"{key}.yaml"]:
             name = f"{key}.yaml"
-            sec = rep.trajectory_section(
+            sec = trajectory_section(
                 ARTEFACTS[name][1],
                 s[name],
                 _img(build, f"{key}.png"),
                 paper,
-                tol.get(key, rep.DEFAULT_TOLERANCE),
+                tol.get(key, DEFAULT_TOLERANCE),
             )
             if key == "ptp" and s["cp.yaml"]:
-                sec = Section(
-                    sec.title, [*sec.figures, rep.ptp_vs_cp_figure(s["cp.yaml"], s[name])], sec.image
-                )
+                sec = Section(sec.title, [*sec.figures, ptp_vs_cp_figure(s["cp.yaml"], s[name])], sec.image)
             out[name] = sec
     if s["run-ff.yaml"]:
-        out["run-ff.yaml"] = rep.execution_section(
+        out["run-ff.yaml"] = execution_section(
             s["run-ff.yaml"], s["run-noff.yaml"], _img(build, "run-ff.png")
         )
-    return [out.get(name) or rep.missing_section(title, [name]) for name, (_, title) in ARTEFACTS.items()]
+    return [out.get(name) or missing_section(title, [name]) for name, (_, title) in ARTEFACTS.items()]
 
 
 def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Report, list[str]]:
@@ -138,11 +143,11 @@ def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Re
     run_images = [
         f"{Path(n).stem}.png" for n in runs if n != "run-ff.yaml" and (build / n).with_suffix(".png").exists()
     ]
-    sections.append(rep.runs_section(runs, run_images))
+    sections.append(runs_section(runs, run_images))
     keys = {"calibration": "calibration.yaml", "dynamics": "dynamics.yaml", "excitation": "excitation.yaml"}
     keys |= {"cp": "cp.yaml", "ptp": "ptp.yaml", "run-ff": "run-ff.yaml", "run-noff": "run-noff.yaml"}
     summaries = {k: (a.get(name) or {}).get("summary") for k, name in keys.items()}
-    verdict = [*acceptance, *targets.stage_verdicts(summaries, runs, tol)]
+    verdict = [*acceptance, *stage_verdicts(summaries, runs, tol)]
     robot = (a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"] or {}).get("robot")
     preamble = (
         ("The robot (named by no artefact here)" if robot is None else f"Robot `{robot}`")
@@ -151,12 +156,12 @@ def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Re
         "(their envelopes hold the sha256 of every input). The verdict opens with the robot accepted as a "
         "whole (factory vs commissioned state, `rxcomm accept` against acceptance.yaml; factory: nominal "
         "kinematics, no feed-forward, a generic controller's timing from the catalogue limits), then the "
-        "stage targets (rxcomm/report_targets.py); the paper comparison closes the report."
+        "stage targets (rxcomm/reporting/targets.py); the paper comparison closes the report."
     )
     if missing:
         preamble += f"\n\nNot produced in this build: {', '.join(missing)}."
     title = "rxcomm commissioning report"
-    return Report(title, preamble, verdict, sections, targets.verdict_note(verdict)), missing
+    return Report(title, preamble, verdict, sections, verdict_note(verdict)), missing
 
 
 def command(
@@ -196,7 +201,7 @@ def run(build_dir: Path, output: Path | None = None) -> list[str]:
     artefacts = {p.name: p for p in sorted(build_dir.iterdir()) if p.suffix in (".yaml", ".mcap", ".png")}
     check_outputs({"output": output, "html": page}, artefacts)
     verdict = _load(build_dir / "verdict.yaml", Acceptance)  # factory vs commissioned (`rxcomm accept`)
-    report, missing = build_report(build_dir, rep.acceptance_verdict(verdict))
+    report, missing = build_report(build_dir, acceptance_verdict(verdict))
     output.parent.mkdir(parents=True, exist_ok=True)
     # Markdown links the figures where they are, relative to the report's own directory
     prefix = Path(os.path.relpath(build_dir.resolve(), output.resolve().parent))

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING
 
 import numpy as np
-import typer
 
 from rxcomm import console
+from rxcomm.options import RobotDir
 
 if TYPE_CHECKING:  # the model (pinocchio, scipy) is imported where used: `--help` stays fast
     from rxcomm.model.robot import Robot
@@ -83,7 +83,7 @@ def robot_facts(robot: Robot) -> dict[str, object]:
 
 
 def command(
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: RobotDir,
 ) -> None:
     """Print a robot's DOF, limits, reach, mass, the stretched-pose gravity load and identifiability."""
     run(robot_dir)

@@ -21,6 +21,7 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
+from rxcomm.options import RobotDir
 
 if TYPE_CHECKING:  # the library (pinocchio, scipy) is imported where used: `--help` stays fast
     from rxcomm.calibration.pose_selection import PoseSelection
@@ -147,14 +148,11 @@ def plot_configs(robot: Robot, sel: PoseSelection, path: Path, title: str) -> Pa
     ax2.set_title("joint coverage")
     plotting.legend_outside(ax2)
     fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return plotting.save_figure(fig, path, dpi=110)
 
 
 def command(
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
+    robot_dir: RobotDir,
     cell: Annotated[Path, typer.Option(help="cell.yaml: workspace, self-collision, tracker.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output configs.yaml.")],
     n: Annotated[int, typer.Option("--poses", help="Number of measurement poses to select.")] = 32,

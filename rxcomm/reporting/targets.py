@@ -1,8 +1,8 @@
-"""The report's verdict from the stage targets: one row per stage's headline against a stated target.
+"""The report's verdict rows: the acceptance criteria (`rxcomm accept`'s verdict.yaml: factory,
+commissioned, ratio, threshold) first, then one row per stage's headline against a stated target.
 
-These rows open the report until the build holds acceptance criteria measured on the robot as a whole
-(issue 17); they then follow them. Inputs are artefact summaries (plain mappings); None is a stage the
-build lacks, and its row says "not measured".
+Inputs are artefact summaries (plain mappings); None is a stage the build lacks, and its row says
+"not measured".
 """
 
 from __future__ import annotations
@@ -148,3 +148,45 @@ def verdict_note(rows: Sequence[VerdictRow]) -> str:
         f"{n[Verdict.passed]} of {len(rows)} criteria pass, {n[Verdict.failed]} fail, "
         f"{n[Verdict.not_measured]} not measured."
     )
+
+
+def _accept_value(x: float | None, unit: str) -> str:
+    """A value of the acceptance table: lengths in mm (the ISO 9283 criteria), "not measured" for None."""
+    if x is None:
+        return NOT_MEASURED
+    if unit == "m":
+        return f"{x * 1e3:.3g} mm"
+    return f"{x:.4g}" + {"1": "", "N2m2s": " N²·m²·s"}.get(unit, f" {unit}")
+
+
+ACCEPT_VERDICT = {"PASS": Verdict.passed, "FAIL": Verdict.failed, "not measured": Verdict.not_measured}
+
+
+def acceptance_verdict(acceptance: Mapping | None) -> list[VerdictRow]:
+    """The verdict rows of an `rxcomm/Acceptance` artefact (`rxcomm accept`, plain data): factory,
+    commissioned, ratio, threshold per criterion; one "not measured" row when the build has none."""
+    if acceptance is None:
+        return [
+            VerdictRow(
+                "acceptance: factory vs commissioned", NOT_MEASURED, "acceptance.yaml", Verdict.not_measured,
+                "no verdict.yaml in the build (`rxcomm accept`)",
+            )
+        ]  # fmt: skip
+    out = []
+    for r in acceptance["rows"]:
+        bounds = (
+            [] if r["max_commissioned"] is None else [f"≤ {_accept_value(r['max_commissioned'], r['unit'])}"]
+        )
+        bounds += [] if r["max_ratio"] is None else [f"ratio ≤ {r['max_ratio']:g}"]
+        out.append(
+            VerdictRow(
+                criterion=r["criterion"],
+                measured=_accept_value(r["commissioned"], r["unit"]),
+                threshold=", ".join(bounds),
+                verdict=ACCEPT_VERDICT[r["verdict"]],
+                note=r["note"],
+                factory=_accept_value(r["factory"], r["unit"]),
+                ratio="—" if r["ratio"] is None else f"{r['ratio']:.3g}",
+            )
+        )
+    return out

@@ -1,0 +1,144 @@
+"""The report's sections for the exciting trajectory and dynamic identification (paper §4):
+cond(W), the validation figures per joint, base parameters and friction ± σ.
+
+Pure functions over the summaries of excitation and dynamics.yaml (plain mappings).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+from rxcomm.reporting.document import (
+    DEFAULT_TOLERANCE,
+    NOT_MEASURED,
+    Figure,
+    Section,
+    Table,
+    Tolerance,
+    ratio_note,
+)
+from rxcomm.reporting.values import fmt, plus_minus
+
+
+def excitation_section(s: Mapping, image: str | None, tol: Tolerance = DEFAULT_TOLERANCE) -> Section:
+    return Section(
+        "Optimal exciting trajectory (paper §4.2)",
+        [
+            Figure("cond(W), unit-norm columns", fmt(s["cond"]), "N = 5, ω_f = 0.8 rad/s, k = 80"),
+            Figure("random feasible Fourier trajectory (median)", fmt(s["baseline_cond"])),
+            Figure("cond(W) unnormalised", fmt(s.get("cond_raw"))),
+            Figure("densely sampled max limit ratio", ratio_note(s.get("max_limit_ratio"), *tol)),
+            Figure("binding limit", fmt(s.get("worst_limit"))),
+            Figure("duration", fmt(s["duration_s"], unit="s")),
+            Figure("compute time", fmt(s["seconds"], unit="s")),
+        ],
+        image,
+    )
+
+
+def _per_joint(
+    values: Sequence[float | None] | None,
+    scale: float = 1.0,
+    unit: str = "",
+    none: str = "not scored",
+    decimals: int | None = None,
+) -> str:
+    """Per-joint figures (3 significant digits, or `decimals` fixed); None (a joint that did not move
+    on the validation data) is "not scored"."""
+    if values is None:
+        return NOT_MEASURED
+
+    def one(v: float) -> str:
+        return fmt(v, scale) if decimals is None else f"{float(v) * scale:.{decimals}f}"
+
+    text = ", ".join(none if v is None else one(v) for v in values)
+    return f"[{text}]" + (f" {unit}" if unit else "")
+
+
+def _cutoff_choice(s: Mapping) -> str:
+    """ " (auto: why)" for a cut-off chosen from the data; nothing for one given."""
+    choice = str(s.get("cutoff_choice") or "")
+    return f" ({choice})" if choice.startswith("auto") else ""
+
+
+_UNITS = {"m": "kg", "mcx": "kg·m", "mcy": "kg·m", "mcz": "kg·m", "fc": "N·m", "fv": "N·m·s/rad"}
+
+
+def dynamics_parameter_table(params: Sequence[Mapping]) -> Table | None:
+    """The identified base parameters ± 1σ (σ = |value| · relative σ), in the independent parameter's
+    SI unit; σ not available (a parameter fixed by the fit) is said so."""
+    if not params:
+        return None
+    rows = []
+    for p in params:
+        kind = p["independent"].rsplit(".", 1)[-1]
+        unit = "kg·m²" if kind.startswith("I") else _UNITS.get(kind, "SI")
+        rel = p.get("relative_std")
+        std = None if rel is None else abs(p["value"]) * rel
+        rel_text = NOT_MEASURED if rel is None else f"{rel * 100:.2g} %"
+        rows.append(
+            [
+                p["name"],
+                plus_minus(p["value"], std, 1.0).replace("(fixed)", "(σ not measured)"),
+                unit,
+                rel_text,
+            ]
+        )
+    return Table("Identified base parameters ± 1σ", ["base parameter", "value", "unit", "relative σ"], rows)
+
+
+def friction_table(friction: Sequence[Mapping]) -> Table | None:
+    if not friction:
+        return None
+    rows = [
+        [f["joint"], f"{f['coulomb_nm']:.4g}", f"{f['viscous_nm_s_per_rad']:.4g}", f"{f['offset_nm']:.4g}"]
+        for f in friction
+    ]
+    return Table(
+        "Identified friction per joint",
+        ["joint", "Coulomb [N·m]", "viscous [N·m·s/rad]", "offset [N·m]"],
+        rows,
+    )
+
+
+def dynamics_section(
+    s: Mapping, image: str | None, parameters: Sequence[Mapping] = (), friction: Sequence[Mapping] = ()
+) -> Section:
+    tables = [t for t in (dynamics_parameter_table(parameters), friction_table(friction)) if t]
+    cutoff = s.get("cutoff_hz")
+    rows = s.get("rows_per_parameter")
+    return Section(
+        "Dynamic identification (paper §4.1, §4.3, Fig. 5b)",
+        [
+            Figure(
+                "base parameters (friction model)", f"{s['n_base_params']} ({s.get('friction', 'joint')})"
+            ),
+            Figure(
+                "validation RMS prediction error per joint, moving rows (headline)",
+                _per_joint(s["validation_rms_nm"], unit="N·m"),
+            ),
+            Figure(
+                "validation NRMSE per joint",
+                _per_joint(s["validation_nrmse"], 100, "%"),
+                "Fig. 5b: close match",
+            ),
+            Figure("validation R² per joint", _per_joint(s.get("validation_r2"), decimals=4)),
+            Figure(
+                "standstill rows inside the stiction band, per joint",
+                _per_joint(s.get("validation_standstill_in_band_fraction"), none="no standstill"),
+            ),
+            Figure(
+                "fit RMS error per joint beside the cross-validated held-out RMS (contiguous folds)",
+                f"{_per_joint(s.get('fit_rms_nm'), unit='N·m')} / "
+                f"{_per_joint(s.get('cv_rms_nm') if s.get('cv_folds_scored') else None, unit='N·m')}",
+            ),
+            Figure(
+                "low-pass cut-off; fit rows per base parameter",
+                f"{fmt(cutoff, unit='Hz')}{_cutoff_choice(s)}; {fmt(rows)}",
+            ),
+            Figure("compute time", fmt(s["seconds"], unit="s")),
+        ],
+        image,
+        note=f"validated on {s.get('validation', '?')}; a joint that did not move there is not scored.",
+        tables=tables,
+    )
