@@ -2,6 +2,7 @@
 
 import ast
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -124,3 +125,81 @@ def test_no_import_cycle_between_modules():
             visit(node, [node])
     # a package's __init__ importing nothing keeps "package -> submodule -> package" out of this list
     assert not cycles, cycles
+
+
+# ---- size rules (docs/architecture.md §2): long modules say why, stage functions stay short ----------
+
+MODULE_MAX_LINES = 500
+STAGE_FUNCTION_MAX_LINES = 80
+WHY_LONG = re.compile(r"\bLong because\b\W*\w+")  # the phrase and at least one word of reason
+
+
+def says_why_long(source: str, max_lines: int = MODULE_MAX_LINES) -> bool:
+    """A module within ``max_lines`` needs no reason; a longer one's docstring must give one."""
+    if len(source.splitlines()) <= max_lines:
+        return True
+    doc = ast.get_docstring(ast.parse(source), clean=False)
+    return doc is not None and WHY_LONG.search(doc) is not None
+
+
+def long_functions(source: str, max_lines: int = STAGE_FUNCTION_MAX_LINES) -> list[tuple[str, int]]:
+    """(name, lines) of every function, nested ones and methods included, longer than ``max_lines``;
+    a function's lines run from its ``def`` to its last line (decorators not counted)."""
+    return [
+        (node.name, node.end_lineno - node.lineno + 1)
+        for node in ast.walk(ast.parse(source))
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+        and node.end_lineno - node.lineno + 1 > max_lines
+    ]
+
+
+def _lines(n: int) -> str:
+    return "".join(f"x{i} = {i}\n" for i in range(n))
+
+
+def test_long_module_check_catches_a_violation():
+    doc = '"""A module.\n\nIt does one thing.\n"""\n'
+    why = '"""A module.\n\nLong because its table is one unit.\n"""\n'
+    assert says_why_long(doc + _lines(MODULE_MAX_LINES - 4))  # exactly at the limit: fine
+    assert not says_why_long(doc + _lines(MODULE_MAX_LINES - 3))  # one line over, no reason
+    assert not says_why_long(_lines(MODULE_MAX_LINES + 1))  # no docstring at all
+    assert not says_why_long('"""Long because"""\n' + _lines(MODULE_MAX_LINES))  # the phrase, no reason
+    assert not says_why_long('x = 0\n"""Long because it is."""\n' + _lines(MODULE_MAX_LINES))  # not first
+    assert says_why_long(why + _lines(MODULE_MAX_LINES))
+
+
+def test_long_modules_say_why():
+    """Every module of rxcomm/ and bench/ over 500 lines says in its first docstring why it is
+    long, with the phrase "Long because" and the reason (the convention of docs/architecture.md §2)."""
+    offenders = [
+        f"{path.relative_to(ROOT)} ({len(path.read_text().splitlines())} lines)"
+        for name in ("rxcomm", "bench")
+        for path in sorted((ROOT / name).rglob("*.py"))
+        if not says_why_long(path.read_text())
+    ]
+    assert not offenders, f"over {MODULE_MAX_LINES} lines without 'Long because …': {offenders}"
+
+
+def test_stage_function_check_catches_a_violation():
+    def function(name: str, body_lines: int, indent: str = "") -> str:
+        return f"{indent}def {name}():\n" + "".join(f"{indent}    x{i} = {i}\n" for i in range(body_lines))
+
+    ok = function("short", STAGE_FUNCTION_MAX_LINES - 1)  # def line + 79 = 80 lines
+    assert long_functions(ok) == []
+    assert long_functions(function("long", STAGE_FUNCTION_MAX_LINES)) == [("long", 81)]
+    nested = "class Stage:\n" + function("outer", 2, "    ") + function("inner", 81, "        ")
+    nested += "async def coro():\n    pass\n"
+    assert sorted(long_functions(nested)) == [("inner", 82), ("outer", 85)]
+    decorated = "@decorator\n" + ok  # decorators do not count
+    assert long_functions(decorated) == []
+
+
+def test_stage_functions_are_short():
+    """No function in rxcomm/stages (nested ones included) spans more than 80 lines: a stage parses
+    options, builds settings, makes one library call and writes; longer is library code."""
+    offenders = [
+        f"{path.relative_to(ROOT)}: {name} ({n} lines)"
+        for path in sorted((ROOT / "rxcomm" / "stages").glob("*.py"))
+        for name, n in long_functions(path.read_text())
+    ]
+    assert not offenders, f"stage functions over {STAGE_FUNCTION_MAX_LINES} lines: {offenders}"

@@ -138,18 +138,37 @@ def plot_ptp(result: PtpResult, limits: PtpLimits, joint_names, path: Path, titl
 
 
 # --- the stage --------------------------------------------------------------------------------------
+# The options whose help runs over several lines, named here so that `command` reads as a list.
+StartOption = Annotated[
+    str | None,
+    typer.Option(
+        help="Start at rest: joint angles 'q1,…,q6' (rad) or a TCP pose 'pose:x,y,z,α,β,γ' "
+        "(m; Cardan x-y-z angles in rad; base frame). This or --start-deg is required."
+    ),
+]
+AccelerationLimitsOption = Annotated[
+    bool,
+    typer.Option(
+        help="Limit joint accelerations to drives.yaml, as `run` checks. --no-acceleration-limits "
+        "solves the paper's problem (torque, torque rate, velocity, position only), which `run` refuses."
+    ),
+]
+CompileOption = Annotated[
+    bool,
+    typer.Option(
+        "--compile/--no-compile",
+        help="Compile the NLP's node functions to C (needs gcc/cc; cached in ~/.cache/rxcomm, "
+        "or $RXCOMM_CACHE_DIR): ~2× faster solves after a one-off ~1 min compile.",
+    ),
+]
+
+
 def command(
     robot_dir: RobotDir,
     output: Annotated[
         Path, typer.Option("-o", "--output", help="Output trajectory NAME.mcap (+ NAME.yaml).")
     ],
-    start: Annotated[
-        str | None,
-        typer.Option(
-            help="Start at rest: joint angles 'q1,…,q6' (rad) or a TCP pose 'pose:x,y,z,α,β,γ' "
-            "(m; Cardan x-y-z angles in rad; base frame). This or --start-deg is required."
-        ),
-    ] = None,
+    start: StartOption = None,
     start_deg: Annotated[
         str | None, typer.Option(help="As --start with every angle in degrees (poses: m and deg).")
     ] = None,
@@ -170,13 +189,7 @@ def command(
     margin: Annotated[
         float, typer.Option("--margin-fraction", help="Limits tightened by this fraction in the NLP.")
     ] = 0.01,
-    acceleration_limits: Annotated[
-        bool,
-        typer.Option(
-            help="Limit joint accelerations to drives.yaml, as `run` checks. --no-acceleration-limits "
-            "solves the paper's problem (torque, torque rate, velocity, position only), which `run` refuses."
-        ),
-    ] = True,
+    acceleration_limits: AccelerationLimitsOption = True,
     tcp_box: Annotated[
         str | None,
         typer.Option("--tcp-box-m", help="Keep the TCP in 'xmin,ymin,zmin,xmax,ymax,zmax' (m, base frame)."),
@@ -185,14 +198,7 @@ def command(
     elbow: Annotated[Elbow, typer.Option(help="IK branch for poses: elbow.")] = Elbow.up,
     wrist: Annotated[Wrist, typer.Option(help="IK branch for poses: sign of J5.")] = Wrist.positive,
     max_wall: Annotated[float | None, typer.Option("--max-wall-s", help="Solver wall-time cap, s.")] = None,
-    compile_: Annotated[
-        bool,
-        typer.Option(
-            "--compile/--no-compile",
-            help="Compile the NLP's node functions to C (needs gcc/cc; cached in ~/.cache/rxcomm, "
-            "or $RXCOMM_CACHE_DIR): ~2× faster solves after a one-off ~1 min compile.",
-        ),
-    ] = False,
+    compile_: CompileOption = False,
     fallback: Annotated[
         bool,
         typer.Option(help="If the solver fails, write the fastest feasible ruckig profile (still exit 3)."),

@@ -223,7 +223,7 @@ def run(
     plot: bool = False,
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written to `output`."""
-    from rxcomm.calibration.pose_selection import Criterion, select_measurement_poses
+    from rxcomm.calibration.pose_selection import Criterion
     from rxcomm.io.files import check_outputs
     from rxcomm.io.yaml_io import write_yaml_artefact
     from rxcomm.model.robot import load_robot, robot_files
@@ -251,44 +251,52 @@ def run(
         "seed": seed,
         "measure_baseline": measure_baseline,
     }
-    total = intervals**robot.n
-    with console.progress() as bar:
-        task = bar.add_task("select-configs: streaming the joint grid", total=total)
-
-        selecting: list[int] = []
-
-        def grid_progress(done: int, grid_total: int) -> None:
-            bar.update(task, completed=done)
-            if done >= grid_total and not selecting:  # what follows reports no fraction: a phase
-                what = f"select-configs: selecting {n} poses ({restarts} restarts)"
-                selecting.append(bar.add_task(what, total=None))
-
-        sel = select_measurement_poses(
-            robot,
-            cell_model,
-            n,
-            intervals=intervals,
-            max_candidates=max_candidates or None,
-            criterion=criterion,
-            restarts=restarts,
-            seed=seed,
-            n_validation=n_validation,
-            progress=grid_progress,
-        )
+    sel = _select_with_progress(
+        robot,
+        cell_model,
+        n,
+        intervals=intervals,
+        max_candidates=max_candidates or None,
+        criterion=criterion,
+        restarts=restarts,
+        seed=seed,
+        n_validation=n_validation,
+    )
     seconds = time.perf_counter() - t0
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "cell": Path(cell)}
     art = configs_artefact(robot, sel, inputs, settings, seconds, measure_baseline)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_yaml_artefact(output, art)
     if plot:
-        ratio = sel.baseline.improvement_ratio
-        title = (
-            f"{robot.name}: {n} of {sel.candidates.q.shape[0]} candidates, {criterion} "
-            f"{sel.selection.observation_index:.4g} (linear scan {sel.baseline.observation_index:.4g}"
-            + (f", ×{ratio:.2f}" if ratio is not None else "")
-            + f"; evenly spaced candidates {sel.evenly_spaced.observation_index:.4g})"
-        )
-        png = plot_configs(robot, sel, output.with_suffix(".png"), title)
+        png = plot_configs(robot, sel, output.with_suffix(".png"), _plot_title(robot, sel, n, criterion))
         console.out.print(f"plot: {png}")
     console.summary_table(f"select-configs → {output}", art.summary)
     return art.summary
+
+
+def _select_with_progress(robot: Robot, cell_model: Cell, n: int, **options) -> PoseSelection:
+    """`select_measurement_poses` with a progress bar over the joint grid, then a phase while the
+    exchange algorithm runs (it reports no fraction)."""
+    from rxcomm.calibration.pose_selection import select_measurement_poses
+
+    with console.progress() as bar:
+        task = bar.add_task("select-configs: streaming the joint grid", total=options["intervals"] ** robot.n)
+        selecting: list[int] = []
+
+        def grid_progress(done: int, grid_total: int) -> None:
+            bar.update(task, completed=done)
+            if done >= grid_total and not selecting:
+                what = f"select-configs: selecting {n} poses ({options['restarts']} restarts)"
+                selecting.append(bar.add_task(what, total=None))
+
+        return select_measurement_poses(robot, cell_model, n, progress=grid_progress, **options)
+
+
+def _plot_title(robot: Robot, sel: PoseSelection, n: int, criterion: str) -> str:
+    ratio = sel.baseline.improvement_ratio
+    return (
+        f"{robot.name}: {n} of {sel.candidates.q.shape[0]} candidates, {criterion} "
+        f"{sel.selection.observation_index:.4g} (linear scan {sel.baseline.observation_index:.4g}"
+        + (f", ×{ratio:.2f}" if ratio is not None else "")
+        + f"; evenly spaced candidates {sel.evenly_spaced.observation_index:.4g})"
+    )
