@@ -59,35 +59,33 @@ def stream(
     prefill, interpolation ratio and trace decimation (``client.configure`` first). Drives must be
     enabled. Returns the trace of the whole stream. Ctrl-C sends a quick stop before re-raising
     (if that fails too, the gateway's watchdog stops the drives)."""
+    pos = np.asarray(pos_rad, dtype=float)
+    tau = np.asarray(tau_ff_nm, dtype=float)
+    n = pos.shape[0]
+    if pos.ndim != 2 or pos.shape[1] != R.N_AXES or tau.shape != pos.shape or n == 0:
+        raise InputError(f"setpoints must be (n, {R.N_AXES}) with n > 0, got {pos.shape} and {tau.shape}")
+    if timeout_s is None:
+        timeout_s = 10.0 + 3.0 * n * client.ratio * R.CYCLE_US * 1e-6
     try:
-        return _stream(
-            client, pos_rad, tau_ff_nm, high_level=high_level, timeout_s=timeout_s, on_reply=on_reply
-        )
+        return _handshake(client, pos, tau, time.monotonic() + timeout_s, high_level, on_reply)
     except KeyboardInterrupt:
         with contextlib.suppress(GatewayError):
             client.quick_stop()
         raise
 
 
-def _stream(
+def _handshake(
     client: GatewayClient,
-    pos_rad: np.ndarray,
-    tau_ff_nm: np.ndarray,
-    *,
-    high_level: int = 1500,
-    timeout_s: float | None = None,
-    on_reply: Callable[[BlockReply], None] | None = None,
+    pos: np.ndarray,
+    tau: np.ndarray,
+    deadline: float,
+    high_level: int,
+    on_reply: Callable[[BlockReply], None] | None,
 ) -> StreamResult:
-    pos = np.asarray(pos_rad, dtype=float)
-    tau = np.asarray(tau_ff_nm, dtype=float)
+    """The streaming handshake for checked (n, 6) setpoints, until done or ``deadline`` (monotonic)."""
     n = pos.shape[0]
-    if pos.ndim != 2 or pos.shape[1] != R.N_AXES or tau.shape != pos.shape or n == 0:
-        raise InputError(f"setpoints must be (n, {R.N_AXES}) with n > 0, got {pos.shape} and {tau.shape}")
     cycle_s = R.CYCLE_US * 1e-6
     expected = n * client.ratio // client.decimation
-    deadline = time.monotonic() + (
-        timeout_s if timeout_s is not None else 10.0 + 3.0 * n * client.ratio * cycle_s
-    )
     k = R.MAX_CYCLES_PER_BLOCK
     positions: list[np.ndarray] = []
     torques: list[np.ndarray] = []
