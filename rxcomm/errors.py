@@ -15,10 +15,8 @@ class RxcommError(Exception):
     exit_code: int = 1
 
 
-class InputError(RxcommError):
-    """Bad input: names the file, the field and the reason."""
-
-    exit_code = 2
+class LocatedError(RxcommError):
+    """An error about something a user wrote: the message names the file and the field, then why."""
 
     def __init__(self, reason: str, *, file: str | Path | None = None, field: str | None = None):
         self.file = str(file) if file is not None else None
@@ -28,20 +26,19 @@ class InputError(RxcommError):
         super().__init__(f"{where}: {reason}" if where else reason)
 
 
-class InfeasibleError(RxcommError):
+class InputError(LocatedError):
+    """Bad input: names the file, the field and the reason."""
+
+    exit_code = 2
+
+
+class InfeasibleError(LocatedError):
     """A problem with no solution under the given limits, or a solver that did not converge.
 
     ``file``/``field`` name the limit that makes it so when it is one (e.g. drives.yaml's peak torque).
     """
 
     exit_code = 3
-
-    def __init__(self, reason: str, *, file: str | Path | None = None, field: str | None = None):
-        self.file = str(file) if file is not None else None
-        self.field = field
-        self.reason = reason
-        where = ": ".join(p for p in (self.file, self.field) if p)
-        super().__init__(f"{where}: {reason}" if where else reason)
 
 
 class GatewayError(RxcommError):
