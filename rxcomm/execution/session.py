@@ -25,7 +25,6 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -33,6 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.plan import StreamPlan, distance_to_start, prepare_plan
+from rxcomm.execution.record_sink import BackgroundSink, RecordSink
 from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import BlockReply, GatewayClient, RoundTripStats
@@ -180,19 +180,6 @@ class _LastRoundTrip(RoundTripStats):
     def add(self, seconds: float) -> None:
         super().add(seconds)
         self.last_s = seconds
-
-
-class RecordSink(Protocol):
-    """Takes a stream's records while it runs (the run log writer): ``records`` gets consecutive
-    rows of setpoints already executed, ``gateway`` the status rows since the last call."""
-
-    period_s: float  # wall time between hand-overs
-
-    def begin(self, plan: StreamPlan, ratio: int, cycle_s: float) -> None: ...
-
-    def records(self, first: int, q_actual: np.ndarray, tau_actual: np.ndarray) -> None: ...
-
-    def gateway(self, rows: dict[str, np.ndarray]) -> None: ...
 
 
 class _Recorder:
@@ -425,7 +412,8 @@ class Session:
         sub = plan.subsample(self.ratio)
         if sink is not None:
             sink.begin(sub, self.ratio, self.cycle_s)
-        rec = _Recorder(sub.n, self.timing, progress, sink, self.ratio, self.cycle_s)
+        writer = BackgroundSink(sink) if sink is not None else None
+        rec = _Recorder(sub.n, self.timing, progress, writer, self.ratio, self.cycle_s)
         self.client.heartbeat(0)  # feeds the watchdog: a campaign reads tracker and encoders before this
         before = self._status()
         rt0 = self.timing.count
@@ -445,6 +433,8 @@ class Session:
             # The drain's status knows the setpoints completed before the stop (the streaming replies
             # may predate it); a gateway that clears its buffer on a stop reports 0: keep the larger.
             rec.last_execute = max(executed, rec.last_execute)
+        if writer is not None:
+            writer.stop()
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
         after = self._status()
         gw = rec.gateway_arrays(self.ratio, self.cycle_s)

@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from rxcomm.execution.background_sink import BackgroundSink
+from rxcomm.execution.record_sink import BackgroundSink
 
 
 class SlowSink:

@@ -1,9 +1,10 @@
-"""The run log's writing off the streaming thread.
+"""Where a stream's records go while it runs (`RecordSink`: the run log writer), and the writing
+kept off the streaming thread (`BackgroundSink`).
 
 The stream's loop must answer the gateway within its watchdog (500 ms by default) and, in real time,
 within the buffered lead. Writing a flush of the run log (forward kinematics for the 3D view, JSON,
-chunk compression) took up to 0.25 s of that loop on a loaded 2-core machine, and once 1.3 s:
-`make commission` stopped on the watchdog. `BackgroundSink` hands each flush to a writer thread and
+chunk compression) held that loop up to 0.34 s on a 2-core machine at load 2–3 (0.08 s with this
+writer thread), and once long enough for `make commission` to stop on the watchdog. `BackgroundSink` hands each flush to a writer thread and
 returns at once; the writer works through them in order. A bounded queue keeps memory bounded when
 the disk is slower than the stream: the loop then waits for one flush, as it did before.
 """
@@ -13,12 +14,25 @@ from __future__ import annotations
 import queue
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from rxcomm.execution.plan import StreamPlan
-from rxcomm.execution.session import RecordSink
+
+
+class RecordSink(Protocol):
+    """Takes a stream's records while it runs (the run log writer): ``records`` gets consecutive
+    rows of setpoints already executed, ``gateway`` the status rows since the last call."""
+
+    period_s: float  # wall time between hand-overs
+
+    def begin(self, plan: StreamPlan, ratio: int, cycle_s: float) -> None: ...
+
+    def records(self, first: int, q_actual: np.ndarray, tau_actual: np.ndarray) -> None: ...
+
+    def gateway(self, rows: dict[str, np.ndarray]) -> None: ...
+
 
 _Call = tuple[Callable[..., None], tuple[Any, ...]]
 MAX_PENDING_FLUSHES = 64  # ~32 s of records at the writer's 0.5 s period
