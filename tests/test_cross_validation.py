@@ -162,3 +162,16 @@ def test_params_out_csv_and_scoring_an_auto_model(tmp_path, rx130l, noisy_log):
     assert np.median(np.diff(val.t)) == pytest.approx(0.5 / art.summary["cutoff_hz"], rel=0.02)
     res = CliRunner().invoke(app, [*args[:-2], "-o", str(tmp_path / "d2.yaml"), "--cutoff-hz", "ten"])
     assert res.exit_code == 2 and "cutoff-hz" in res.output
+
+
+def test_friction_option_overrides_drives_yaml_through_the_stage(tmp_path, noisy_log):
+    """`--friction joint` on the RX130L (drives.yaml: both) identifies and writes the joint-friction
+    model (59 base parameters, no motor columns); it used to exit 2 on its own artefact."""
+    log = write_run_log(tmp_path / "excite-log.mcap", noisy_log.t, noisy_log.q, noisy_log.tau)
+    out = tmp_path / "dynamics-joint.yaml"
+    args = ["identify", "--robot", str(SAMPLES / "rx130l"), "--log", str(log), "--friction", "joint"]
+    res = CliRunner().invoke(app, [*args, "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    art = read_yaml_artefact(out, Dynamics)
+    assert art.summary["n_base_params"] == 59
+    assert not any("motor" in b.name for b in art.base_parameters)

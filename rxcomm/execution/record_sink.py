@@ -4,9 +4,10 @@ kept off the streaming thread (`BackgroundSink`).
 The stream's loop must answer the gateway within its watchdog (500 ms by default) and, in real time,
 within the buffered lead. Writing a flush of the run log (forward kinematics for the 3D view, JSON,
 chunk compression) held that loop up to 0.34 s on a 2-core machine at load 2–3 (0.08 s with this
-writer thread), and once long enough for `make commission` to stop on the watchdog. `BackgroundSink` hands each flush to a writer thread and
-returns at once; the writer works through them in order. A bounded queue keeps memory bounded when
-the disk is slower than the stream: the loop then waits for one flush, as it did before.
+writer thread), and once long enough for `make commission` to stop on the watchdog.
+`BackgroundSink` hands each flush to a writer thread and returns at once; the writer works through
+them in order. A bounded queue keeps memory bounded when the disk is slower than the stream: the
+loop then waits for one flush, as it did before.
 """
 
 from __future__ import annotations

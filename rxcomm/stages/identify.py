@@ -374,8 +374,10 @@ def run(
         },
         {"log": log, "validate": validate, **robot_files(robot_dir)},
     )
-    robot = load_robot(robot_dir)
     opts = _settings(settings)
+    robot = load_robot(robot_dir)
+    if opts.friction is not None and opts.friction != robot.friction_mode:
+        robot = robot.with_friction(opts.friction)  # --friction overrides drives.yaml's, artefact too
     joint_log = load_joint_log(log, robot)
     val_log = None if validate is None else load_joint_log(validate, robot)
     for lg in (joint_log, val_log):
