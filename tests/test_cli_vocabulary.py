@@ -101,6 +101,21 @@ def test_import_of_the_cli_and_top_level_help_load_no_heavy_library(args):
         assert "plan-ptp" in res.stdout  # the listing still names every command
 
 
+def test_every_commands_help_loads_no_heavy_library():
+    """`rxcomm STAGE --help` answers from the options alone: a stage imports the library inside the
+    functions that run it (rxcomm/stages/__init__.py), so its help costs no toppra, scipy, pinocchio."""
+    code = (
+        "import sys; import rxcomm.cli as c\n"
+        "for name in c.STAGES:\n"
+        "    try:\n        c.app([name, '--help'], prog_name='rxcomm')\n    except SystemExit:\n        pass\n"
+        f"    loaded = [m for m in {HEAVY!r} if m in sys.modules]\n"
+        "    if loaded:\n        print('HEAVY', name, loaded); break\n"
+        "else:\n    print('done')\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert res.stdout.strip().splitlines()[-1] == "done", res.stdout.strip().splitlines()[-1]
+
+
 def test_completion_is_on_and_completes_commands_and_options():
     res = CliRunner().invoke(cli.app, ["--help"], terminal_width=200)
     assert "--install-completion" in res.output and "--show-completion" in res.output

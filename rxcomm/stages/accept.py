@@ -16,7 +16,6 @@ from typing import Annotated
 import typer
 
 from rxcomm import console
-from rxcomm.acceptance.verdict import acceptance_rows, overall
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs, mcap_summary_path
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
@@ -67,6 +66,8 @@ def run(
     commissioned_iso9283: Path | None = None,
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary."""
+    from rxcomm.acceptance.verdict import acceptance_rows, overall
+
     output = Path(output)
     f_files = [_summary_file(Path(p)) for p in factory_logs]
     c_files = [_summary_file(Path(p)) for p in commissioned_logs]

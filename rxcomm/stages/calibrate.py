@@ -12,28 +12,24 @@ from __future__ import annotations
 
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
-import pinocchio as pin
 import typer
 
 from rxcomm import console
-from rxcomm.calibration.artefact import calibration_artefact, compliance_estimates
-from rxcomm.calibration.exports import kinematics_artefact, write_kinematics
-from rxcomm.calibration.fit import CalibrationResult, calibrate
-from rxcomm.calibration.measurements import read_measurements
-from rxcomm.calibration.settings import CalibrateSettings
-from rxcomm.calibration.urdf import write_calibrated_urdf
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.model.base_parameters import load_dynamics
-from rxcomm.model.geometric_errors import placement_to_se3
-from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import RobotDir, parse_numbers
 from rxcomm.schemas.cell import Cell
+
+if TYPE_CHECKING:
+    import pinocchio as pin
+
+    from rxcomm.calibration.fit import CalibrationResult
+    from rxcomm.model.robot import Robot
 
 
 class Model(StrEnum):
@@ -70,6 +66,8 @@ def print_table(res: CalibrationResult) -> None:
 
 def print_model_and_noise(robot: Robot, res: CalibrationResult, source: str) -> None:
     """The noise used, the model comparison, compliance, undetermined parameters, notes."""
+    from rxcomm.calibration.artefact import compliance_estimates
+
     out = console.out
     n = res.noise
     ori = "" if n.orientation_sigma_rad is None else f", {n.orientation_sigma_rad * 1e3:.4g} mrad"
@@ -191,6 +189,8 @@ def _cell_and_noise(
 ) -> tuple[pin.SE3 | None, dict[str, float], str | None]:
     """(the cell's tracker_to_base guess, noise settings, where the noise came from): the cell's
     tracker, overridden by `--tracker-sigma`; None: the measurements' or estimated."""
+    from rxcomm.model.geometric_errors import placement_to_se3
+
     t2b, overrides, source = None, {}, None
     if cell is not None:
         tr = read_yaml_model(cell, Cell).tracker
@@ -212,6 +212,9 @@ def _write_exports(
 ) -> dict[str, object]:
     """The calibrated URDF (with the TCP frame) and the MDH + zero-offset tables; returns the MDH
     residuals for the calibration's summary."""
+    from rxcomm.calibration.exports import kinematics_artefact, write_kinematics
+    from rxcomm.calibration.urdf import write_calibrated_urdf
+
     if urdf_out is not None:
         Path(urdf_out).parent.mkdir(parents=True, exist_ok=True)
         write_calibrated_urdf(robot, res.fit.errors, urdf_out)
@@ -246,6 +249,13 @@ def run(
     dynamics: Path | None = None,
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written to `output`."""
+    from rxcomm.calibration.artefact import calibration_artefact
+    from rxcomm.calibration.fit import calibrate
+    from rxcomm.calibration.measurements import read_measurements
+    from rxcomm.calibration.settings import CalibrateSettings
+    from rxcomm.model.base_parameters import load_dynamics
+    from rxcomm.model.robot import load_robot, robot_files
+
     output = Path(output)
     check_outputs(
         {"output": output, "urdf-out": urdf_out, "mdh-out": mdh_out},

@@ -19,7 +19,6 @@ import typer
 
 from rxcomm import console
 from rxcomm.errors import InputError
-from rxcomm.gateway.net import is_loopback
 from rxcomm.options import parse_numbers, radians_text
 
 if TYPE_CHECKING:  # the cell (pinocchio, the plant) is imported where used: `--help` stays fast
@@ -97,6 +96,7 @@ def run(
     from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
     from rxcomm.cell.sim import SimSettings, SimulatedCell
     from rxcomm.cell.truth import load_truth
+    from rxcomm.gateway.net import is_loopback
 
     if not is_loopback(host) and not allow_remote:
         raise InputError(f"{host} is not a loopback address: pass --allow-remote to serve it", field="--host")

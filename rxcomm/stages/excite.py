@@ -15,26 +15,25 @@ from __future__ import annotations
 
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.identification.excitation import ExcitationDesign, design_excitation
-from rxcomm.identification.excitation_limits import REGION_POINTS, region_points
 from rxcomm.io.files import check_outputs
-from rxcomm.io.trajectory import save_trajectory_mcap
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.model.limits import TorqueRateLimit, check_limits
-from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import RobotDir, parse_numbers, radians_text, radians_value
 from rxcomm.schemas.cell import AllowedRegion, Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
 from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.trajectory import TrajectorySummary
+
+if TYPE_CHECKING:
+    from rxcomm.identification.excitation import ExcitationDesign
+    from rxcomm.model.robot import Robot
 
 
 class Objective(StrEnum):
@@ -51,6 +50,9 @@ def design_ratios(robot: Robot, s, opts: ExcitationSettings, region: AllowedRegi
     """Signed (value − centre) / half-width of every constraint the design obeyed (ExcitationProblem's
     limits: joint ranges minus the margin, the velocity, acceleration and torque fractions of the
     robot's limits, the torque rate, the allowed-region boxes minus their margin): ±1 is the bound."""
+    from rxcomm.identification.excitation_limits import REGION_POINTS, region_points
+    from rxcomm.model.limits import TorqueRateLimit
+
     q_lo, q_hi = robot.q_min + opts.position_margin_rad, robot.q_max - opts.position_margin_rad
     out = {
         "position": (s.q - (q_lo + q_hi) / 2) / ((q_hi - q_lo) / 2),
@@ -75,6 +77,8 @@ def plot_excitation(
     """PNG: joint positions, then every constraint the design obeyed normalised to its bound (the
     0.8·peak torque actually used, not the peak; the allowed-region boxes), the binding ones (≥
     plotting.BINDS) in colour and the others faded, and the tool path (paper Fig. 5a)."""
+    from rxcomm.identification.excitation_limits import region_points
+
     plt = plotting.pyplot()
 
     k = max(1, len(design.samples.t) // 3000)
@@ -248,6 +252,11 @@ def run(
     plot: bool = False,
 ) -> Excitation:
     """The stage as a function (tests call it): returns the artefact written."""
+    from rxcomm.identification.excitation import design_excitation
+    from rxcomm.io.trajectory import save_trajectory_mcap
+    from rxcomm.model.limits import check_limits
+    from rxcomm.model.robot import load_robot, robot_files
+
     output = Path(output)
     if output.suffix not in (".yaml", ".yml"):
         raise InputError("the output must be a .yaml file", field="output")

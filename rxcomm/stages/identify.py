@@ -15,25 +15,24 @@ from __future__ import annotations
 
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.identification.export import write_parameters_csv, write_torques_csv
-from rxcomm.identification.fit import Identification, identify, score
-from rxcomm.identification.logs import load_joint_log
-from rxcomm.identification.settings import IdentifySettings
-from rxcomm.identification.validation import Validation
 from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
-from rxcomm.model.base_parameters import dynamics_artefact_fields, dynamics_from_artefact
-from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import RobotDir
 from rxcomm.schemas.dynamics import Dynamics
+
+if TYPE_CHECKING:
+    from rxcomm.identification.fit import Identification
+    from rxcomm.identification.settings import IdentifySettings
+    from rxcomm.identification.validation import Validation
+    from rxcomm.model.robot import Robot
 
 
 class Method(StrEnum):
@@ -237,6 +236,8 @@ def _check_mode(
 
 
 def _settings(settings: IdentifySettings | dict | None) -> IdentifySettings:
+    from rxcomm.identification.settings import IdentifySettings
+
     values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
     return settings_from_options(IdentifySettings, values)
 
@@ -260,6 +261,8 @@ def validation_rows(val: Validation) -> dict[str, object]:
 def artefact_fields(robot: Robot, result: Identification, std: np.ndarray) -> dict:
     """dynamics.yaml's data fields: the base parameters with their relative σ, and the full
     consistent vector when it is the result."""
+    from rxcomm.model.base_parameters import dynamics_artefact_fields
+
     with np.errstate(divide="ignore"):
         rel = np.where(np.abs(result.p_b) > 0, std / np.abs(result.p_b), np.inf)
     return dynamics_artefact_fields(
@@ -323,6 +326,13 @@ def score_run(
     torques_csv: Path | None = None,
 ) -> Validation:
     """Score an identified model (dynamics.yaml) on a log without refitting; returns the validation."""
+    from rxcomm.identification.export import write_torques_csv
+    from rxcomm.identification.fit import score
+    from rxcomm.identification.logs import load_joint_log
+    from rxcomm.identification.settings import IdentifySettings
+    from rxcomm.model.base_parameters import dynamics_from_artefact
+    from rxcomm.model.robot import load_robot, robot_files
+
     check_outputs({"torques-out": torques_csv}, {"log": log, "dynamics": model, **robot_files(robot_dir)})
     robot = load_robot(robot_dir)
     art = read_yaml_artefact(model, Dynamics)
@@ -362,6 +372,11 @@ def run(
     params_csv: Path | None = None,
 ) -> Dynamics:
     """The stage as a function (tests call it): returns the artefact written."""
+    from rxcomm.identification.export import write_parameters_csv, write_torques_csv
+    from rxcomm.identification.fit import identify
+    from rxcomm.identification.logs import load_joint_log
+    from rxcomm.model.robot import load_robot, robot_files
+
     output = Path(output)
     if output.suffix not in (".yaml", ".yml"):
         raise InputError("the output must be a .yaml file", field="output")

@@ -16,13 +16,8 @@ from typing import Annotated
 import typer
 
 from rxcomm import console
-from rxcomm.acceptance.alignment import tracker_channel
-from rxcomm.execution.tracker_log import attach_tracker
 from rxcomm.io.files import check_outputs, mcap_summary_path
-from rxcomm.io.run_log import read_run_log
-from rxcomm.io.tracker_csv import read_tracker_csv
 from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.model.robot import load_robot, robot_files
 from rxcomm.options import RobotDir
 from rxcomm.schemas.run_log import RunLog, TrackerChannel
 
@@ -37,6 +32,12 @@ def execute(
     log: Path, tracker_csv: Path, robot_dir: Path, output: Path, alignment: str = "auto"
 ) -> TrackerChannel:
     """The stage as a function (tests call it): returns the channel record written. Raises RxcommError."""
+    from rxcomm.acceptance.alignment import tracker_channel
+    from rxcomm.execution.tracker_log import attach_tracker
+    from rxcomm.io.run_log import read_run_log
+    from rxcomm.io.tracker_csv import read_tracker_csv
+    from rxcomm.model.robot import load_robot, robot_files
+
     log, tracker_csv, output = Path(log), Path(tracker_csv), Path(output)
     check_outputs(
         {"output": output},

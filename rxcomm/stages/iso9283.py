@@ -11,22 +11,22 @@ and prints the table; `--plot` draws AP/RP per pose and AT/RT per path beside it
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from rxcomm import console, plotting
-from rxcomm.acceptance.campaign import PATH_TARGETS, CampaignSettings, evaluate
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
-from rxcomm.model.geometric_errors import placement_to_se3
-from rxcomm.model.robot import load_robot, robot_files
 from rxcomm.options import RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283
 from rxcomm.schemas.path import PathSpec
+
+if TYPE_CHECKING:
+    from rxcomm.acceptance.campaign import CampaignSettings
 
 
 def base_frame(calibration: Path | None, cell: Path | None) -> BaseFrame:
@@ -43,6 +43,8 @@ def base_frame(calibration: Path | None, cell: Path | None) -> BaseFrame:
 
 
 def read_specs(paths_dir: Path) -> dict[str, PathSpec]:
+    from rxcomm.acceptance.campaign import PATH_TARGETS
+
     specs = {}
     for target in PATH_TARGETS:
         f = paths_dir / f"{target}.yaml"
@@ -64,6 +66,10 @@ def execute(
     plot: bool = False,
 ) -> Iso9283:
     """The stage as a function (tests call it): returns the artefact written. Raises RxcommError."""
+    from rxcomm.acceptance.campaign import CampaignSettings, evaluate
+    from rxcomm.model.geometric_errors import placement_to_se3
+    from rxcomm.model.robot import load_robot, robot_files
+
     output = Path(output)
     paths_dir = Path(paths_dir) if paths_dir is not None else Path(robot_dir) / "paths"
     logs = {f"pose log {i + 1}": p for i, p in enumerate(pose_logs)}

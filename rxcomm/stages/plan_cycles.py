@@ -19,14 +19,7 @@ import typer
 from rxcomm import console
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
-from rxcomm.io.trajectory import Trajectory, load_trajectory_mcap, save_trajectory_mcap
-from rxcomm.model.base_parameters import load_dynamics
-from rxcomm.model.catalogue import catalogue_limits
-from rxcomm.model.limits import check_limits
-from rxcomm.model.robot import load_robot, robot_files
 from rxcomm.options import RobotDir
-from rxcomm.planning.iso9283 import cycloidal_move, repeat_cycles
-from rxcomm.planning.ptp_problem import PtpDynamics
 from rxcomm.schemas.trajectory import TrajectorySummary
 
 
@@ -49,6 +42,14 @@ def run(
     plan: Path, robot_dir: Path, output: Path, *, cycles: int = 10, dwell_s: float = 0.3, dynamics=None
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    from rxcomm.io.trajectory import Trajectory, load_trajectory_mcap, save_trajectory_mcap
+    from rxcomm.model.base_parameters import load_dynamics
+    from rxcomm.model.catalogue import catalogue_limits
+    from rxcomm.model.limits import check_limits
+    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.planning.iso9283 import cycloidal_move, repeat_cycles
+    from rxcomm.planning.ptp_problem import PtpDynamics
+
     t_all, plan, output = time.perf_counter(), Path(plan), Path(output)
     if output.suffix != ".mcap":
         raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")

@@ -16,18 +16,10 @@ from typing import Annotated
 import typer
 
 from rxcomm import console
-from rxcomm.calibration.compensation import compliance_torque_params, encoder_angles, joint_compliance
-from rxcomm.calibration.loading import load_calibrated_robot
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
-from rxcomm.io.trajectory import save_trajectory_mcap
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
-from rxcomm.model.base_parameters import load_dynamics
-from rxcomm.model.catalogue import catalogue_limits
-from rxcomm.model.robot import load_robot, robot_files
 from rxcomm.options import RobotDir
-from rxcomm.planning.catalogue_timing import pose_cycle_plan
-from rxcomm.planning.ptp_problem import PtpDynamics
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.trajectory import TrajectorySummary
@@ -74,6 +66,14 @@ def run(
     dwell_s: float = 0.5,
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    from rxcomm.calibration.loading import load_calibrated_robot
+    from rxcomm.io.trajectory import save_trajectory_mcap
+    from rxcomm.model.base_parameters import load_dynamics
+    from rxcomm.model.catalogue import catalogue_limits
+    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.planning.catalogue_timing import pose_cycle_plan
+    from rxcomm.planning.ptp_problem import PtpDynamics
+
     t_all, output = time.perf_counter(), Path(output)
     if output.suffix != ".mcap":
         raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
@@ -126,6 +126,8 @@ def run(
 def _commanded(nominal, calibration: Path | None, params):
     """With a calibration that found joint compliance: the encoder angles that hold each link at its
     IK pose (`calibration.compliance`), and the compliances used; else none."""
+    from rxcomm.calibration.compensation import compliance_torque_params, encoder_angles, joint_compliance
+
     if calibration is None:
         return None, None
     art = read_yaml_artefact(calibration, Calibration)
