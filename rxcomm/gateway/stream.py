@@ -54,14 +54,22 @@ def stream(
     high_level: int = 1500,
     timeout_s: float | None = None,
     on_reply: Callable[[BlockReply], None] | None = None,
+    keep_trace: bool = True,
 ) -> StreamResult:
     """Stream ``pos_rad``/``tau_ff_nm`` (n, 6) as setpoints 0..n-1 with the client's configured
     prefill, interpolation ratio and trace decimation (``client.configure`` first). Drives must be
-    enabled. Returns the trace of the whole stream. Ctrl-C sends a quick stop before re-raising
+    enabled. Returns the trace of the whole stream (empty with ``keep_trace=False``: an ``on_reply``
+    that records it keeps the only copy). Ctrl-C sends a quick stop before re-raising
     (if that fails too, the gateway's watchdog stops the drives)."""
     try:
         return _stream(
-            client, pos_rad, tau_ff_nm, high_level=high_level, timeout_s=timeout_s, on_reply=on_reply
+            client,
+            pos_rad,
+            tau_ff_nm,
+            high_level=high_level,
+            timeout_s=timeout_s,
+            on_reply=on_reply,
+            keep_trace=keep_trace,
         )
     except KeyboardInterrupt:
         with contextlib.suppress(GatewayError):
@@ -77,6 +85,7 @@ def _stream(
     high_level: int = 1500,
     timeout_s: float | None = None,
     on_reply: Callable[[BlockReply], None] | None = None,
+    keep_trace: bool = True,
 ) -> StreamResult:
     pos = np.asarray(pos_rad, dtype=float)
     tau = np.asarray(tau_ff_nm, dtype=float)
@@ -97,8 +106,9 @@ def _stream(
         nonlocal lost, max_level
         if on_reply is not None:
             on_reply(reply)
-        positions.append(reply.trace.position_rad)
-        torques.append(reply.trace.torque_nm)
+        if keep_trace:
+            positions.append(reply.trace.position_rad)
+            torques.append(reply.trace.torque_nm)
         lost += reply.trace.lost
         assert reply.status is not None
         max_level = max(max_level, reply.status.buffer_level)
