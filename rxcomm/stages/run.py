@@ -175,7 +175,6 @@ class _Job:
     """What both kinds of plan share once the inputs are read."""
 
     plan: Path
-    robot_dir: Path
     output: Path
     robot: Robot
     params: DynamicParameters
@@ -238,7 +237,7 @@ def execute(
     stream = StreamSettings(interpolation_ratio=interpolation_ratio)
     update, stop_bar = _progress() if show_progress else (None, lambda: None)
     job = _Job(
-        plan, Path(robot_dir), output, robot, params, model_name, inputs,
+        plan, output, robot, params, model_name, inputs,
         lambda: connect(gateway, allow_remote, truth, robot_dir, realtime), update,
     )  # fmt: skip
     try:
