@@ -16,7 +16,7 @@ import numpy as np
 from bench.table import Row, median_seconds
 from rxcomm.execution.log import write_run_log
 from rxcomm.execution.plan import StreamPlan
-from rxcomm.execution.session import RunResult, StreamLog
+from rxcomm.execution.records import RunResult, StreamLog
 from rxcomm.io.mcap_io import read_mcap
 from rxcomm.io.run_log import read_run_log
 from rxcomm.model.robot import load_robot

@@ -107,7 +107,8 @@ def test_every_commands_help_loads_no_heavy_library():
     code = (
         "import sys; import rxcomm.cli as c\n"
         "for name in c.STAGES:\n"
-        "    try:\n        c.app([name, '--help'], prog_name='rxcomm')\n    except SystemExit:\n        pass\n"
+        "    try:\n        c.app([name, '--help'], prog_name='rxcomm')\n"
+        "    except SystemExit:\n        pass\n"
         f"    loaded = [m for m in {HEAVY!r} if m in sys.modules]\n"
         "    if loaded:\n        print('HEAVY', name, loaded); break\n"
         "else:\n    print('done')\n"

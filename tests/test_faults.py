@@ -28,9 +28,13 @@ from rxcomm.cell.backend import IdealBackend
 from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
 from rxcomm.cli import app
 from rxcomm.errors import GatewayError, SafetyStop
-from rxcomm.execution.log import recover_run_log, run_summary
+from rxcomm.execution import campaign
+from rxcomm.execution.log import recover_run_log
 from rxcomm.execution.plan import prepare_plan
-from rxcomm.execution.session import NOT_APPLICABLE_VIRTUAL, RunSettings, run_trajectory
+from rxcomm.execution.records import NOT_APPLICABLE_VIRTUAL
+from rxcomm.execution.session import RunSettings
+from rxcomm.execution.summary import run_summary
+from rxcomm.execution.trajectory_run import run_trajectory
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.registers import DriveState, ErrorCode, Status, StopCause
@@ -384,7 +388,7 @@ def test_campaign_writes_each_pose_as_it_is_taken(tmp_path, rx130l, monkeypatch)
     cfg = write_configs(tmp_path / "configs.yaml", rx130l, poses, ["fit", "validation", "baseline"])
     out = tmp_path / "calib-meas.yaml"
     seen: list[tuple[str, int, str]] = []
-    real_write = run_stage.write_yaml_artefact
+    real_write = campaign.write_yaml_artefact
 
     def spy(path, art):
         written = real_write(path, art)
@@ -392,7 +396,7 @@ def test_campaign_writes_each_pose_as_it_is_taken(tmp_path, rx130l, monkeypatch)
         seen.append((Path(path).name, len(doc["poses"]), doc["summary"]["outcome"]))
         return written
 
-    monkeypatch.setattr(run_stage, "write_yaml_artefact", spy)
+    monkeypatch.setattr(campaign, "write_yaml_artefact", spy)
     try:
         run_stage.execute(
             cfg, ROBOT_DIR, out, gateway=f"127.0.0.1:{srv.port}", speed=0.5, show_progress=False

@@ -186,6 +186,9 @@ def coverage(t_tracker_aligned: np.ndarray, t_joint: np.ndarray, within_s: float
     return float(np.mean(near <= within_s))
 
 
+CORRELATE_S = 30.0  # the log's first seconds the cross-correlation looks at (the latency is constant)
+
+
 def tracker_channel(
     robot: Robot,
     export: TrackerExport,
@@ -194,7 +197,7 @@ def tracker_channel(
     *,
     method: str = "auto",
     source_file: str | None = None,
-    correlate_s: float = 30.0,
+    correlate_s: float = CORRELATE_S,
 ) -> TrackerChannel:
     """How `export` sits on a joint log with encoder rows `q_actual` [k, n] every `sample_s`: the
     `TrackerChannel` record (`rxcomm.schemas.run_log`) with the offset. The cross-correlation uses

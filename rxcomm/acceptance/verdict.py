@@ -2,7 +2,7 @@
 
 Pure functions over what the stages measured: the ISO 9283 criteria of each state
 (`rxcomm.schemas.iso9283.Iso9283`, from the tracker) and the run-log summaries of each state's
-reference task (its cycle time and energy figures, `rxcomm.execution.log.run_summary`). A value that
+reference task (its cycle time and energy figures, `rxcomm.execution.summary.run_summary`). A value that
 was not measured stays None and its verdict is "not measured", never PASS and never a zero.
 """
 

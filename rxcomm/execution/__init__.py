@@ -3,7 +3,11 @@
 - ``plan``: resample a trajectory on the drive-cycle grid, feed-forward torque, dense limit check;
 - ``approach``: jerk-limited moves (to a plan's start, between campaign poses);
 - ``session``: gateway checks, interpolation ratio, enable, stream + record, stop;
-- ``campaign``: a pose list driven pose by pose with tracker readings;
-- ``log``: the run-log summary and MCAP (the contract `identify` reads);
+- ``records``: what a stream records (``StreamLog``, ``RunResult``) and the hand-over to a record sink
+  that keeps the master's memory bounded;
+- ``trajectory_run``: a trajectory run (approach, stream into the log writer, tracker channel);
+- ``campaign``: a pose list driven pose by pose with tracker readings, measurements written per pose;
+- ``log``: the run-log MCAP written while the robot moves (the contract `identify` reads), recovery;
+- ``summary``: the run summary, from the records or from running values of them;
 - ``bench``: streaming figures in realtime mode.
 """

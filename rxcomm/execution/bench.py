@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -19,8 +20,10 @@ from typing import Any
 import numpy as np
 
 from rxcomm.errors import GatewayError
+from rxcomm.execution.log import RunLogWriter
 from rxcomm.execution.plan import prepare_plan
-from rxcomm.execution.session import RunSettings, run_trajectory
+from rxcomm.execution.session import RunSettings
+from rxcomm.execution.trajectory_run import run_trajectory
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.io.trajectory import Trajectory
 from rxcomm.model.dynamics import prior_parameters
@@ -168,9 +171,10 @@ def bench_soak(
 ) -> list[dict[str, Any]]:
     """Realtime soak: the same ``stream_s`` trajectory streamed back to back for ``duration_s`` over one
     connection to a realtime gateway in another process (enable, stream, disable each time, as
-    `run` does), looking for what only time shows: underruns, lost records, the cell's own cycle
-    overruns, the round-trip tail, and memory growth (RSS) of master and cell after the first minute
-    (a leak grows without bound; a plateau is allocation warming up)."""
+    `run` does, each stream written as a run log while it runs, as `run` does, then deleted),
+    looking for what only time shows: underruns, lost records, the cell's own cycle overruns, the
+    round-trip tail, and memory growth (RSS) of master and cell after the first minute (a leak grows
+    without bound; a plateau is allocation warming up). Of each stream only its figures are kept."""
     robot = load_robot(robot_dir)
     q0 = np.array([0.0, -0.3, 1.2, 0.0, 0.6, 0.0])
     params = prior_parameters(robot)
@@ -185,7 +189,7 @@ def bench_soak(
     )
     me = os.getpid()
     samples: list[tuple[float, float, float]] = []  # (wall s since start, master RSS, cell RSS)
-    logs = []
+    logs: list[tuple[int, int, int | None, np.ndarray]] = []  # underruns, lost, overruns, round trips
     errors = []
     try:
         assert proc.stdout is not None and proc.stdin is not None
@@ -194,11 +198,22 @@ def bench_soak(
             raise GatewayError(f"bench gateway process did not start (said {line!r})")
         t0 = time.perf_counter()
         samples.append((0.0, _rss_bytes(me), _rss_bytes(proc.pid)))
-        with GatewayClient("127.0.0.1", int(line), timeout_s=1.0) as client:
-            for _ in range(n_streams):
-                result = run_trajectory(client, robot, plan, params, RunSettings())
-                if result.log is not None:
-                    logs.append(result.log)
+        with (
+            GatewayClient("127.0.0.1", int(line), timeout_s=1.0) as client,
+            tempfile.TemporaryDirectory() as tmp,
+        ):
+            for i in range(n_streams):
+                writer = RunLogWriter(
+                    Path(tmp) / f"soak-{i}.mcap", robot, inputs={}, settings={}, feedforward="prior",
+                    embedded_cell=False,
+                )  # fmt: skip
+                result = run_trajectory(client, robot, plan, params, RunSettings(), sink=writer)
+                written, _ = writer.close(result)
+                written.unlink()
+                written.with_suffix(".yaml").unlink(missing_ok=True)
+                lg = result.log
+                if lg is not None:
+                    logs.append((lg.underruns, lg.lost_records, lg.overruns, lg.round_trips_s))
                 if result.error is not None:
                     errors.append(str(result.error))
                     break
@@ -217,14 +232,14 @@ def bench_soak(
     def growth(k: int) -> float:
         return (last[k] - first[k]) / first[k] if first is not last else float("nan")
 
-    rts = np.concatenate([lg.round_trips_s for lg in logs]) if logs else np.zeros(0)
-    overruns = [lg.overruns for lg in logs]
+    rts = np.concatenate([lg[3] for lg in logs]) if logs else np.zeros(0)
+    overruns = [lg[2] for lg in logs]
     label = f"{wall:.0f} s realtime soak, {len(logs)} × {plan.duration_s:g} s, {backend} backend"
     stopped = "" if not errors else f": stopped, {errors[0]}"
     rows = [
         (f"streams completed{stopped}", "", float(len(logs) - len(errors)), f"{n_streams}"),
-        ("underruns", "", float(sum(lg.underruns for lg in logs)), "0"),
-        ("lost trace records", "", float(sum(lg.lost_records for lg in logs)), "0"),
+        ("underruns", "", float(sum(lg[0] for lg in logs)), "0"),
+        ("lost trace records", "", float(sum(lg[1] for lg in logs)), "0"),
         (
             "cell cycle overruns (cycles started > 1 cycle late)",
             "",

@@ -10,8 +10,10 @@ whose tracker never answers is recorded with ``valid=False`` (NaN position), not
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -19,11 +21,13 @@ from pydantic import BaseModel, ConfigDict, Field
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.plan import StreamPlan, prepare_plan
-from rxcomm.execution.session import RunResult, Session, StreamSettings, StreamStopped, timing_figures
+from rxcomm.execution.records import RunResult, timing_figures
+from rxcomm.execution.session import Session, StreamSettings, StreamStopped
 from rxcomm.gateway.client import GatewayClient, TrackerSample
+from rxcomm.io.yaml_io import write_yaml_artefact
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.robot import Robot
-from rxcomm.schemas.measurements import MeasuredPose
+from rxcomm.schemas.measurements import MeasuredPose, Measurements
 
 
 class CampaignSettings(BaseModel):
@@ -227,3 +231,55 @@ def campaign_summary(result: CampaignResult) -> dict[str, object]:
         "stop_note": run.stop_note,
         "seconds": result.seconds,
     }
+
+
+@dataclass(frozen=True)
+class CampaignLog:
+    """Where and how a campaign's measurements are written (kind `rxcomm/Measurements`)."""
+
+    output: Path
+    robot: Robot
+    roles: Sequence[str]
+    inputs: Mapping[str, str | Path]
+    settings: Mapping[str, Any]
+
+    @property
+    def part(self) -> Path:
+        return self.output.with_name(self.output.name + ".part")
+
+    def measurements(self, camp: CampaignResult, summary: Mapping[str, Any]) -> Measurements:
+        return Measurements(
+            **Measurements.envelope(self.inputs, self.settings, summary),
+            robot=self.robot.name,
+            joint_names=list(self.robot.joint_names),
+            poses=measured_poses(camp, self.roles),
+        )
+
+    def write(self, camp: CampaignResult) -> tuple[Path, dict[str, object]]:
+        """The final measurements: ``output`` when the campaign completed (its ``.part`` removed),
+        else the ``.part`` with what was measured; returns (the file written, the summary)."""
+        summary = campaign_summary(camp)
+        written = self.output if camp.run.error is None else self.part
+        write_yaml_artefact(written, self.measurements(camp, summary))
+        if written == self.output:
+            self.part.unlink(missing_ok=True)
+        return written, summary
+
+
+def execute_campaign(
+    client: GatewayClient,
+    robot: Robot,
+    poses: Sequence[Sequence[float]],
+    params: DynamicParameters,
+    settings: CampaignSettings,
+    log: CampaignLog,
+    progress: Callable[[str, float], None] | None = None,
+) -> CampaignResult:
+    """``run_campaign`` with each measured pose on disk as it is taken (``log.part``, summary
+    ``outcome: running``: a killed campaign keeps its poses). ``log.write`` writes the result."""
+
+    def on_pose(camp: CampaignResult) -> None:
+        running = {"outcome": "running", "stop_reason": "cut off (the run was killed) if still running"}
+        write_yaml_artefact(log.part, log.measurements(camp, {**campaign_summary(camp), **running}))
+
+    return run_campaign(client, robot, poses, params, settings, progress, on_pose)

@@ -4,7 +4,11 @@ The contract `identify` reads (see ``rxcomm.schemas.run_log``): ``/run/joints`` 
 (the drive cycle when R = 1) and ``/run/gateway`` once per block reply. Written while the robot
 moves (``RunLogWriter``, the session's record sink): to ``NAME.mcap.part`` in chunks flushed to the
 OS every ``FLUSH_PERIOD_S`` of wall time, renamed to ``NAME.mcap`` (and ``NAME.yaml`` written) when
-the run completes. A run that ended in a stop keeps ``NAME.mcap.part``: a finished, readable MCAP
+the run completes. The writer keeps no record it wrote: the summary's motion figures are running
+values (``summary.MotionStats``), and only the first ``keep_encoder_s`` of encoder angles stay in
+memory (``encoder_prefix``: what `run` aligns the embedded cell's tracker samples with, the
+cross-correlation window of ``rxcomm.acceptance.alignment``). A run that ended in a stop keeps
+``NAME.mcap.part``: a finished, readable MCAP
 whose envelope summary says ``outcome`` and ``stop_reason``; no ``NAME.yaml``. A killed run (SIGKILL,
 power cut of the PC) leaves an unfinished ``.part`` whose envelope says ``outcome: running``;
 ``recover_run_log`` (`rxcomm recover-log`) turns it into a readable log and says what was lost.
@@ -18,18 +22,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pinocchio as pin
 
 from rxcomm.errors import InputError
 from rxcomm.execution.frames import FoxgloveFrames
 from rxcomm.execution.plan import StreamPlan
-from rxcomm.execution.session import NOT_APPLICABLE_VIRTUAL, RunResult, StreamLog, timing_figures
+from rxcomm.execution.records import RunResult
+from rxcomm.execution.summary import MotionStats, run_summary, tcp_error_and_speed
 from rxcomm.io.files import part_path
 from rxcomm.io.mcap_io import McapWriter, number_field, recover_mcap, vector_field
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
-from rxcomm.model.energy import motion_energy
-from rxcomm.model.kinematics import frame_placement
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.run_log import (
@@ -45,123 +47,6 @@ from rxcomm.schemas.run_log import (
 )
 
 FLUSH_PERIOD_S = 0.5  # wall time between chunks handed to the OS: what a killed run can lose
-
-
-def tcp_errors(robot: Robot, q_demand: np.ndarray, q_actual: np.ndarray) -> np.ndarray:
-    """Per sample |p_tcp(q_demand) − p_tcp(q_actual)| (m), nominal kinematics; NaN rows stay NaN."""
-    data = robot.create_data()
-    out = np.full(len(q_demand), np.nan)
-    for i, (qd, qa) in enumerate(zip(q_demand, q_actual, strict=True)):
-        if np.all(np.isfinite(qa)):
-            p_d = frame_placement(robot, data, qd, robot.tcp_frame_id).translation
-            p_a = frame_placement(robot, data, qa, robot.tcp_frame_id).translation
-            out[i] = float(np.linalg.norm(p_d - p_a))
-    return out
-
-
-def tcp_error_and_speed(
-    robot: Robot, q_demand: np.ndarray, qd_demand: np.ndarray, q_actual: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per sample (m) ``tcp_errors`` and (m/s) the planned TCP speed |v(q_demand, qd_demand)|, with one
-    kinematics pass per side (the demand pass carries the velocity): the writer does this while the
-    robot moves, so it counts."""
-    model, data, fid = robot.model, robot.create_data(), robot.tcp_frame_id
-    err = np.full(len(q_demand), np.nan)
-    speed = np.zeros(len(q_demand))
-    frame = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-    for i in range(len(q_demand)):
-        pin.forwardKinematics(model, data, q_demand[i], qd_demand[i])
-        speed[i] = float(np.linalg.norm(pin.getFrameVelocity(model, data, fid, frame).linear))
-        if np.all(np.isfinite(q_actual[i])):
-            p_d = pin.updateFramePlacement(model, data, fid).translation.copy()
-            pin.forwardKinematics(model, data, q_actual[i])
-            err[i] = float(np.linalg.norm(p_d - pin.updateFramePlacement(model, data, fid).translation))
-    return err, speed
-
-
-def _nanmax(a: np.ndarray, axis: int | None = None) -> Any:
-    if a.size == 0 or np.all(np.isnan(a)):
-        return None if axis is None else [None] * a.shape[1]
-    return np.nanmax(a, axis=axis).tolist()
-
-
-def _percentile(a: np.ndarray, q: float) -> float | None:
-    return float(np.percentile(a, q)) if len(a) else None
-
-
-def run_summary(robot: Robot, result: RunResult, tcp_error: np.ndarray | None = None) -> dict[str, Any]:
-    """The run-log summary of architecture §9 (underruns, max/rms lag per joint, max TCP error, duration)."""
-    log = result.log
-    approach = result.approach
-    streams = [s for s in (approach, log) if s is not None]
-    virtual = any(s.virtual_time for s in streams)
-    out: dict[str, Any] = dict(timing_figures(streams))
-    if log is not None and log.n_records:
-        fe = np.abs(log.following_error)
-        tcp = tcp_errors(robot, log.q_demand, log.q_actual) if tcp_error is None else tcp_error
-        out |= {
-            "max_lag_rad": _nanmax(fe, axis=0),
-            "rms_lag_rad": np.sqrt(np.nanmean(fe**2, axis=0)).tolist(),
-            "max_tcp_error_m": _nanmax(tcp),
-            "rms_tcp_error_m": float(np.sqrt(np.nanmean(tcp**2))),
-            "duration_s": (log.n_records - 1) * log.plan.sample_s,
-            # from the measured torques and encoder positions of the recorded motion (approach excluded)
-            **motion_energy(
-                robot, np.arange(log.n_records) * log.plan.sample_s, log.q_actual, log.tau_actual
-            ),
-        }
-    else:
-        # Nothing was recorded (stopped before the first trace record): not measured, not zero.
-        out |= {
-            "max_lag_rad": None,
-            "rms_lag_rad": None,
-            "max_tcp_error_m": None,
-            "duration_s": 0.0,
-            "tau_squared_integral_nm2_s": None,
-            "electrical_energy_j": None,
-        }
-    out |= {
-        "outcome": result.outcome,
-        "stop_reason": None if result.error is None else str(result.error),
-        "stop_note": result.stop_note,
-        "interpolation_ratio": result.ratio,
-        "sample_s": result.ratio * result.cycle_s,
-        "n_setpoints": 0 if log is None else log.plan.n,
-        "n_records": 0 if log is None else log.n_records,
-        "lost_records": 0 if log is None else log.lost_records,
-        "busy_replies": 0 if log is None else log.busy_replies,
-        "min_lead_s": NOT_APPLICABLE_VIRTUAL
-        if virtual
-        else (None if log is None else _finite_or_none(log.min_lead_s())),
-        "round_trip_probe_p50_s": _percentile(result.round_trip_probe_s, 50),
-        "round_trip_p50_s": None if log is None else _percentile(log.round_trips_s, 50),
-        "round_trip_p99_s": None if log is None else _percentile(log.round_trips_s, 99),
-        "cpu_share": None if log is None or log.wall_s <= 0 else log.cpu_s / log.wall_s,
-        "approach_s": 0.0 if approach is None else approach.plan.duration_s,
-    }
-    return out
-
-
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
-
-
-def joint_columns(robot: Robot, log: StreamLog, tcp_error: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """The ``/run/joints`` columns of a stream log (one row per trace record)."""
-    m = log.n_records
-    p = log.plan
-    tcp, speed = tcp_error_and_speed(robot, p.q[:m], p.qd[:m], log.q_actual)
-    return {
-        "q_demand": p.q[:m],
-        "qd_demand": p.qd[:m],
-        "qdd_demand": p.qdd[:m],
-        "q_actual": log.q_actual,
-        "tau_actual": log.tau_actual,
-        "tau_ff": p.tau_ff[:m],
-        "following_error": log.following_error,
-        "tcp_error_m": tcp if tcp_error is None else tcp_error,
-        "tcp_speed_m_s": speed,
-    }
 
 
 class RunLogWriter:
@@ -184,6 +69,7 @@ class RunLogWriter:
         feedforward: str,
         embedded_cell: bool,
         period_s: float = FLUSH_PERIOD_S,
+        keep_encoder_s: float = 0.0,
     ) -> None:
         self.path = Path(path)
         summary_yaml_path(self.path)  # refuses a name not ending in .mcap before anything is written
@@ -195,7 +81,10 @@ class RunLogWriter:
         self._plan: StreamPlan | None = None
         self.n_joint = 0  # /run/joints rows written
         self.n_gw = 0
-        self._tcp: list[np.ndarray] = []
+        self.keep_encoder_s = keep_encoder_s
+        self._encoders: list[np.ndarray] = []  # q_actual of the first keep_encoder_s
+        self._n_encoders = 0
+        self.motion: MotionStats | None = None  # running figures of the rows written
         self._tracker: TrackerChannel | None = None
         self._foxglove: FoxgloveFrames | None = None
 
@@ -212,6 +101,7 @@ class RunLogWriter:
         if self._w is not None:
             raise ValueError("run log already begun")
         self._plan = plan
+        self.motion = MotionStats(self.robot, plan.sample_s)
         running = {
             "outcome": "running",
             "stop_reason": "the log was cut off (the run was killed) if this still says running",
@@ -261,8 +151,21 @@ class RunLogWriter:
         assert self._foxglove is not None
         self._foxglove.write(first, p.q[sl], q_actual)
         self._w.flush()
-        self._tcp.append(tcp)
+        assert self.motion is not None
+        self.motion.add(first, p.q[sl], q_actual, tau_actual, tcp)
+        wanted = int(self.keep_encoder_s / p.sample_s) + 1 if self.keep_encoder_s > 0 else 0
+        if self._n_encoders < wanted:
+            part = q_actual[: wanted - self._n_encoders].copy()
+            self._encoders.append(part)
+            self._n_encoders += len(part)
         self.n_joint += m
+
+    @property
+    def encoder_prefix(self) -> np.ndarray:
+        """q_actual [k, n] of the first rows written, up to ``keep_encoder_s`` (NaN rows: lost)."""
+        if not self._encoders:
+            return np.zeros((0, self.robot.n))
+        return np.concatenate(self._encoders)
 
     def gateway(self, rows: Mapping[str, np.ndarray]) -> None:
         assert self._w is not None
@@ -302,15 +205,16 @@ class RunLogWriter:
         assert w is not None
         try:
             if log is not None:
+                # the records and status rows this writer has not had (all of them for a log
+                # written after the fact; none when the stream handed them all over)
                 if log.n_records > self.n_joint:
-                    self.records(self.n_joint, log.q_actual[self.n_joint :], log.tau_actual[self.n_joint :])
+                    i = self.n_joint - log.records_in_sink
+                    self.records(self.n_joint, log.q_actual[i:], log.tau_actual[i:])
                 g = log.gateway
-                if len(g["t"]) > self.n_gw:
-                    self.gateway({k: v[self.n_gw :] for k, v in g.items()})
-            tcp = np.concatenate(self._tcp) if self._tcp else np.zeros(0)
-            if log is not None:
-                tcp = tcp[: log.n_records]
-            summary = run_summary(self.robot, result, tcp if log is not None else None)
+                if log.gateway_rows_in_sink + len(g["t"]) > self.n_gw:
+                    i = self.n_gw - log.gateway_rows_in_sink
+                    self.gateway({k: v[i:] for k, v in g.items()})
+            summary = run_summary(self.robot, result, motion=self.motion if log is not None else None)
             data = self._yaml_data(result, summary)
             RunLog.model_validate(data)  # a bad summary is a bug: the .part stays
             w.set_summary(summary)

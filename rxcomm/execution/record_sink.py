@@ -36,7 +36,7 @@ class RecordSink(Protocol):
 
 
 _Call = tuple[Callable[..., None], tuple[Any, ...]]
-MAX_PENDING_FLUSHES = 64  # ~32 s of records at the writer's 0.5 s period
+MAX_PENDING_FLUSHES = 16  # ~8 s of records at the writer's 0.5 s period (≈ 2 MB at R = 1)
 
 
 class BackgroundSink:

@@ -10,9 +10,10 @@ The order of a run (architecture §7 run):
 4. round trip measured with empty blocks, interpolation ratio R chosen so a 6-setpoint block lasts at
    least ``ROUND_TRIP_MARGIN`` × the mean round trip (``choose_ratio``); trace decimation R (one
    record per setpoint);
-5. enable, stream (``rxcomm.gateway.stream``), every reply's trace and status kept in memory and, with
-   a ``RecordSink`` (the run log writer), handed over every ``period_s`` of wall time so a killed
-   run leaves its log up to then (the buffered lead, ≥ 0.1 s, rides out the writer's few tens of ms);
+5. enable, stream (``rxcomm.gateway.stream``), every reply's trace and status recorded
+   (``rxcomm.execution.records``): with a ``RecordSink`` (the run log writer) handed over every
+   ``period_s`` of wall time and dropped, so a killed run leaves its log up to then and the master's
+   memory stays bounded (the buffered lead, ≥ 0.1 s, rides out the writer's few tens of ms);
 6. disable. Any stop after enabling — gateway stop bits, lost connection, Ctrl-C — quick-stops, waits
    until the demand stands still (bounded), disables, and is *returned* in ``RunResult.error`` with
    what was recorded up to it, so the caller can still write the log.
@@ -24,22 +25,37 @@ import contextlib
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
-from rxcomm.execution.approach import move_trajectory
-from rxcomm.execution.plan import StreamPlan, distance_to_start, prepare_plan
-from rxcomm.execution.record_sink import BackgroundSink, RecordSink
+from rxcomm.execution.plan import StreamPlan
+from rxcomm.execution.record_sink import BackgroundSink
+from rxcomm.execution.records import (
+    NOT_APPLICABLE_VIRTUAL,
+    LastRoundTrip,
+    RecordSink,
+    RunResult,
+    StreamLog,
+    _Recorder,
+    timing_figures,
+)
 from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
-from rxcomm.gateway.client import BlockReply, GatewayClient, RoundTripStats
+from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.registers import DriveState, ErrorCode, Status, StopCause
 from rxcomm.gateway.stream import STOP_BITS, stream
-from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.robot import Robot
+
+__all__ = [  # the records' names, for the modules that import them from here
+    "NOT_APPLICABLE_VIRTUAL",
+    "RecordSink",
+    "RunResult",
+    "StreamLog",
+    "timing_figures",
+    "_Recorder",
+]
 
 ROUND_TRIP_MARGIN = 3.0  # a block must last this many mean empty-block round trips: a full block's
 # encode/decode and the recording ride on it (measured: ≈ 1.5–2 × an empty poll on a loaded 2-core VM)
@@ -47,21 +63,6 @@ LATCHED_FAULT_BITS = (
     Status.WATCHDOG | Status.ESTOP | Status.AXIS_FAULT | Status.UNDERRUN | Status.SEQUENCE_ERROR
 )
 COMMUNICATION_ERRORS = (ErrorCode.HEARTBEAT, ErrorCode.UNDERRUN)  # the master's fault: exit 4
-# In virtual time the cell's clock waits for setpoints: an underrun cannot happen and the lead is not
-# held against a clock, so neither figure says anything about the master. Printed instead of a 0.
-NOT_APPLICABLE_VIRTUAL = "not applicable (virtual time)"
-
-
-def timing_figures(streams: list[StreamLog]) -> dict[str, object]:
-    """Underruns and cell overruns of ``streams``: counts in real time, NOT_APPLICABLE_VIRTUAL in
-    virtual time, None (not measured) when the gateway's counters could not be read."""
-    if any(s.virtual_time for s in streams):
-        return {"underruns": NOT_APPLICABLE_VIRTUAL, "cell_overruns": NOT_APPLICABLE_VIRTUAL}
-    overruns = [s.overruns for s in streams]
-    return {
-        "underruns": int(sum(s.underruns for s in streams)),
-        "cell_overruns": None if not streams or None in overruns else int(sum(overruns)),  # type: ignore[arg-type]
-    }
 
 
 class StreamSettings(BaseModel):
@@ -101,204 +102,6 @@ class RunSettings(BaseModel):
     stream: StreamSettings = StreamSettings()
 
 
-# ---- records --------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, eq=False)
-class StreamLog:
-    """One stream as recorded: the setpoints sent and, per setpoint reached, the drives' feedback.
-
-    ``q_actual``/``tau_actual`` have one row per trace record kept (record r belongs to setpoint r;
-    rows of lost records are NaN); ``gateway`` holds one entry per block reply (arrays of equal length).
-    """
-
-    plan: StreamPlan
-    ratio: int
-    cycle_s: float
-    q_actual: np.ndarray
-    tau_actual: np.ndarray
-    gateway: dict[str, np.ndarray]
-    lost_records: int
-    busy_replies: int
-    underruns: int
-    round_trips_s: np.ndarray
-    wall_s: float
-    cpu_s: float
-    completed: bool
-    overruns: int | None = None  # drive cycles the gateway started late during the stream (None: unknown)
-    virtual_time: bool = False  # the gateway's clock waits for setpoints: no underrun, no lead to keep
-
-    @property
-    def n_records(self) -> int:
-        return int(self.q_actual.shape[0])
-
-    @property
-    def q_demand(self) -> np.ndarray:
-        return self.plan.q[: self.n_records]
-
-    @property
-    def following_error(self) -> np.ndarray:
-        return self.q_demand - self.q_actual
-
-    def min_lead_s(self) -> float:
-        """Smallest buffered lead while setpoints were still being sent and the stream ran."""
-        g = self.gateway
-        if len(g["lead_s"]) == 0:
-            return float("nan")
-        feeding = (g["write_index"] < self.plan.n) & ((g["status"] & int(Status.STREAMING)) != 0)
-        return float(g["lead_s"][feeding].min()) if feeding.any() else float("nan")
-
-
-@dataclass
-class RunResult:
-    """What a run produced. ``error`` is the stop that ended it early (None: completed)."""
-
-    gateway: str
-    ratio: int
-    cycle_s: float
-    log: StreamLog | None = None
-    approach: StreamLog | None = None
-    moves: list[StreamLog] = field(default_factory=list)
-    error: RxcommError | None = None
-    stop_note: str = ""
-    round_trip_probe_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    @property
-    def outcome(self) -> str:
-        if self.error is None:
-            return "completed"
-        return "communication_fault" if isinstance(self.error, GatewayError) else "safety_stop"
-
-
-class _LastRoundTrip(RoundTripStats):
-    """The client's round-trip statistics, also remembering the latest one (for the gateway topic)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.last_s = math.nan
-
-    def add(self, seconds: float) -> None:
-        super().add(seconds)
-        self.last_s = seconds
-
-
-class _Recorder:
-    """``stream(on_reply=...)``: keeps trace chunks and status rows, calls ``progress`` at ≤ 10 Hz and
-    hands new rows to the ``sink`` every ``sink.period_s``."""
-
-    def __init__(
-        self,
-        n: int,
-        timing: _LastRoundTrip,
-        progress: Callable[[float], None] | None,
-        sink: RecordSink | None = None,
-        ratio: int = 1,
-        cycle_s: float = R.CYCLE_US * 1e-6,
-    ) -> None:
-        self.n = n
-        self.timing = timing
-        self.progress = progress
-        self.chunks: list[tuple[int, np.ndarray, np.ndarray]] = []
-        self.rows: list[tuple[float, float, int, int, int, int, int]] = []
-        self.t0 = time.perf_counter()
-        self._next_progress = 0.0
-        self.last_execute = 0
-        self.sink = sink
-        self.ratio, self.cycle_s = ratio, cycle_s
-        self.emitted = 0  # records handed to the sink
-        self._rows_emitted = 0
-        self._chunks_emitted = 0
-        self._trace_end = 0  # one past the highest record received
-        self._next_emit = self.t0 + (sink.period_s if sink is not None else 0.0)
-
-    def __call__(self, reply: BlockReply) -> None:
-        tr = reply.trace
-        if tr.count:
-            self.chunks.append((tr.first, tr.position_rad, tr.torque_nm))
-            self._trace_end = max(self._trace_end, tr.first + tr.count)
-        st = reply.status
-        if st is None:
-            return
-        wall = time.perf_counter() - self.t0
-        self.last_execute = st.execute_index
-        self.rows.append(
-            (
-                wall,
-                self.timing.last_s,
-                int(st.status),
-                st.error,
-                st.execute_index,
-                st.write_index,
-                st.buffer_level,
-            )
-        )
-        if self.progress is not None and wall >= self._next_progress:
-            self._next_progress = wall + 0.1
-            self.progress(min(1.0, st.execute_index / self.n))
-        if self.sink is not None and time.perf_counter() >= self._next_emit:
-            self.emit()
-
-    def emit(self) -> None:
-        """Hand the sink the records of setpoints executed so far (not those of a stop ramp after the
-        last executed setpoint: they have no planned demand) and the new status rows."""
-        assert self.sink is not None
-        end = min(self._trace_end, self.last_execute, self.n)
-        if end > self.emitted:
-            q = np.full((end - self.emitted, R.N_AXES), np.nan)  # NaN: a record lost to overflow
-            tau = q.copy()
-            for first, pos, tq in self.chunks[self._chunks_emitted :]:
-                lo, hi = max(first, self.emitted), min(first + pos.shape[0], end)
-                if hi > lo:
-                    q[lo - self.emitted : hi - self.emitted] = pos[lo - first : hi - first]
-                    tau[lo - self.emitted : hi - self.emitted] = tq[lo - first : hi - first]
-            # a chunk reaching past ``end`` is looked at again next time
-            while self._chunks_emitted < len(self.chunks):
-                first, pos, _ = self.chunks[self._chunks_emitted]
-                if first + pos.shape[0] > end:
-                    break
-                self._chunks_emitted += 1
-            self.sink.records(self.emitted, q, tau)
-            self.emitted = end
-        if len(self.rows) > self._rows_emitted:
-            self.sink.gateway(_gateway_arrays(self.rows[self._rows_emitted :], self.ratio, self.cycle_s))
-            self._rows_emitted = len(self.rows)
-        self._next_emit = time.perf_counter() + self.sink.period_s
-
-    def trace(self, keep: int) -> tuple[np.ndarray, np.ndarray]:
-        """Rows 0..keep-1 by record index (NaN where a record never arrived)."""
-        q = np.full((keep, R.N_AXES), np.nan)
-        tau = np.full((keep, R.N_AXES), np.nan)
-        for first, pos, tq in self.chunks:
-            lo, hi = first, min(first + pos.shape[0], keep)
-            if hi > lo:
-                q[lo:hi] = pos[: hi - lo]
-                tau[lo:hi] = tq[: hi - lo]
-        return q, tau
-
-    def gateway_arrays(self, ratio: int, cycle_s: float) -> dict[str, np.ndarray]:
-        return _gateway_arrays(self.rows, ratio, cycle_s)
-
-
-def _gateway_arrays(
-    rows: list[tuple[float, float, int, int, int, int, int]], ratio: int, cycle_s: float
-) -> dict[str, np.ndarray]:
-    """Status rows as the ``/run/gateway`` columns."""
-    a = np.array(rows, dtype=float).reshape(-1, 7)
-    ex = a[:, 4].astype(np.int64)
-    level = a[:, 6].astype(np.int64)
-    return {
-        "t": ex * ratio * cycle_s,
-        "wall_s": a[:, 0],
-        "round_trip_s": a[:, 1],
-        "status": a[:, 2].astype(np.int64),
-        "error": a[:, 3].astype(np.int64),
-        "execute_index": ex,
-        "write_index": a[:, 5].astype(np.int64),
-        "buffer_level": level,
-        "lead_s": level * ratio * cycle_s,
-    }
-
-
 # ---- the session ----------------------------------------------------------------------------------
 
 
@@ -320,7 +123,7 @@ class Session:
         self.client = client
         self.robot = robot
         self.settings = settings or StreamSettings()
-        self.timing = _LastRoundTrip()
+        self.timing = LastRoundTrip()
         client.timing = self.timing
         self.cycle_s = robot.drives.cycle_s
         self.capacity = 0
@@ -408,11 +211,12 @@ class Session:
     ) -> StreamLog:
         """Stream ``plan`` (subsampled to this session's ratio) and return what was recorded; a stop
         raises ``StreamStopped`` carrying the explained error and the log up to it. ``sink`` gets the
-        records while the stream runs (the rest after it is up to the caller: ``sink.emitted``)."""
+        records while the stream runs and the rest at its end; the log then holds only counts and
+        running figures of them (``rxcomm.execution.records``)."""
         sub = plan.subsample(self.ratio)
         if sink is not None:
             sink.begin(sub, self.ratio, self.cycle_s)
-        writer = BackgroundSink(sink) if sink is not None else None
+        writer = BackgroundSink(sink) if sink is not None else None  # the log's work off this loop
         rec = _Recorder(sub.n, self.timing, progress, writer, self.ratio, self.cycle_s)
         self.client.heartbeat(0)  # feeds the watchdog: a campaign reads tracker and encoders before this
         before = self._status()
@@ -421,33 +225,50 @@ class Session:
         error: RxcommError | None = None
         busy = 0
         try:
-            res = stream(self.client, sub.q, sub.tau_ff, high_level=self.high_level(), on_reply=rec)
+            res = stream(
+                self.client,
+                sub.q,
+                sub.tau_ff,
+                high_level=self.high_level(),
+                on_reply=rec,
+                keep_trace=False,  # the recorder has it (and drops it once a sink took it)
+            )
             busy = res.busy_replies
         except (GatewayError, SafetyStop) as e:
             error = self._explain(e)
         except KeyboardInterrupt:  # stream() sent the quick stop already
             error = SafetyStop("interrupted by the user (Ctrl-C): quick stop sent")
+        except BaseException:  # what was handed over still reaches the log before this propagates
+            if writer is not None:
+                with contextlib.suppress(Exception):
+                    writer.stop()
+            raise
         if error is not None:
             executed = rec.last_execute
             self._drain_trace(rec)  # the records up to the stop trail it: fetch them for the log
             # The drain's status knows the setpoints completed before the stop (the streaming replies
             # may predate it); a gateway that clears its buffer on a stop reports 0: keep the larger.
             rec.last_execute = max(executed, rec.last_execute)
-        if writer is not None:
-            writer.stop()
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+        keep = sub.n if error is None else min(sub.n, rec.last_execute)
+        if sink is not None:  # the rest to the sink too: the log holds counts only
+            # after a stop, up to the last record that arrived (those of the last setpoints before
+            # it may never come)
+            rec.emit(keep if error is None else max(rec.emitted, rec.arrived_end(keep)))
+        if writer is not None:
+            writer.stop()  # every hand-over written before the caller closes the log
         after = self._status()
-        gw = rec.gateway_arrays(self.ratio, self.cycle_s)
+        gw = rec.gateway_arrays()
         overruns = None
         if before is not None and after is not None:
             underruns = (after.underrun_count - before.underrun_count) % 0x10000
             overruns = (after.overruns - before.overruns) % 0x10000
         else:
-            underruns = int(np.any(gw["status"] & int(Status.UNDERRUN)))
+            underruns = int(bool(rec.status_seen & int(Status.UNDERRUN)))
         virtual = before is not None and before.clock == R.Clock.VIRTUAL
-        keep = sub.n if error is None else min(sub.n, rec.last_execute)
         q_act, tau_act = rec.trace(keep)
-        if error is not None:  # records of the last setpoints before a stop may never have arrived
+        if error is not None and sink is None:
+            # records of the last setpoints before a stop may never have arrived
             arrived = np.flatnonzero(~np.isnan(q_act[:, 0]))
             keep = int(arrived[-1]) + 1 if arrived.size else 0
             q_act, tau_act = q_act[:keep], tau_act[:keep]
@@ -458,7 +279,7 @@ class Session:
             q_actual=q_act,
             tau_actual=tau_act,
             gateway=gw,
-            lost_records=int(np.isnan(q_act[:, 0]).sum()),
+            lost_records=rec.lost_emitted + int(np.isnan(q_act[:, 0]).sum()),
             busy_replies=busy,
             underruns=int(underruns),
             round_trips_s=self.timing.seconds()[rt0:],
@@ -467,6 +288,9 @@ class Session:
             completed=error is None,
             overruns=overruns,
             virtual_time=virtual,
+            records_in_sink=rec.emitted,
+            gateway_rows_in_sink=rec.rows_emitted,
+            sink_min_lead_s=rec.min_lead_emitted,
         )
         if error is not None:
             raise StreamStopped(error, log)
@@ -588,82 +412,3 @@ def _code_name(code: int) -> str:
         return f"{ErrorCode(code).name.lower().replace('_', ' ')} ({code:#06x})"
     except ValueError:
         return f"error {code:#06x}"
-
-
-# ---- a trajectory run -----------------------------------------------------------------------------
-
-
-def run_trajectory(
-    client: GatewayClient,
-    robot: Robot,
-    plan: StreamPlan,
-    params: DynamicParameters,
-    settings: RunSettings | None = None,
-    progress: Callable[[str, float], None] | None = None,
-    sink: RecordSink | None = None,
-) -> RunResult:
-    """Execute a prepared ``plan`` (``prepare_plan``) on a connected gateway. ``params`` is the model
-    for the approach move's feed-forward and limit check. Refusals before motion raise (InputError,
-    GatewayError, SafetyStop); a stop during motion is returned in ``RunResult.error`` with the log
-    recorded up to it. ``progress(what, fraction)`` is called at ≤ 10 Hz while streaming; ``sink`` (the
-    run log writer) gets the plan's records while it streams."""
-    settings = settings or RunSettings()
-    ses = Session(client, robot, settings.stream)
-    ses.check_identity()
-    ses.check_faults(settings.fault_reset)
-    q_now = ses.positions()
-    dist = distance_to_start(robot, q_now, plan.q[0])
-    approach: StreamPlan | None = None
-    if max(dist.values()) > settings.start_tolerance_rad:
-        if not settings.approach:
-            far = ", ".join(f"{k} {v:.4f}" for k, v in dist.items())
-            raise SafetyStop(
-                f"the robot is not at the plan's start (distance per joint, rad: {far}; tolerance "
-                f"{settings.start_tolerance_rad:g}); use --approach to move there first"
-            )
-        move = move_trajectory(robot, q_now, plan.q[0], ses.cycle_s, settings.approach_speed_fraction)
-        approach = prepare_plan(
-            robot,
-            move,
-            params,
-            ses.cycle_s,
-            feedforward=settings.feedforward,
-            limit_tolerance=settings.limit_tolerance,
-            what="approach move",
-        )
-    ses.configure()
-    result = RunResult(
-        gateway=ses.address, ratio=ses.ratio, cycle_s=ses.cycle_s, round_trip_probe_s=ses.probe_s
-    )
-    stage = "approach"
-    try:
-        client.enable_all()
-        held = ses.demand()
-        start = approach.q[0] if approach is not None else plan.q[0]
-        if np.max(np.abs(held - start)) > settings.start_tolerance_rad:
-            raise SafetyStop(f"the robot moved while enabling: {np.round(held - start, 5).tolist()} rad")
-        if approach is not None:
-            result.approach = ses.stream(approach, _named(progress, "approach"))
-        stage = "plan"
-        result.log = ses.stream(plan, _named(progress, "run"), sink)
-        result.stop_note = ses.stop_drives(after_stop=False)
-    except StreamStopped as s:
-        if stage == "approach":
-            result.approach = s.log
-        else:
-            result.log = s.log
-        result.error = s.error
-        result.stop_note = ses.stop_drives(after_stop=True)
-    except (GatewayError, SafetyStop) as e:  # enable failed or refused after enabling
-        result.error = e
-        result.stop_note = ses.stop_drives(after_stop=True)
-    except KeyboardInterrupt:
-        result.error = SafetyStop("interrupted by the user (Ctrl-C)")
-        result.stop_note = ses.stop_drives(after_stop=True)
-    return result
-
-
-def _named(progress: Callable[[str, float], None] | None, what: str) -> Callable[[float], None] | None:
-    if progress is None:
-        return None
-    return lambda f: progress(what, f)

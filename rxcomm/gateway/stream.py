@@ -54,10 +54,12 @@ def stream(
     high_level: int = 1500,
     timeout_s: float | None = None,
     on_reply: Callable[[BlockReply], None] | None = None,
+    keep_trace: bool = True,
 ) -> StreamResult:
     """Stream ``pos_rad``/``tau_ff_nm`` (n, 6) as setpoints 0..n-1 with the client's configured
     prefill, interpolation ratio and trace decimation (``client.configure`` first). Drives must be
-    enabled. Returns the trace of the whole stream. Ctrl-C sends a quick stop before re-raising
+    enabled. Returns the trace of the whole stream (empty with ``keep_trace=False``: an ``on_reply``
+    that records it keeps the only copy). Ctrl-C sends a quick stop before re-raising
     (if that fails too, the gateway's watchdog stops the drives)."""
     pos = np.asarray(pos_rad, dtype=float)
     tau = np.asarray(tau_ff_nm, dtype=float)
@@ -67,7 +69,7 @@ def stream(
     if timeout_s is None:
         timeout_s = 10.0 + 3.0 * n * client.ratio * R.CYCLE_US * 1e-6
     try:
-        return _handshake(client, pos, tau, time.monotonic() + timeout_s, high_level, on_reply)
+        return _handshake(client, pos, tau, time.monotonic() + timeout_s, high_level, on_reply, keep_trace)
     except KeyboardInterrupt:
         with contextlib.suppress(GatewayError):
             client.quick_stop()
@@ -81,6 +83,7 @@ def _handshake(
     deadline: float,
     high_level: int,
     on_reply: Callable[[BlockReply], None] | None,
+    keep_trace: bool,
 ) -> StreamResult:
     """The streaming handshake for checked (n, 6) setpoints, until done or ``deadline`` (monotonic)."""
     n = pos.shape[0]
@@ -95,8 +98,9 @@ def _handshake(
         nonlocal lost, max_level
         if on_reply is not None:
             on_reply(reply)
-        positions.append(reply.trace.position_rad)
-        torques.append(reply.trace.torque_nm)
+        if keep_trace:
+            positions.append(reply.trace.position_rad)
+            torques.append(reply.trace.torque_nm)
         lost += reply.trace.lost
         assert reply.status is not None
         max_level = max(max_level, reply.status.buffer_level)

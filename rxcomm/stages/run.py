@@ -9,26 +9,23 @@ Without ``--gateway`` an embedded simulated cell is started on an ephemeral loop
 from __future__ import annotations
 
 import contextlib
+import functools
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
 from rxcomm import console, plotting
-from rxcomm.acceptance.alignment import tracker_channel
+from rxcomm.acceptance.alignment import CORRELATE_S, tracker_channel
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
-from rxcomm.execution.campaign import (
-    CampaignResult,
-    CampaignSettings,
-    campaign_summary,
-    check_poses,
-    measured_poses,
-    run_campaign,
-)
+from rxcomm.execution.campaign import CampaignLog, CampaignSettings, check_poses, execute_campaign
 from rxcomm.execution.log import RunLogWriter
 from rxcomm.execution.plan import prepare_plan
-from rxcomm.execution.session import RunSettings, StreamSettings, run_trajectory
+from rxcomm.execution.records import RunResult
+from rxcomm.execution.session import RunSettings, StreamSettings
+from rxcomm.execution.trajectory_run import execute_trajectory
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.net import is_loopback
 from rxcomm.io.files import check_outputs
@@ -36,12 +33,11 @@ from rxcomm.io.mcap_io import read_mcap_envelope
 from rxcomm.io.run_log import read_run_log
 from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.validate import check_kind
-from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
+from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.model.base_parameters import load_dynamics
 from rxcomm.model.dynamics import DynamicParameters, prior_parameters
 from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.schemas.configs import Configs
-from rxcomm.schemas.measurements import Measurements
 from rxcomm.schemas.trajectory import TrajectorySummary
 
 REQUEST_TIMEOUT_S = 0.5
@@ -155,15 +151,18 @@ def _with_context(error: RxcommError, note: str, written: Path | None) -> Rxcomm
     return error
 
 
-def record_tracker(server: Any, sink: RunLogWriter, result: Any, robot: Robot) -> None:
-    """The embedded cell's tracker samples of this run, aligned, as the log's /run/tracker channel."""
+def record_tracker(server: Any, robot: Robot, result: RunResult, sink: RunLogWriter) -> None:
+    """The embedded cell's tracker samples of this run, aligned, as the log's /run/tracker channel.
+
+    Aligned on the writer's ``encoder_prefix`` (the first ``CORRELATE_S`` of encoder angles, all the
+    cross-correlation looks at): the master does not keep a run's records (architecture §7 run)."""
     export = server.tracker_export()
     log = result.log
     if export is None or export.n < 2 or log is None or log.n_records < 2 or not sink.begun:
         return
     sample_s = result.ratio * result.cycle_s
     try:
-        channel = tracker_channel(robot, export, log.q_actual[: log.n_records], sample_s)
+        channel = tracker_channel(robot, export, sink.encoder_prefix, sample_s, correlate_s=CORRELATE_S)
     except InputError as e:  # no alignment: the run stands, without a tracker channel
         console.err.print(f"warning: tracker samples not recorded: {e}")
         return
@@ -171,6 +170,20 @@ def record_tracker(server: Any, sink: RunLogWriter, result: Any, robot: Robot) -
 
 
 # --- the stage ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Job:
+    """What both kinds of plan share once the inputs are read."""
+
+    plan: Path
+    output: Path
+    robot: Robot
+    params: DynamicParameters
+    model_name: str
+    inputs: dict[str, Path]
+    connect: Callable[[], contextlib.AbstractContextManager[tuple[GatewayClient, Any]]]
+    progress: Callable[[str, float], None] | None
+
+
 def execute(
     plan: Path,
     robot_dir: Path,
@@ -218,110 +231,108 @@ def execute(
     )
     robot = load_robot(robot_dir)
     params, model_name = load_model(robot, dynamics)
-    ff_name = model_name if feedforward else "none"
     inputs: dict[str, Path] = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
     if dynamics is not None:
         inputs["dynamics"] = Path(dynamics)
-    stream_settings = StreamSettings(interpolation_ratio=interpolation_ratio)
+    stream = StreamSettings(interpolation_ratio=interpolation_ratio)
     update, stop_bar = _progress() if show_progress else (None, lambda: None)
+    job = _Job(
+        plan, output, robot, params, model_name, inputs,
+        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime), update,
+    )  # fmt: skip
     try:
-        if kind == "trajectory":
-            traj, _ = load_trajectory_mcap(plan)
+        if cfg is None:
             settings = RunSettings(
                 feedforward=feedforward,
                 approach=approach,
                 approach_speed_fraction=speed,
                 fault_reset=fault_reset,
-                stream=stream_settings,
+                stream=stream,
             )
-            prepared = prepare_plan(
-                robot,
-                traj,
-                params,
-                robot.drives.cycle_s,
-                feedforward=feedforward,
-                limit_tolerance=settings.limit_tolerance,
-            )
-            with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, server):
-                embedded = server is not None
-                # The log is written while the robot moves: a killed run leaves NAME.mcap.part.
-                sink = RunLogWriter(
-                    output,
-                    robot,
-                    inputs=inputs,
-                    settings={
-                        **settings.model_dump(mode="json"),
-                        "model": model_name,
-                        "embedded_cell": embedded,
-                        "realtime": realtime,
-                    },
-                    feedforward=ff_name,
-                    embedded_cell=embedded,
-                )
-                try:
-                    result = run_trajectory(client, robot, prepared, params, settings, update, sink)
-                    if server is not None:
-                        record_tracker(server, sink, result, robot)
-                except BaseException:
-                    sink.abandon()
-                    raise
-            stop_bar()
-            written, summary = sink.close(result)
-            _print_run(summary, written, robot)
-            if plot:
-                figure = plot_lags(written, compare, output.with_suffix(".png"), robot)
-                console.out.print(f"figure: {figure}")
-            if result.error is not None:
-                raise _with_context(result.error, result.stop_note, written)
-            return summary
-        check_joint_names(cfg, plan, robot)
-        check_poses(robot, [p.q_rad for p in cfg.poses])  # refused before touching the cell
+            return _trajectory(job, settings, realtime, stop_bar, compare if plot else None, plot)
         settings_c = CampaignSettings(
-            feedforward=feedforward, speed_fraction=speed, fault_reset=fault_reset, stream=stream_settings
+            feedforward=feedforward, speed_fraction=speed, fault_reset=fault_reset, stream=stream
         )
-        part = output.with_name(output.name + ".part")
-        roles = [p.role for p in cfg.poses]
-        with connect(gateway, allow_remote, truth, robot_dir, realtime) as (client, server):
-            embedded = server is not None
-            env_settings = {
-                **settings_c.model_dump(mode="json"),
-                "model": model_name,
-                "embedded_cell": embedded,
-            }
-
-            def measurements(camp: CampaignResult, summary: dict[str, Any]) -> Measurements:
-                return Measurements(
-                    **Measurements.envelope(inputs, env_settings, summary),
-                    robot=robot.name,
-                    joint_names=list(robot.joint_names),
-                    poses=measured_poses(camp, roles),
-                )
-
-            def on_pose(camp: CampaignResult) -> None:  # each pose on disk as it is taken
-                running = {
-                    "outcome": "running",
-                    "stop_reason": "cut off (the run was killed) if still running",
-                }
-                write_yaml_artefact(part, measurements(camp, {**campaign_summary(camp), **running}))
-
-            camp = run_campaign(
-                client, robot, [p.q_rad for p in cfg.poses], params, settings_c, update, on_pose
-            )
-        stop_bar()
-        summary = campaign_summary(camp)
-        meas = measurements(camp, summary)
-        written = output if camp.run.error is None else part
-        write_yaml_artefact(written, meas)
-        if written == output:
-            part.unlink(missing_ok=True)
-        console.summary_table(
-            f"run: {summary['n_valid']}/{summary['n_poses']} poses measured → {written}", summary
-        )
-        if camp.run.error is not None:
-            raise _with_context(camp.run.error, camp.run.stop_note, written)
-        return summary
+        return _campaign(job, cfg, settings_c, stop_bar)
     finally:
         stop_bar()
+
+
+def _trajectory(
+    job: _Job,
+    settings: RunSettings,
+    realtime: bool,
+    stop_bar: Callable[[], None],
+    compare: Path | None,
+    plot: bool,
+) -> dict[str, Any]:
+    """A trajectory plan: prepared and limit-checked, run with the log written while the robot moves
+    (a killed run leaves NAME.mcap.part), the log finished, printed and plotted."""
+    robot, params = job.robot, job.params
+    traj, _ = load_trajectory_mcap(job.plan)
+    cycle_s = robot.drives.cycle_s
+    prepared = prepare_plan(
+        robot,
+        traj,
+        params,
+        cycle_s,
+        feedforward=settings.feedforward,
+        limit_tolerance=settings.limit_tolerance,
+    )
+    with job.connect() as (client, server):
+        embedded = server is not None
+        sink = RunLogWriter(
+            job.output,
+            robot,
+            inputs=job.inputs,
+            settings={
+                **settings.model_dump(mode="json"),
+                "model": job.model_name,
+                "embedded_cell": embedded,
+                "realtime": realtime,
+            },
+            feedforward=job.model_name if settings.feedforward else "none",
+            embedded_cell=embedded,
+            keep_encoder_s=CORRELATE_S if embedded else 0.0,
+        )
+        tracker = functools.partial(record_tracker, server, robot) if embedded else None
+        result = execute_trajectory(client, robot, prepared, params, settings, sink, job.progress, tracker)
+    stop_bar()
+    written, summary = sink.close(result)
+    _print_run(summary, written, robot)
+    if plot:
+        figure = plot_lags(written, compare, job.output.with_suffix(".png"), robot)
+        console.out.print(f"figure: {figure}")
+    if result.error is not None:
+        raise _with_context(result.error, result.stop_note, written)
+    return summary
+
+
+def _campaign(
+    job: _Job, cfg: Configs, settings: CampaignSettings, stop_bar: Callable[[], None]
+) -> dict[str, Any]:
+    """A pose list: checked before touching the cell, measured pose by pose (each on disk as it is
+    taken), the measurements written."""
+    robot = job.robot
+    check_joint_names(cfg, job.plan, robot)
+    check_poses(robot, [p.q_rad for p in cfg.poses])  # refused before touching the cell
+    with job.connect() as (client, server):
+        env_settings = {
+            **settings.model_dump(mode="json"),
+            "model": job.model_name,
+            "embedded_cell": server is not None,
+        }
+        log = CampaignLog(job.output, robot, [p.role for p in cfg.poses], job.inputs, env_settings)
+        poses = [p.q_rad for p in cfg.poses]
+        camp = execute_campaign(client, robot, poses, job.params, settings, log, job.progress)
+    stop_bar()
+    written, summary = log.write(camp)
+    console.summary_table(
+        f"run: {summary['n_valid']}/{summary['n_poses']} poses measured → {written}", summary
+    )
+    if camp.run.error is not None:
+        raise _with_context(camp.run.error, camp.run.stop_note, written)
+    return summary
 
 
 def _print_run(summary: dict[str, Any], written: Path, robot: Robot) -> None:
@@ -385,71 +396,85 @@ def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> 
     return out
 
 
+# the options, as typer reads them
+_Plan = Annotated[
+    Path,
+    typer.Argument(
+        help="A trajectory NAME.mcap (excite, plan-cp, plan-ptp) or a pose list configs.yaml "
+        "(select-configs: a measurement campaign)."
+    ),
+]
+_RobotDir = Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")]
+_Output = Annotated[
+    Path,
+    typer.Option(
+        "-o",
+        "--output",
+        help="Trajectory: the run log NAME.mcap (/run/joints at the setpoint rate, /run/gateway) with "
+        "its summary NAME.yaml beside it. Pose list: the measurements NAME.yaml (e.g. calib-meas.yaml) "
+        "that calibrate reads. A run that ends in a stop keeps its output as NAME.part.",
+    ),
+]
+_Gateway = Annotated[
+    str | None,
+    typer.Option(
+        help="Drive gateway HOST:PORT. Default: an embedded simulated cell on an ephemeral loopback port."
+    ),
+]
+_Truth = Annotated[
+    Path | None, typer.Option(help="The embedded cell's truth file (default: ROBOT_DIR/truth.yaml).")
+]
+_Dynamics = Annotated[
+    Path | None,
+    typer.Option(
+        help="Identified dynamics.yaml for τ_ff and the torque checks (default: the prior URDF model)."
+    ),
+]
+_Feedforward = Annotated[
+    bool, typer.Option("--feedforward/--no-feedforward", help="Stream τ_ff = M(q)q̈ + g(q, q̇), or zeros.")
+]
+_Approach = Annotated[
+    bool, typer.Option(help="If the robot is not at the plan's start, move there first (jerk-limited).")
+]
+_AllowRemote = Annotated[bool, typer.Option(help="Allow a non-loopback --gateway (a real cell).")]
+_Realtime = Annotated[bool, typer.Option(help="Embedded cell: wall-clock pacing (demos).")]
+_InterpolationRatio = Annotated[
+    int | None,
+    typer.Option(help="Drive cycles per setpoint (1-64). Default: chosen from the measured round trip."),
+]
+_Speed = Annotated[
+    float,
+    typer.Option(
+        "--speed-fraction",
+        help="Approach and campaign moves: fraction of the velocity/acceleration limits.",
+    ),
+]
+_FaultReset = Annotated[
+    bool, typer.Option(help="Reset drive faults and latched gateway stops before moving.")
+]
+_Plot = Annotated[bool, typer.Option(help="Write NAME.png: lag errors per joint and TCP error over time.")]
+_Compare = Annotated[
+    Path | None,
+    typer.Option(help="Another run log to draw in the --plot figure (e.g. the run without feed-forward)."),
+]
+
+
 def command(
-    plan: Annotated[
-        Path,
-        typer.Argument(
-            help="A trajectory NAME.mcap (excite, plan-cp, plan-ptp) or a pose list configs.yaml "
-            "(select-configs: a measurement campaign)."
-        ),
-    ],
-    robot_dir: Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")],
-    output: Annotated[
-        Path,
-        typer.Option(
-            "-o",
-            "--output",
-            help="Trajectory: the run log NAME.mcap (/run/joints at the setpoint rate, /run/gateway) with "
-            "its summary NAME.yaml beside it. Pose list: the measurements NAME.yaml (e.g. calib-meas.yaml) "
-            "that calibrate reads. A run that ends in a stop keeps its output as NAME.part.",
-        ),
-    ],
-    gateway: Annotated[
-        str | None,
-        typer.Option(
-            help="Drive gateway HOST:PORT. Default: an embedded simulated cell on an ephemeral loopback port."
-        ),
-    ] = None,
-    truth: Annotated[
-        Path | None, typer.Option(help="The embedded cell's truth file (default: ROBOT_DIR/truth.yaml).")
-    ] = None,
-    dynamics: Annotated[
-        Path | None,
-        typer.Option(
-            help="Identified dynamics.yaml for τ_ff and the torque checks (default: the prior URDF model)."
-        ),
-    ] = None,
-    feedforward: Annotated[
-        bool, typer.Option("--feedforward/--no-feedforward", help="Stream τ_ff = M(q)q̈ + g(q, q̇), or zeros.")
-    ] = True,
-    approach: Annotated[
-        bool, typer.Option(help="If the robot is not at the plan's start, move there first (jerk-limited).")
-    ] = False,
-    allow_remote: Annotated[bool, typer.Option(help="Allow a non-loopback --gateway (a real cell).")] = False,
-    realtime: Annotated[bool, typer.Option(help="Embedded cell: wall-clock pacing (demos).")] = False,
-    interpolation_ratio: Annotated[
-        int | None,
-        typer.Option(help="Drive cycles per setpoint (1-64). Default: chosen from the measured round trip."),
-    ] = None,
-    speed: Annotated[
-        float,
-        typer.Option(
-            "--speed-fraction",
-            help="Approach and campaign moves: fraction of the velocity/acceleration limits.",
-        ),
-    ] = 0.2,
-    fault_reset: Annotated[
-        bool, typer.Option(help="Reset drive faults and latched gateway stops before moving.")
-    ] = False,
-    plot: Annotated[
-        bool, typer.Option(help="Write NAME.png: lag errors per joint and TCP error over time.")
-    ] = False,
-    compare: Annotated[
-        Path | None,
-        typer.Option(
-            help="Another run log to draw in the --plot figure (e.g. the run without feed-forward)."
-        ),
-    ] = None,
+    plan: _Plan,
+    robot_dir: _RobotDir,
+    output: _Output,
+    gateway: _Gateway = None,
+    truth: _Truth = None,
+    dynamics: _Dynamics = None,
+    feedforward: _Feedforward = True,
+    approach: _Approach = False,
+    allow_remote: _AllowRemote = False,
+    realtime: _Realtime = False,
+    interpolation_ratio: _InterpolationRatio = None,
+    speed: _Speed = 0.2,
+    fault_reset: _FaultReset = False,
+    plot: _Plot = False,
+    compare: _Compare = None,
 ) -> None:
     """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque, record,
     report lag errors. Exit 2 bad input, 4 communication fault, 5 safety stop or a plan outside the
