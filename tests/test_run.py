@@ -24,6 +24,7 @@ from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.plan import prepare_plan, resample
 from rxcomm.execution.session import choose_ratio
 from rxcomm.gateway.client import GatewayClient
+from rxcomm.gateway.net import parse_gateway_address
 from rxcomm.gateway.registers import DriveState
 from rxcomm.io.mcap_io import read_mcap
 from rxcomm.io.run_log import read_run_log
@@ -350,11 +351,11 @@ def test_ctrl_c_quick_stops_disables_and_keeps_the_log(tmp_path, cell, rx130l, m
 
 def test_non_loopback_gateway_needs_allow_remote(tmp_path):
     with pytest.raises(InputError, match="--allow-remote"):
-        run_stage.parse_gateway("10.1.2.3:502", allow_remote=False)
-    assert run_stage.parse_gateway("10.1.2.3:502", allow_remote=True) == ("10.1.2.3", 502)
-    assert run_stage.parse_gateway("[::1]:1502", allow_remote=False) == ("::1", 1502)
+        parse_gateway_address("10.1.2.3:502", allow_remote=False)
+    assert parse_gateway_address("10.1.2.3:502", allow_remote=True) == ("10.1.2.3", 502)
+    assert parse_gateway_address("[::1]:1502", allow_remote=False) == ("::1", 1502)
     with pytest.raises(InputError, match="HOST:PORT"):
-        run_stage.parse_gateway("localhost", allow_remote=False)
+        parse_gateway_address("localhost", allow_remote=False)
 
 
 @pytest.mark.slow

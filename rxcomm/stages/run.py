@@ -13,54 +13,33 @@ import functools
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from rxcomm import console, plotting
-from rxcomm.acceptance.alignment import CORRELATE_S, tracker_channel
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
-from rxcomm.execution.campaign import CampaignLog, CampaignSettings, check_poses, execute_campaign
-from rxcomm.execution.log import RunLogWriter
-from rxcomm.execution.plan import prepare_plan
-from rxcomm.execution.records import RunResult
-from rxcomm.execution.session import RunSettings, StreamSettings
-from rxcomm.execution.trajectory_run import execute_trajectory
-from rxcomm.gateway.client import GatewayClient
-from rxcomm.gateway.net import is_loopback
 from rxcomm.io.files import check_outputs
-from rxcomm.io.mcap_io import read_mcap_envelope
-from rxcomm.io.run_log import read_run_log
-from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.model.base_parameters import load_dynamics
-from rxcomm.model.dynamics import DynamicParameters, prior_parameters
-from rxcomm.model.robot import Robot, load_robot, robot_files
+from rxcomm.options import RobotDir
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.trajectory import TrajectorySummary
+
+if TYPE_CHECKING:
+    from rxcomm.execution.campaign import CampaignSettings
+    from rxcomm.execution.log import RunLogWriter
+    from rxcomm.execution.records import RunResult
+    from rxcomm.execution.session import RunSettings
+    from rxcomm.gateway.client import GatewayClient
+    from rxcomm.model.dynamics import DynamicParameters
+    from rxcomm.model.robot import Robot
+
 
 REQUEST_TIMEOUT_S = 0.5
 
 
 # --- inputs ---------------------------------------------------------------------------------------
-def parse_gateway(text: str, allow_remote: bool) -> tuple[str, int]:
-    """``HOST:PORT`` (IPv6 as ``[::1]:1502``); a non-loopback host needs ``allow_remote``."""
-    host, sep, port_s = text.strip().rpartition(":")
-    host = host.strip("[]")
-    try:
-        port = int(port_s)
-    except ValueError:
-        port = -1
-    if not sep or not host or not 0 < port < 65536:
-        raise InputError(f"expected HOST:PORT, got {text!r}", field="gateway")
-    if not is_loopback(host) and not allow_remote:
-        raise InputError(
-            f"{host} is not a loopback address: a run on a real cell needs --allow-remote", field="gateway"
-        )
-    return host, port
-
-
 def plan_kind(plan: Path) -> str:
     """'trajectory' for NAME.mcap, 'poses' for a YAML pose list."""
     suffix = plan.suffix.lower()
@@ -72,6 +51,9 @@ def plan_kind(plan: Path) -> str:
 
 
 def load_model(robot: Robot, dynamics: Path | None) -> tuple[DynamicParameters, str]:
+    from rxcomm.model.base_parameters import load_dynamics
+    from rxcomm.model.dynamics import prior_parameters
+
     if dynamics is not None:
         return load_dynamics(dynamics, robot), "identified"
     return prior_parameters(robot), "prior"
@@ -97,6 +79,9 @@ def connect(
     gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool
 ) -> Iterator[tuple[GatewayClient, Any]]:
     """A connected client and the embedded cell's server (None: a gateway); stops an embedded cell on exit."""
+    from rxcomm.gateway.client import GatewayClient
+    from rxcomm.gateway.net import parse_gateway_address
+
     server = None
     if gateway is None:
         try:
@@ -114,7 +99,7 @@ def connect(
         pacing = "realtime" if realtime else "virtual time"
         console.err.print(f"embedded simulated cell on {host}:{port} ({pacing}, truth {truth})")
     else:
-        host, port = parse_gateway(gateway, allow_remote)
+        host, port = parse_gateway_address(gateway, allow_remote)
     try:
         client = GatewayClient(host, port, timeout_s=REQUEST_TIMEOUT_S, allow_remote=allow_remote)
         client.connect()
@@ -156,6 +141,8 @@ def record_tracker(server: Any, robot: Robot, result: RunResult, sink: RunLogWri
 
     Aligned on the writer's ``encoder_prefix`` (the first ``CORRELATE_S`` of encoder angles, all the
     cross-correlation looks at): the master does not keep a run's records (architecture §7 run)."""
+    from rxcomm.acceptance.alignment import CORRELATE_S, tracker_channel
+
     export = server.tracker_export()
     log = result.log
     if export is None or export.n < 2 or log is None or log.n_records < 2 or not sink.begun:
@@ -204,6 +191,11 @@ def execute(
     show_progress: bool = True,
 ) -> dict[str, Any]:
     """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
+    from rxcomm.execution.campaign import CampaignSettings
+    from rxcomm.execution.session import RunSettings, StreamSettings
+    from rxcomm.io.mcap_io import read_mcap_envelope
+    from rxcomm.model.robot import load_robot, robot_files
+
     plan, output = Path(plan), Path(output)
     kind = plan_kind(plan)
     # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
@@ -268,6 +260,12 @@ def _trajectory(
 ) -> dict[str, Any]:
     """A trajectory plan: prepared and limit-checked, run with the log written while the robot moves
     (a killed run leaves NAME.mcap.part), the log finished, printed and plotted."""
+    from rxcomm.acceptance.alignment import CORRELATE_S
+    from rxcomm.execution.log import RunLogWriter
+    from rxcomm.execution.plan import prepare_plan
+    from rxcomm.execution.trajectory_run import execute_trajectory
+    from rxcomm.io.trajectory import load_trajectory_mcap
+
     robot, params = job.robot, job.params
     traj, _ = load_trajectory_mcap(job.plan)
     cycle_s = robot.drives.cycle_s
@@ -313,6 +311,8 @@ def _campaign(
 ) -> dict[str, Any]:
     """A pose list: checked before touching the cell, measured pose by pose (each on disk as it is
     taken), the measurements written."""
+    from rxcomm.execution.campaign import CampaignLog, check_poses, execute_campaign
+
     robot = job.robot
     check_joint_names(cfg, job.plan, robot)
     check_poses(robot, [p.q_rad for p in cfg.poses])  # refused before touching the cell
@@ -358,6 +358,8 @@ def _print_run(summary: dict[str, Any], written: Path, robot: Robot) -> None:
 def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> Path:
     """PNG: lag (following) error per joint over time, and the TCP error; with ``compare``, both runs
     (the paper's Fig. 2: with and without feed-forward)."""
+    from rxcomm.io.run_log import read_run_log
+
     plt = plotting.pyplot()
 
     logs = [read_run_log(log_path)]
@@ -368,11 +370,8 @@ def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> 
     axes = axes.ravel()
     for k, (log, path) in enumerate(zip(logs, [log_path, compare], strict=False)):
         settings = log.envelope.get("settings", {})
-        ff = (
-            "feed-forward off"
-            if not settings.get("feedforward", True)
-            else f"feed-forward ({settings.get('model')})"
-        )
+        on = settings.get("feedforward", True)
+        ff = f"feed-forward ({settings.get('model')})" if on else "feed-forward off"
         label = f"{Path(path).name}: {ff}"
         j = log.joints
         style = {"lw": 0.9, "alpha": 0.9 if k == 0 else 0.7}
@@ -390,10 +389,7 @@ def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> 
     for ax in axes[max(0, n - 1) : n + 1]:
         ax.set_xlabel("t [s]")
     fig.suptitle("lag errors per joint and TCP error (nominal kinematics)")
-    fig.tight_layout()
-    fig.savefig(out, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return out
+    return plotting.save_figure(fig, out, dpi=110)
 
 
 # the options, as typer reads them
@@ -404,7 +400,6 @@ _Plan = Annotated[
         "(select-configs: a measurement campaign)."
     ),
 ]
-_RobotDir = Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")]
 _Output = Annotated[
     Path,
     typer.Option(
@@ -461,7 +456,7 @@ _Compare = Annotated[
 
 def command(
     plan: _Plan,
-    robot_dir: _RobotDir,
+    robot_dir: RobotDir,
     output: _Output,
     gateway: _Gateway = None,
     truth: _Truth = None,
