@@ -31,6 +31,13 @@ def mcap_summary_path(mcap_path: str | Path) -> Path:
     return Path(mcap_path).with_suffix(".yaml")
 
 
+def trajectory_output(output: str | Path) -> Path:
+    """A trajectory stage's ``-o``: NAME.mcap, its summary NAME.yaml written beside it."""
+    if Path(output).suffix != ".mcap":
+        raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    return Path(output)
+
+
 def _same_file(a: Path, b: Path) -> bool:
     """Same resolved path, or (both existing) the same inode: symlinks and hard links included."""
     try:

@@ -12,29 +12,25 @@ from __future__ import annotations
 import time
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
 from rich.markup import escape
 
 from rxcomm import console, plotting
-from rxcomm.calibration.loading import load_calibrated_robot
 from rxcomm.errors import InputError
-from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs
-from rxcomm.io.trajectory import Trajectory, save_trajectory_mcap
+from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs, trajectory_output
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
-from rxcomm.model.catalogue import catalogue_limits
-from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import RobotDir, parse_numbers
-from rxcomm.planning.catalogue_timing import filtered_path_deviation_m, plan_cp_catalogue
-from rxcomm.planning.cp import CpPlan, CpSettings, path_deviation_m, plan_cp
-from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
-from rxcomm.planning.paths import load_path
-from rxcomm.planning.timing import PlanDynamics
 from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.trajectory import TrajectorySummary
+
+if TYPE_CHECKING:
+    from rxcomm.io.trajectory import Trajectory
+    from rxcomm.model.robot import Robot
+    from rxcomm.planning.cp import CpPlan
 
 
 class Method(StrEnum):
@@ -50,6 +46,8 @@ class Timing(StrEnum):
 # --- inputs -----------------------------------------------------------------------------------------
 # --- outputs ----------------------------------------------------------------------------------------
 def summary_of(plan: CpPlan, robot: Robot) -> dict[str, object]:
+    from rxcomm.planning.cp import path_deviation_m
+
     rep = plan.report
     limit, joint, t_worst, _ = rep.worst()
     joint = "TCP" if limit.startswith("tcp") else joint
@@ -88,6 +86,8 @@ def summary_of(plan: CpPlan, robot: Robot) -> dict[str, object]:
 
 
 def trajectory_of(plan: CpPlan) -> Trajectory:
+    from rxcomm.io.trajectory import Trajectory
+
     return Trajectory(
         plan.t, plan.q, plan.qd, plan.qdd, plan.tau, extra={"sigma": plan.sigma, "sigma_dot": plan.sigma_dot}
     )
@@ -133,6 +133,8 @@ def _print_active(plan: CpPlan) -> None:
 # --- ISO 9283 -----------------------------------------------------------------------------------------
 def write_iso9283(robot: Robot, out_dir: Path, cell: Path | None, rpy_deg: str) -> dict[str, object]:
     """Find the robot's ISO 9283 test cube and write its test-plane paths to `out_dir`."""
+    from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
+
     rpy = np.radians(parse_numbers(rpy_deg, 3, "iso-rpy", "degrees"))
     box = None
     if cell is not None:
@@ -249,6 +251,8 @@ def command(
 
 @console.stage_command
 def iso_paths(robot_dir: Path, out_dir: Path, *, cell: Path | None = None, rpy_deg: str = "180,0,0") -> dict:
+    from rxcomm.model.robot import load_robot, robot_files
+
     check_output_dir(out_dir, "iso9283", {"cell": cell, **robot_files(robot_dir)})
     return write_iso9283(load_robot(robot_dir), Path(out_dir), cell, rpy_deg)
 
@@ -272,23 +276,25 @@ def run(
     timing: str = "optimal",
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    from rxcomm.calibration.loading import load_calibrated_robot
+    from rxcomm.io.trajectory import save_trajectory_mcap
+    from rxcomm.model.catalogue import catalogue_limits
+    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.planning.catalogue_timing import filtered_path_deviation_m
+    from rxcomm.planning.cp import CpSettings
+    from rxcomm.planning.paths import load_path
+    from rxcomm.planning.timing import PlanDynamics
+
     t_all = time.perf_counter()
-    if path is None:
-        raise InputError("give the path to plan with --path PATH.yaml", field="path")
-    if output is None:
-        raise InputError("give the output with -o NAME.mcap", field="output")
-    path, output = Path(path), Path(output)
-    if output.suffix != ".mcap":
-        raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    path, output = _given_paths(path, output)
     check_outputs(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {"path": path, "dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
     )
     robot = load_robot(robot_dir)
-    inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}
+    inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}
     catalogue = catalogue_limits(robot) if timing == "catalogue" else None  # the maker's: prior, nominal
-    if catalogue is not None:
-        method, torque_rate, k2 = "toppra", False, 0.0
+    method, torque_rate, k2 = ("toppra", False, 0.0) if catalogue else (method, torque_rate, k2)
     if calibration is not None:
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
@@ -306,8 +312,7 @@ def run(
         ),
         {name: name.replace("_", "-") for name in CpSettings.model_fields},
     )
-    if dynamics is not None:
-        inputs["dynamics"] = Path(dynamics)
+    inputs |= {"dynamics": Path(dynamics)} if dynamics is not None else {}
     dyn = PlanDynamics.load(robot, dynamics, settings.coulomb_eps_rad_s)
     label = f"plan-cp: {spec.name or path.name} ({timing if catalogue else settings.method}, N = {intervals})"
     plan = _timed_plan(robot, cpath, dyn, settings, catalogue, label)
@@ -335,12 +340,24 @@ def run(
     return summary
 
 
+def _given_paths(path: Path | None, output: Path | None) -> tuple[Path, Path]:
+    """The path and the output (NAME.mcap), both required."""
+    if path is None:
+        raise InputError("give the path to plan with --path PATH.yaml", field="path")
+    if output is None:
+        raise InputError("give the output with -o NAME.mcap", field="output")
+    return Path(path), trajectory_output(output)
+
+
 def _given_or(option: float | None, default: float | None) -> float | None:
     return option if option is not None else default
 
 
 def _timed_plan(robot, cpath, dyn, settings, catalogue, label: str) -> CpPlan:
     """The optimal plan, or with catalogue limits the generic controller's (`--timing catalogue`)."""
+    from rxcomm.planning.catalogue_timing import plan_cp_catalogue
+    from rxcomm.planning.cp import plan_cp
+
     with console.phase(label) as status:
 
         def say(m: str) -> None:

@@ -17,8 +17,7 @@ import numpy as np
 import typer
 
 from rxcomm import console
-from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs
+from rxcomm.io.files import check_outputs, trajectory_output
 from rxcomm.options import RobotDir
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -50,9 +49,7 @@ def run(
     from rxcomm.planning.iso9283 import cycloidal_move, repeat_cycles
     from rxcomm.planning.ptp_problem import PtpDynamics
 
-    t_all, plan, output = time.perf_counter(), Path(plan), Path(output)
-    if output.suffix != ".mcap":
-        raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    t_all, plan, output = time.perf_counter(), Path(plan), trajectory_output(output)
     check_outputs({"output": output}, {"plan": plan, "dynamics": dynamics, **robot_files(robot_dir)})
     one, env = load_trajectory_mcap(plan)
     robot = load_robot(robot_dir)

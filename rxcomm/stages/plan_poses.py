@@ -17,7 +17,7 @@ import typer
 
 from rxcomm import console
 from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs
+from rxcomm.io.files import check_outputs, trajectory_output
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.options import RobotDir
 from rxcomm.schemas.calibration import Calibration
@@ -74,9 +74,7 @@ def run(
     from rxcomm.planning.catalogue_timing import pose_cycle_plan
     from rxcomm.planning.ptp_problem import PtpDynamics
 
-    t_all, output = time.perf_counter(), Path(output)
-    if output.suffix != ".mcap":
-        raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    t_all, output = time.perf_counter(), trajectory_output(output)
     rectangle = (Path(paths) if paths is not None else Path(robot_dir) / "paths") / "iso9283-rectangle.yaml"
     check_outputs(
         {"output": output},

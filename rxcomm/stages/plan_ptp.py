@@ -10,28 +10,24 @@ from __future__ import annotations
 import time
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
 
 from rxcomm import console, plotting
-from rxcomm.calibration.loading import load_calibrated_robot
 from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs
-from rxcomm.io.trajectory import save_trajectory_mcap
+from rxcomm.io.files import check_outputs, trajectory_output
 from rxcomm.io.validate import settings_from_options
-from rxcomm.model.base_parameters import load_dynamics
-from rxcomm.model.catalogue import catalogue_limits
-from rxcomm.model.dynamics import DynamicParameters
-from rxcomm.model.kinematics import solve_pose_ik
-from rxcomm.model.robot import Robot, load_robot, robot_files
 from rxcomm.options import POSE_PREFIX, RobotDir, parse_numbers, radians_text
-from rxcomm.planning.catalogue_timing import plan_ptp_catalogue
-from rxcomm.planning.ptp import PtpNotConverged, PtpResult, kinematic_fallback, plan_ptp
-from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
+
+if TYPE_CHECKING:
+    from rxcomm.model.dynamics import DynamicParameters
+    from rxcomm.model.robot import Robot
+    from rxcomm.planning.ptp import PtpResult
+    from rxcomm.planning.ptp_problem import PtpLimits, PtpOptions
 
 
 class Shoulder(StrEnum):
@@ -67,6 +63,8 @@ def parse_state(
     robot: Robot, text: str, field: str, branch: Branch, near: np.ndarray | None = None
 ) -> tuple[np.ndarray, str]:
     """A joint state `q1,…,qn` (rad) or a TCP pose `pose:x,y,z,α,β,γ`; returns (q, "joints"|"pose")."""
+    from rxcomm.model.kinematics import solve_pose_ik
+
     text = text.strip()
     if text.lower().startswith(POSE_PREFIX):
         pose = parse_numbers(text[len(POSE_PREFIX) :], 6, field)
@@ -258,28 +256,18 @@ def run(
     timing: str = "optimal",
 ) -> dict[str, object]:
     """The stage as a function (tests call it): returns the summary written beside the MCAP."""
-    t_all, output = time.perf_counter(), Path(output)
-    if output.suffix != ".mcap":
-        raise InputError("the output must be NAME.mcap (NAME.yaml is written beside it)", field="output")
+    from rxcomm.io.trajectory import save_trajectory_mcap
+    from rxcomm.model.robot import robot_files
+    from rxcomm.planning.ptp import PtpNotConverged, plan_ptp
+    from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits
+
+    t_all, output = time.perf_counter(), trajectory_output(output)
     check_outputs(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {"dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
     )
     robot, params, inputs = _planning_model(robot_dir, calibration, dynamics)
-    options = settings_from_options(
-        PtpOptions,
-        dict(
-            n_intervals=intervals,
-            k1=k1,
-            k2_per_nm2=k2,
-            margin=margin,
-            acceleration_limits=acceleration_limits,
-            tcp_box_m=parse_box(tcp_box),
-            max_wall_s=max_wall,
-            compile=compile_,
-        ),
-        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"},
-    )
+    options = _options(intervals, k1, k2, margin, acceleration_limits, tcp_box, max_wall, compile_)
     branch = branch or Branch()
     q_start, start_kind = parse_state(robot, start, "start", branch)
     q_goal, goal_kind = parse_state(robot, goal, "goal", branch, near=q_start)
@@ -312,16 +300,50 @@ def run(
     if plot:
         limits = PtpLimits.from_robot(robot, acceleration=acceleration_limits)
         title = f"PtP {result.duration_s:.3f} s (k1 = {k1:g}, k2 = {k2:g}): every limit, value / limit"
-        png = plot_ptp(result, limits, robot.joint_names, output.with_suffix(".png"), title)
-        console.out.print(f"plot: {png}")
+        console.out.print(
+            f"plot: {plot_ptp(result, limits, robot.joint_names, output.with_suffix('.png'), title)}"
+        )
     console.summary_table(f"plan-ptp → {output}", summary)
     return summary
+
+
+def _options(
+    intervals: int,
+    k1: float,
+    k2: float,
+    margin: float,
+    acceleration_limits: bool,
+    tcp_box: str | None,
+    max_wall: float | None,
+    compile_: bool,
+) -> PtpOptions:
+    """The OCP's options from the command line's, a bad value named by its option."""
+    from rxcomm.planning.ptp_problem import PtpOptions
+
+    return settings_from_options(
+        PtpOptions,
+        dict(
+            n_intervals=intervals,
+            k1=k1,
+            k2_per_nm2=k2,
+            margin=margin,
+            acceleration_limits=acceleration_limits,
+            tcp_box_m=parse_box(tcp_box),
+            max_wall_s=max_wall,
+            compile=compile_,
+        ),
+        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"},
+    )
 
 
 def _planning_model(
     robot_dir: Path, calibration: Path | None, dynamics: Path | None
 ) -> tuple[Robot, DynamicParameters | None, dict[str, Path]]:
     """The robot (calibrated if given), the identified parameters (None: the prior) and the input files."""
+    from rxcomm.calibration.loading import load_calibrated_robot
+    from rxcomm.model.base_parameters import load_dynamics
+    from rxcomm.model.robot import load_robot
+
     robot = load_robot(robot_dir)
     inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
     if calibration is not None:
@@ -336,6 +358,11 @@ def _planning_model(
 
 def _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, output, inputs, settings, t_all) -> dict:
     """The factory's move: the catalogue limits of the nominal prior robot, ruckig's profile."""
+    from rxcomm.io.trajectory import save_trajectory_mcap
+    from rxcomm.model.catalogue import catalogue_limits
+    from rxcomm.model.robot import load_robot
+    from rxcomm.planning.catalogue_timing import plan_ptp_catalogue
+
     catalogue = catalogue_limits(load_robot(robot_dir))
     t0 = time.perf_counter()
     traj, report = plan_ptp_catalogue(robot, dyn, q_start, q_goal, catalogue)
@@ -363,6 +390,9 @@ def _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, output, inputs, set
 
 
 def _write_fallback(robot, dyn, q_start, q_goal, options, output, inputs, settings, error) -> None:
+    from rxcomm.io.trajectory import save_trajectory_mcap
+    from rxcomm.planning.ptp import kinematic_fallback
+
     traj, report = kinematic_fallback(robot, dyn, q_start, q_goal, options)
     output.parent.mkdir(parents=True, exist_ok=True)
     summary = {
