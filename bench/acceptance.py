@@ -34,8 +34,10 @@ def rows(quick: bool) -> list[Row]:
     optimal = plan_cp(robot, path, dyn, CpSettings(method="toppra", torque_rate=False))
     return [
         Row("factory", f"catalogue limits ({cat.n_poses} poses, RX130L)", "s", t_cat, "", "", None, ""),
-        Row("factory", "catalogue time scale k (v = k·v_rated, a = k²·a)", "", float(cat.time_scale.min()),
+        Row("factory", "catalogue speed scale k_v (v = k_v·v_rated)", "", float(cat.velocity_scale.min()),
             "", "", None, ""),
+        Row("factory", "catalogue acceleration scale k_a (a = k_a·a_drive)", "",
+            float(cat.acceleration_scale.min()), "", "", None, ""),
         Row("factory", "singular line: planned duration, catalogue vs toppra at the limits", "s",
             factory.duration_s, "", "toppra, prior model", optimal.duration_s, "ratio ≥ 1/0.7"),
     ]  # fmt: skip

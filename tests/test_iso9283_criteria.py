@@ -245,3 +245,44 @@ def test_repeated_path_cycles_in_one_log_are_found(rx130l):
     for c in cycles:
         assert len(c.position_m) == pytest.approx(path.t[-1] / 1e-3, abs=2)
         assert c.command_speed_m_per_s.max() > 0.1
+
+
+def test_a_closed_paths_rounding_step_between_dwells_is_no_cycle(rx130l):
+    """On a closed path (start = end, a circle) the return move is a rounding step of a setpoint or
+    two between the dwells: it starts and ends at the path's ends but travels nothing, so it is not
+    a cycle; the n passes are."""
+    from rxcomm.acceptance.campaign import CampaignSettings, TrackedLog, path_cycles
+    from rxcomm.planning.iso9283 import repeat_cycles
+    from rxcomm.schemas.path import PathSpec
+
+    dt = rx130l.drives.cycle_s
+    move = cycloidal_move(0.5 * rx130l.v_max, 0.5 * rx130l.a_max, dt)
+    q0 = np.array([0.3, 0.1, 1.8, 0.0, 1.2, -2.8])
+    data = rx130l.create_data()
+    p0 = frame_placement(rx130l, data, q0, rx130l.tcp_frame_id).translation
+    # one pass: J1 out and back (the TCP leaves the start and returns), ending 1e-12 rad off its start
+    out = move(q0, q0 + np.array([0.4, 0, 0, 0, 0, 0]))
+    back = move(out.q[-1], q0 + 1.2e-12)
+    one = type(out)(
+        np.arange(len(out.t) + len(back.t) - 1) * dt,
+        np.vstack([out.q, back.q[1:]]),
+        np.vstack([out.qd, back.qd[1:]]),
+        np.vstack([out.qdd, back.qdd[1:]]),
+    )
+    traj = repeat_cycles(one, 3, 0.3, move, dt)
+    spec = PathSpec.model_validate(
+        {
+            "kind": "rxcomm/Path",
+            "schema_version": 1,
+            "name": "closed",
+            "geometry": {"type": "circle", "centre_m": (p0 + [0, 0, -0.1]).tolist(), "normal": [1, 0, 0],
+                         "radius_m": 0.1, "start_direction": [0, 0, 1], "sweep_rad": 2 * np.pi},
+            "orientation": {"mode": "hold", "rpy_rad": [np.pi, 0, 0]},
+        }
+    )  # fmt: skip
+    t_tr = np.arange(0, traj.t[-1], 1e-3)
+    p_tr = np.column_stack([np.interp(t_tr, traj.t, traj.q[:, i]) for i in range(3)])
+    log = TrackedLog("x", traj.t, traj.q, t_tr, p_tr, None)
+    cycles = path_cycles(rx130l, log, spec, CampaignSettings())
+    assert len(cycles) == 3
+    assert all(len(c.position_m) == pytest.approx(one.t[-1] / 1e-3, abs=2) for c in cycles)

@@ -153,9 +153,10 @@ class PathCycle:
 
 def path_cycles(robot: Robot, log: TrackedLog, spec: PathSpec, s: CampaignSettings) -> list[PathCycle]:
     """The cycles of a test path in one log: each move between dwells (zero commanded velocity for
-    ≥ `min_dwell_s`, or the log's ends) whose command TCP starts within `match_m` of the path's start
-    and ends within it of the path's end (a return move the other way is not a cycle). A log of one
-    path run is one cycle."""
+    ≥ `min_dwell_s`, or the log's ends) whose command TCP starts within `match_m` of the path's start,
+    ends within it of the path's end and travels at least half the path's length (a return move the
+    other way is not a cycle, nor, on a closed path such as a circle, the few setpoints of a return
+    move that is a rounding step between two dwells). A log of one path run is one cycle."""
     dt = float(np.median(np.diff(log.t_joint)))
     # the command speed from FK every ~COMMAND_SPEED_STEP_S: it is smooth, and FK of every setpoint
     # of a campaign would be most of its time
@@ -175,6 +176,9 @@ def path_cycles(robot: Robot, log: TrackedLog, spec: PathSpec, s: CampaignSettin
             continue
         ends = _fk(robot, log.q_demand[[a, b]])
         if np.linalg.norm(ends[0] - start) > s.match_m or np.linalg.norm(ends[1] - end) > s.match_m:
+            continue
+        on = (idx >= a) & (idx <= b)
+        if np.sum(np.linalg.norm(np.diff(p_cmd[on], axis=0), axis=1)) < 0.5 * curve.length_m:
             continue
         sel = (log.t >= log.t_joint[a]) & (log.t <= log.t_joint[b])
         t = log.t[sel]

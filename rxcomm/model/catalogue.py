@@ -2,24 +2,35 @@
 
 A generic controller knows no dynamics, so its maker states kinematic limits that are safe at every
 pose of the workspace with the rated payload. Here they are computed from the PRIOR model (URDF
-inertias, drives.yaml rotor inertias, friction priors, spring, peak torques, `rated_payload`):
+inertias, drives.yaml rotor inertias, friction priors, spring, peak torques, `rated_payload`) as the
+largest box |q̇_k| ≤ v_k, |q̈_k| ≤ a_k for which, at every sampled pose q and every joint j,
 
-- per joint a time scale k ≤ 1 of the drive's own limits: v = k·v_rated (the URDF's joint speeds),
-  a = k²·a_drive (drives.yaml's acceleration limits), as slowing a motion down in time by k scales
-  its speeds by k and its accelerations (and so its dynamic torques) by k²;
-- k the largest such that at every sampled pose q, every joint j and every state with |q̇_k| ≤ v_k,
-  |q̈_k| ≤ a_k,
+    |g_j(q) + τ_s,j(q)| + Σ_kl |H_j,kl(q)| v_k v_l + f_j(v) + Σ_k |M_jk(q)| a_k  ≤  τ_peak,j
 
-      |g_j(q) + τ_s,j(q)| + Σ_kl |H_j,kl(q)| v_k v_l + f_j(v) + Σ_k |M_jk(q)| a_k  ≤  τ_peak,j
+(H_j the Coriolis/centrifugal quadratic form, f_j the worst friction at full speed, M with the
+reflected rotor inertia). The left side bounds |τ_j| by the triangle inequality over every state in
+the box: conservative, as a published figure must be.
 
-  (H_j the Coriolis/centrifugal quadratic form, f_j the worst friction at full speed, M with the
-  reflected rotor inertia). The left side bounds |τ_j| by the triangle inequality: conservative, as
-  a published figure must be. Progressive filling: all joints' k grow together until a torque row
-  binds (tight: that pose's bound equals its peak torque); the joints loading that row are fixed,
-  the others grow on.
+The box's shape: velocity first, then acceleration, each a scale of the drive's own limits
+(v = k_v·v_rated, the URDF's joint speeds; a = k_a·a_drive, drives.yaml's acceleration limits), the
+way catalogues read (speeds near the motors' rated speeds, accelerations a generic controller
+limits):
+
+1. k_v the largest ≤ 1 for which the speed terms (Coriolis, friction) take at most
+   1 − `ACCELERATION_RESERVE` of the headroom τ_peak,j − |g_j + τ_s,j| at every pose and joint: the
+   bound at zero acceleration leaves that reserve of every pose's headroom for accelerating;
+2. k_a the largest ≤ 1 for which the whole bound at v stays within τ_peak: acceleration fills the rest.
+
+Each by progressive filling: all joints' scale grows together until a torque row binds (tight: that
+pose's bound equals its limit); the joints loading that row (through its speed terms in step 1,
+through its inertia row in step 2) are fixed, the others grow on. A single time scale k (v = k·v,
+a = k²·a, the shape slowing a motion down in time keeps) was the earlier rule: it gave the RX130L
+speeds 31 % and accelerations 9 % of the drives' (a second to full speed), with which the ISO line
+peaks at 0.64 m/s; the split with a 50 % reserve gives 20 % and 17 % and 0.76 m/s. No box at all
+gives the line 1 m/s under this bound (`planning.catalogue_timing.catalogue_speed_bound`).
 
 Poses are drawn uniformly within the joint limits (seeded); `CatalogueLimits` says how many, which
-pose and which torque row bound each joint.
+pose and which torque row bound each joint's speed and acceleration.
 """
 
 from __future__ import annotations
@@ -34,30 +45,50 @@ from rxcomm.model.dynamics import DynamicParameters, RobotDynamics, prior_parame
 from rxcomm.model.robot import Robot
 
 DEFAULT_POSES = 2000
+ACCELERATION_RESERVE = 0.5  # of every pose's torque headroom (peak − holding) kept for accelerating
 
 
 @dataclass(frozen=True, eq=False)
 class CatalogueLimits:
-    """Per joint: v_max (rad/s), a_max (rad/s²), the time scale k of the drive limits; what bound it
-    (`bound_by[k]`: the joint whose peak torque binds it, or "drive" when k reaches 1, with the pose
-    `worst_pose_rad[k]`, NaN for "drive"); the sample they were computed on."""
+    """Per joint: v_max (rad/s) = k_v·v_rated, a_max (rad/s²) = k_a·a_drive, the scales
+    (`velocity_scale`, `acceleration_scale`); what bound each (`velocity_bound_by[k]`,
+    `acceleration_bound_by[k]`: the joint whose torque row binds it, or "drive" when the scale
+    reaches 1, with the pose `…_worst_pose_rad[k]`, NaN for "drive"); the sample they were computed
+    on and the reserve of step 1."""
 
     joint_names: tuple[str, ...]
     v_max: np.ndarray
     a_max: np.ndarray
-    bound_by: tuple[str, ...]
-    worst_pose_rad: np.ndarray
-    time_scale: np.ndarray
+    velocity_scale: np.ndarray
+    acceleration_scale: np.ndarray
+    velocity_bound_by: tuple[str, ...]
+    acceleration_bound_by: tuple[str, ...]
+    velocity_worst_pose_rad: np.ndarray
+    acceleration_worst_pose_rad: np.ndarray
+    acceleration_reserve: float
     payload_kg: float
     n_poses: int
     seed: int
 
+    @property
+    def bound_by(self) -> tuple[str, ...]:
+        """Every joint whose torque row binds a limit (speed or acceleration)."""
+        return self.velocity_bound_by + self.acceleration_bound_by
+
     def as_dict(self) -> dict[str, object]:
         """The artefact's statement of the limits and how they were computed (SI units)."""
+
+        def pose(by: str, q: np.ndarray) -> list[float] | None:
+            return None if by == "drive" else [float(x) for x in q]
+
         return {
             "method": "worst case over sampled poses of the prior model with the rated payload: "
-            "|g + spring| + Σ|H| v v + friction(v) + Σ|M| a ≤ peak torque per joint, v = k·v_rated, "
-            "a = k²·a_drive (progressive filling of k)",
+            "|g + spring| + Σ|H| v v + friction(v) + Σ|M| a ≤ peak torque per joint (triangle "
+            "inequality, all joints at their limits at once); velocity first: v = k_v·v_rated, k_v "
+            "the largest with Σ|H| v v + friction(v) ≤ (1 − reserve)·(peak − |g + spring|) at every "
+            "pose; then acceleration fills the rest: a = k_a·a_drive, k_a the largest with the whole "
+            "bound ≤ peak (progressive filling of each scale over the joints)",
+            "acceleration_reserve": self.acceleration_reserve,
             "n_poses": self.n_poses,
             "seed": self.seed,
             "payload_kg": self.payload_kg,
@@ -66,11 +97,16 @@ class CatalogueLimits:
                     "name": name,
                     "velocity_max_rad_s": float(self.v_max[k]),
                     "acceleration_max_rad_s2": float(self.a_max[k]),
-                    "time_scale": float(self.time_scale[k]),
-                    "bound_by": self.bound_by[k],
-                    "worst_pose_rad": None
-                    if self.bound_by[k] == "drive"
-                    else [float(x) for x in self.worst_pose_rad[k]],
+                    "velocity_scale": float(self.velocity_scale[k]),
+                    "acceleration_scale": float(self.acceleration_scale[k]),
+                    "velocity_bound_by": self.velocity_bound_by[k],
+                    "acceleration_bound_by": self.acceleration_bound_by[k],
+                    "velocity_worst_pose_rad": pose(
+                        self.velocity_bound_by[k], self.velocity_worst_pose_rad[k]
+                    ),
+                    "acceleration_worst_pose_rad": pose(
+                        self.acceleration_bound_by[k], self.acceleration_worst_pose_rad[k]
+                    ),
                 }
                 for k, name in enumerate(self.joint_names)
             ],
@@ -154,14 +190,57 @@ def _largest_scale(ok, tol: float = 1e-6) -> float:
     return lo
 
 
+@dataclass(frozen=True)
+class _Filled:
+    scale: np.ndarray
+    bound_by: list[str]
+    worst: np.ndarray  # per joint the index of the pose whose row bound it, −1 for "drive"
+
+
+def _fill(n, box, ratio, load, names: tuple[str, ...], n_poses: int) -> _Filled:
+    """Progressive filling of per-joint scales f ∈ [0, 1]: `box(f)` the (v, a) box, `ratio(v, a)`
+    [N, n] the bound over its allowance (≤ 1 is safe), `load(i, j)` [n] how much each joint's scale
+    loads row j at pose i (the joints fixed when that row binds)."""
+    scale = np.zeros(n)
+    free = np.ones(n, dtype=bool)
+    bound_by = ["drive"] * n
+    worst = np.full(n, -1)
+    while free.any():
+
+        def at(s: float, free=free) -> tuple[np.ndarray, np.ndarray]:
+            return box(np.where(free, s, scale))
+
+        s = _largest_scale(lambda s: bool(np.all(ratio(*at(s)) <= 1.0)))
+        if s >= 1.0:
+            scale[free] = 1.0
+            break
+        i, j = np.unravel_index(np.argmax(ratio(*at(s))), (n_poses, n))
+        row = free & (load(i, j) > 1e-9 * max(float(load(i, j).max()), 1e-300))
+        if not row.any():
+            row = free.copy()
+        scale[row] = s
+        for k in np.flatnonzero(row):
+            bound_by[k] = names[j]
+            worst[k] = i
+        free &= ~row
+    return _Filled(scale, bound_by, worst)
+
+
 def catalogue_limits(
-    robot: Robot, n_poses: int = DEFAULT_POSES, seed: int = 0, params: DynamicParameters | None = None
+    robot: Robot,
+    n_poses: int = DEFAULT_POSES,
+    seed: int = 0,
+    params: DynamicParameters | None = None,
+    acceleration_reserve: float = ACCELERATION_RESERVE,
 ) -> CatalogueLimits:
     """The catalogue limits of `robot` (module docstring) from `params` (default the prior with the
-    rated payload), worst case over `n_poses` uniform poses. InfeasibleError when a joint cannot
-    hold its load at rest somewhere (the rated payload is too heavy for the drives)."""
+    rated payload), worst case over `n_poses` uniform poses, keeping `acceleration_reserve` of each
+    pose's torque headroom for accelerating when the speeds are set. InfeasibleError when a joint
+    cannot hold its load at rest somewhere (the rated payload is too heavy for the drives)."""
     if n_poses < 1:
         raise ValueError("n_poses must be positive")
+    if not 0.0 < acceleration_reserve < 1.0:
+        raise ValueError("acceleration_reserve must be in (0, 1)")
     params = payload_parameters(robot) if params is None else params
     rng = np.random.default_rng(seed)
     q = rng.uniform(robot.q_min, robot.q_max, (n_poses, robot.n))
@@ -177,43 +256,39 @@ def catalogue_limits(
             f"payload at q = {np.round(q[i], 3).tolist()} rad, over its peak torque {peak[j]:.0f} N·m"
         )
     v_ref, a_ref = np.asarray(robot.v_max, float), np.asarray(robot.a_max, float)
-    scale = np.zeros(n)
-    free = np.ones(n, dtype=bool)
-    bound_by = ["drive"] * n
-    worst = np.full((n, n), np.nan)
-    while free.any():
+    speed_allowance = (1.0 - acceleration_reserve) * (peak - wc.hold)  # [N, n], > 0 (checked above)
+    vel = _fill(
+        n,
+        lambda f: (f * v_ref, zero),
+        lambda v, a: (wc.bound(v, a) - wc.hold) / speed_allowance,
+        lambda i, j: (wc.quadratic[i, j] + wc.quadratic[i, j].T) @ v_ref + wc.friction_per_speed[j],
+        robot.joint_names,
+        n_poses,
+    )
+    v_max = vel.scale * v_ref
+    acc = _fill(
+        n,
+        lambda f: (v_max, f * a_ref),
+        lambda v, a: wc.bound(v, a) / peak,
+        lambda i, j: wc.mass[i, j] * a_ref,
+        robot.joint_names,
+        n_poses,
+    )
 
-        def limits(s: float, free=free) -> tuple[np.ndarray, np.ndarray]:
-            f = np.where(free, s, scale)
-            return f * v_ref, f**2 * a_ref
+    def poses(worst: np.ndarray) -> np.ndarray:
+        return np.where((worst >= 0)[:, None], q[np.maximum(worst, 0)], np.nan)
 
-        s = _largest_scale(lambda s: bool(np.all(wc.bound(*limits(s)) <= peak)))
-        if s >= 1.0:
-            scale[free] = 1.0
-            break
-        v, a = limits(s)
-        i, j = np.unravel_index(np.argmax(wc.bound(v, a) / peak), rest.shape)
-        # the free joints that load the binding row: through its inertia or its Coriolis terms
-        load = (
-            wc.mass[i, j] * a_ref
-            + (wc.quadratic[i, j] + wc.quadratic[i, j].T) @ v_ref
-            + wc.friction_per_speed[j]
-        )
-        row = free & (load > 1e-9 * load.max())
-        if not row.any():
-            row = free.copy()
-        scale[row] = s
-        for k in np.flatnonzero(row):
-            bound_by[k] = robot.joint_names[j]
-            worst[k] = q[i]
-        free &= ~row
     return CatalogueLimits(
         joint_names=robot.joint_names,
-        v_max=scale * v_ref,
-        a_max=scale**2 * a_ref,
-        bound_by=tuple(bound_by),
-        worst_pose_rad=worst,
-        time_scale=scale,
+        v_max=v_max,
+        a_max=acc.scale * a_ref,
+        velocity_scale=vel.scale,
+        acceleration_scale=acc.scale,
+        velocity_bound_by=tuple(vel.bound_by),
+        acceleration_bound_by=tuple(acc.bound_by),
+        velocity_worst_pose_rad=poses(vel.worst),
+        acceleration_worst_pose_rad=poses(acc.worst),
+        acceleration_reserve=acceleration_reserve,
         payload_kg=0.0 if robot.drives.rated_payload is None else robot.drives.rated_payload.mass_kg,
         n_poses=n_poses,
         seed=seed,

@@ -18,18 +18,30 @@ kinematic limits its maker publishes (`rxcomm.model.catalogue`), the same for ev
 
 Both report every limit they honour on the drive-cycle samples; the torque against the drives' peak is
 left out of that check (it is what the catalogue's worst case guarantees, not what the timing knows).
+
+- `catalogue_speed_bound`: the highest TCP speed ANY catalogue box could give a path, whatever its
+  shape (not only `model.catalogue`'s rule): a box must hold the catalogue's torque bound with its
+  v_k, a_k ≥ every |q̇_k|, |q̈_k| of the motion, so at each path point the bound evaluated with that
+  point's own |q̇(σ)|, |q̈(σ)| (at every sampled pose) is necessary. That per-point constraint
+  admits an interval of σ̈ for each σ̇² (each pose's row is convex piecewise-linear in σ̈: exact
+  roots at its breakpoints); forward integration from rest at full acceleration and backward from
+  rest at full deceleration bound every feasible profile from above (phase-plane comparison), and
+  their minimum, capped by a TCP speed, is the bound. On the RX130L's ISO line: 0.94 m/s at best,
+  so no catalogue of this bound holds that line at 1 m/s.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from rxcomm.errors import InfeasibleError
 from rxcomm.io.trajectory import Trajectory
-from rxcomm.model.catalogue import CatalogueLimits
+from rxcomm.model.catalogue import DEFAULT_POSES, CatalogueLimits, payload_parameters, worst_case_terms
+from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.limits import AccelerationLimit, LimitReport, PositionLimit, VelocityLimit, check_limits
 from rxcomm.model.robot import Robot
 from rxcomm.planning.cp import CpPlan, CpSettings, TcpAccelerationLimit, TcpSpeedLimit, active_segments
@@ -40,7 +52,7 @@ from rxcomm.planning.iso9283 import (
     pose_cycle_joints,
     pose_cycle_trajectory,
 )
-from rxcomm.planning.path_ik import solve_path_ik
+from rxcomm.planning.path_ik import JointPath, solve_path_ik
 from rxcomm.planning.paths import CartesianPath
 from rxcomm.planning.ptp import sample_profile
 from rxcomm.planning.ptp_problem import PtpDynamics
@@ -206,3 +218,100 @@ def pose_cycle_plan(
         robot, traj.t, traj.q, traj.qd, traj.qdd, tau, limits=_kinematic_checks(robot, catalogue)
     )
     return traj, order, report
+
+
+@dataclass(frozen=True)
+class SpeedBound:
+    """`catalogue_speed_bound`'s result: the bound of σ̇ (m/s) at `sigma_m`, its peak and where."""
+
+    sigma_m: np.ndarray
+    speed_m_s: np.ndarray
+    peak_m_s: float
+    peak_at_m: float
+
+
+def _sdd_interval(c, m, qs, qss, x, peak) -> tuple[float, float] | None:
+    """The σ̈ with c + Σ_k m_k |q_s,k σ̈ + q_ss,k x| ≤ peak for every row (c, peak [N, n], m [N, n, n]):
+    each row convex piecewise-linear in σ̈, so an interval found exactly from its breakpoints; None
+    when some row has none (x above the limit curve)."""
+    nz = np.abs(qs) > 1e-12
+    p, r = qs[nz], qss[nz] * x
+    m = m[:, :, nz]
+    b = np.sort(-r / p)
+    g = c[:, :, None] + np.einsum("ijk,kb->ijb", m, np.abs(p[:, None] * b[None, :] + r[:, None]))
+    slope = np.maximum(m @ np.abs(p), 1e-12)  # |dg/dσ̈| beyond the outermost breakpoints
+    ok = g <= peak[:, :, None]
+    if not np.all(ok.any(axis=2)):
+        return None
+    nb = len(b)
+
+    def at(idx):
+        return np.take_along_axis(g, idx[..., None], 2)[..., 0], b[idx]
+
+    hi_i = nb - 1 - np.argmax(ok[:, :, ::-1], axis=2)  # the last breakpoint within the row's limit
+    (g_hi, b_hi), (g_up, b_up) = at(hi_i), at(np.minimum(hi_i + 1, nb - 1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        upper = np.where(
+            hi_i == nb - 1, b_hi + (peak - g_hi) / slope, b_hi + (peak - g_hi) * (b_up - b_hi) / (g_up - g_hi)
+        )
+        lo_i = np.argmax(ok, axis=2)
+        (g_lo, b_lo), (g_dn, b_dn) = at(lo_i), at(np.maximum(lo_i - 1, 0))
+        lower = np.where(
+            lo_i == 0, b_lo - (peak - g_lo) / slope, b_lo - (peak - g_lo) * (b_lo - b_dn) / (g_dn - g_lo)
+        )
+    lo, hi = float(lower.max()), float(upper.min())
+    return None if lo > hi else (lo, hi)
+
+
+def catalogue_speed_bound(
+    robot: Robot,
+    joint_path: JointPath,
+    speed_cap_m_s: float,
+    params: DynamicParameters | None = None,
+    n_poses: int = DEFAULT_POSES,
+    seed: int = 0,
+    n_points: int = 1001,
+) -> SpeedBound:
+    """The upper bound of the TCP speed along `joint_path` under any catalogue box (module
+    docstring), capped at `speed_cap_m_s`: the catalogue's torque bound at the same `n_poses`
+    sampled poses (`seed`) of `params` (default: the prior with the rated payload)."""
+    params = payload_parameters(robot) if params is None else params
+    q = np.random.default_rng(seed).uniform(robot.q_min, robot.q_max, (n_poses, robot.n))
+    wc = worst_case_terms(robot, params, q)
+    peak = np.broadcast_to(np.asarray(robot.tau_max, float), wc.hold.shape)
+    sig = np.linspace(0.0, joint_path.length_m, n_points)
+    ds = float(sig[1] - sig[0])
+    qs, qss = joint_path(sig, 1), joint_path(sig, 2)
+    coriolis = np.einsum("ijkl,sk,sl->sij", wc.quadratic, np.abs(qs), np.abs(qs))  # × σ̇² per point
+
+    def interval(k: int, x: float) -> tuple[float, float] | None:
+        speed = np.abs(qs[k]) * np.sqrt(x)
+        c = wc.hold + x * coriolis[k] + wc.friction_at(speed)[None, :]
+        return _sdd_interval(c, wc.mass, qs[k], qss[k], x, peak)
+
+    def limit_curve(k: int, x_hi: float) -> float:
+        lo, hi = 0.0, x_hi
+        for _ in range(40):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if interval(k, mid) is not None else (lo, mid)
+        return lo
+
+    cap = speed_cap_m_s**2
+
+    def sweep(order: range, side: int) -> np.ndarray:
+        out = np.zeros(n_points)
+        x = 0.0
+        for k in order:
+            iv = interval(k, x)
+            if iv is None:
+                x = limit_curve(k, x)
+                iv = interval(k, x) or (0.0, 0.0)
+            out[k] = x
+            x = min(max(x + 2.0 * ds * (iv[1] if side > 0 else -iv[0]), 0.0), cap)
+        return out
+
+    forward = sweep(range(n_points), 1)
+    backward = sweep(range(n_points - 1, -1, -1), -1)
+    speed = np.sqrt(np.minimum(forward, backward))
+    k = int(np.argmax(speed))
+    return SpeedBound(sig, speed, float(speed[k]), float(sig[k]))
