@@ -192,7 +192,7 @@ def execute(
 ) -> dict[str, Any]:
     """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
     from rxcomm.execution.campaign import CampaignSettings
-    from rxcomm.execution.session import RunSettings, StreamSettings
+    from rxcomm.execution.session import VIRTUAL_CELL_WATCHDOG_MS, RunSettings, StreamSettings
     from rxcomm.io.mcap_io import read_mcap_envelope
     from rxcomm.model.robot import load_robot, robot_files
 
@@ -226,7 +226,9 @@ def execute(
     inputs: dict[str, Path] = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
     if dynamics is not None:
         inputs["dynamics"] = Path(dynamics)
-    stream = StreamSettings(interpolation_ratio=interpolation_ratio)
+    virtual = gateway is None and not realtime  # the embedded cell's clock waits for the master
+    lease = {"watchdog_ms": VIRTUAL_CELL_WATCHDOG_MS} if virtual else {}
+    stream = StreamSettings(interpolation_ratio=interpolation_ratio, **lease)
     update, stop_bar = _progress() if show_progress else (None, lambda: None)
     job = _Job(
         plan, output, robot, params, model_name, inputs,
