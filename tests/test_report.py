@@ -232,7 +232,7 @@ PNG = base64.b64decode(
 
 
 def test_html_is_self_contained_opens_with_the_verdict_and_embeds_every_figure():
-    verdict = stage_verdicts({"cp": {"max_limit_ratio": 1.0015}}, {})
+    verdict = stage_verdicts({"cp": {"max_limit_ratio": 1.0025}}, {})
     sections = [
         Section("Stage A", [Figure("x", "1 mm", "2 mm")], image="a.png"),
         Section("Stage B", [Figure("y", "not measured")], image="gone.png"),

@@ -26,6 +26,7 @@ from rxcomm.execution.session import Session, StreamSettings, StreamStopped
 from rxcomm.gateway.client import GatewayClient, TrackerSample
 from rxcomm.io.yaml_io import write_yaml_artefact
 from rxcomm.model.dynamics import DynamicParameters
+from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.measurements import MeasuredPose, Measurements
 
@@ -38,7 +39,7 @@ class CampaignSettings(BaseModel):
     settle_s: float = Field(0.5, ge=0, description="demand held at each pose before reading the tracker, s")
     tracker_attempts: int = Field(20, ge=1, description="tracker reads per pose before giving up")
     tracker_retry_s: float = Field(0.05, ge=0, description="pause between tracker reads, s")
-    limit_tolerance: float = Field(1e-3, ge=0)
+    limit_tolerance: float = Field(SAMPLED_LIMIT_TOLERANCE, ge=0)
     fault_reset: bool = False
     stream: StreamSettings = StreamSettings()
 

@@ -16,7 +16,7 @@ from scipy.interpolate import CubicHermiteSpline
 from rxcomm.errors import InputError, SafetyStop
 from rxcomm.io.trajectory import Trajectory
 from rxcomm.model.dynamics import COULOMB_EPS_NLP_RAD_S, DynamicParameters, RobotDynamics
-from rxcomm.model.limits import LimitReport, check_limits
+from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE, LimitReport, check_limits
 from rxcomm.model.robot import Robot
 
 REST_VELOCITY_RAD_S = 1e-3  # a plan must start and end at rest (|q̇| below this per joint)
@@ -113,7 +113,7 @@ def prepare_plan(
     cycle_s: float,
     *,
     feedforward: bool = True,
-    limit_tolerance: float = 1e-3,
+    limit_tolerance: float = SAMPLED_LIMIT_TOLERANCE,
     what: str = "plan",
 ) -> StreamPlan:
     """Resample ``traj`` at the drive cycle, compute the model torque, check every limit densely.

@@ -46,6 +46,7 @@ from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.registers import DriveState, ErrorCode, Status, StopCause
 from rxcomm.gateway.stream import STOP_BITS, stream
+from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE
 from rxcomm.model.robot import Robot
 
 __all__ = [  # the records' names, for the modules that import them from here
@@ -103,7 +104,9 @@ class RunSettings(BaseModel):
     approach: bool = Field(False, description="move to the plan's start first (jerk-limited)")
     approach_speed_fraction: float = Field(0.2, gt=0, le=1, description="of velocity and acceleration limits")
     start_tolerance_rad: float = Field(1e-3, gt=0, description="per joint: 'at the start' within this")
-    limit_tolerance: float = Field(1e-3, ge=0, description="limit ratios up to 1 + this pass")
+    limit_tolerance: float = Field(
+        SAMPLED_LIMIT_TOLERANCE, ge=0, description="limit ratios up to 1 + this pass"
+    )
     fault_reset: bool = Field(False, description="reset drive faults and latched gateway stops first")
     stream: StreamSettings = StreamSettings()
 

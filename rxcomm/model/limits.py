@@ -15,6 +15,11 @@ import numpy as np
 
 from rxcomm.model.robot import Robot
 
+# How far a plan's value, sampled at the drive cycle, may exceed a limit: between a planner's grid
+# nodes it can overshoot by a fraction of a per mille. One number for both sides, so that a plan a
+# planner writes is a plan `run` accepts (the ISO line at 1.0016 × a torque-rate limit was not).
+SAMPLED_LIMIT_TOLERANCE = 2e-3
+
 
 class WorstLimit(NamedTuple):
     """The largest limit ratio of a trajectory: limit name, joint name, time (s), ratio (1 = at the bound)."""

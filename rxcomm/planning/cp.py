@@ -19,8 +19,8 @@
    τ_ff from the inverse dynamics with smoothed Coulomb friction (the same the NLP models).
 6. Every limit checked on the samples (`rxcomm.model.limits.check_limits` + TCP limits). Between grid nodes
    sampled values can exceed a limit by a fraction of a percent (toppra's interpolation, the NLP's
-   node-wise constraints); where a limit is above `target_ratio` (1.0005, inside `run`'s default
-   tolerance of 1.001, so that a plan this stage writes is one `run` accepts) it is tightened locally, at the
+   node-wise constraints); where a limit is above `target_ratio` (1 +
+   `model.limits.SAMPLED_LIMIT_TOLERANCE` = 1.002, what `run` accepts) it is tightened locally, at the
    nodes of that interval, by its excess and the timing re-solved (at most `max_refinements` times).
    A plan still above 1.01 × a limit is refused (`InfeasibleError`).
 
@@ -41,7 +41,7 @@ import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rxcomm.errors import InfeasibleError
-from rxcomm.model.limits import LimitReport, check_limits, robot_limits
+from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE, LimitReport, check_limits, robot_limits
 from rxcomm.model.robot import Robot
 from rxcomm.planning.cp_grid import toppra_grid
 from rxcomm.planning.path_dynamics import PathDynamics
@@ -83,10 +83,10 @@ class CpSettings(BaseModel):
     coulomb_eps_rad_s: float = Field(0.02, gt=0, description="Coulomb sign smoothing of the output torque")
     sigma_min_margin: float = Field(0.005, gt=0, description="smallest TCP-Jacobian singular value allowed")
     target_ratio: float = Field(
-        1.0005,
+        1.0 + SAMPLED_LIMIT_TOLERANCE,
         ge=1.0,
         le=1.01,
-        description="re-solve while a sampled limit exceeds this (run refuses > 1.001)",
+        description="re-solve while a sampled limit exceeds this (what run accepts)",
     )
     max_refinements: int = Field(4, ge=0, le=10)
     regrid_below: float = Field(
