@@ -207,6 +207,11 @@ def test_parameter_tables_carry_sigma_in_stated_units():
     )
     assert dyn.rows[0] == ["joint_2.mcx_R", "-2 ± 0.02", "kg·m", "1 %"]
     assert dyn.rows[1] == ["joint_1.Izz_R", "4 (σ not measured)", "kg·m²", "not measured"]
+    drive = [("joint_3.rotor_inertia", "kg·m²"), ("joint_1.offset", "N·m"), ("spring.kL0", "N")]
+    rows = dynamics_parameter_table(
+        [{"name": n, "independent": n, "value": 1.0, "relative_std": 0.01} for n, _ in drive]
+    ).rows
+    assert [r[2] for r in rows] == [u for _, u in drive]  # drive and spring parameters have units too
     cal = calibration_parameter_table(
         [
             {"name": "base.tx", "value": -2.1e-3, "std": 1.3e-5, "estimated": True},

@@ -62,6 +62,7 @@ def _cutoff_choice(s: Mapping) -> str:
 
 
 _UNITS = {"m": "kg", "mcx": "kg·m", "mcy": "kg·m", "mcz": "kg·m", "fc": "N·m", "fv": "N·m·s/rad"}
+_UNITS |= {"offset": "N·m", "rotor_inertia": "kg·m²", "kL0": "N"}
 
 
 def dynamics_parameter_table(params: Sequence[Mapping]) -> Table | None:
