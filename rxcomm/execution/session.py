@@ -33,13 +33,10 @@ from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.record_sink import BackgroundSink
 from rxcomm.execution.records import (
-    NOT_APPLICABLE_VIRTUAL,
     LastRoundTrip,
     RecordSink,
-    RunResult,
     StreamLog,
     _Recorder,
-    timing_figures,
 )
 from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
@@ -48,15 +45,6 @@ from rxcomm.gateway.registers import DriveState, ErrorCode, Status, StopCause
 from rxcomm.gateway.stream import STOP_BITS, stream
 from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE
 from rxcomm.model.robot import Robot
-
-__all__ = [  # the records' names, for the modules that import them from here
-    "NOT_APPLICABLE_VIRTUAL",
-    "RecordSink",
-    "RunResult",
-    "StreamLog",
-    "timing_figures",
-    "_Recorder",
-]
 
 ROUND_TRIP_MARGIN = 3.0  # a block must last this many mean empty-block round trips: a full block's
 # encode/decode and the recording ride on it (measured: ≈ 1.5–2 × an empty poll on a loaded 2-core VM)
