@@ -145,3 +145,35 @@ def test_campaign_on_the_simulated_tracker(tmp_path, rx130l, truth):
         miss = np.linalg.norm(np.array(p["position_m"]) - nominal)
         # the real robot's geometric errors: millimetres, not centimetres, and not zero
         assert 2e-4 < miss < 2e-2, miss
+
+
+@pytest.mark.slow
+def test_a_slow_reply_of_the_virtual_time_cell_is_waited_for(tmp_path, rx130l, monkeypatch):
+    """The embedded virtual-time cell simulates a block's cycles before it replies, in the master's
+    process: on a loaded machine one reply took > 0.5 s and stopped a campaign. The master waits."""
+    import time
+
+    from rxcomm.cell import sim
+
+    start = sim.start_embedded_cell
+
+    def slowed(*args, **kwargs):
+        server = start(*args, **kwargs)
+        backend, calls = server.core.backend, [0]
+        cycle = backend.cycle
+
+        def slow_cycle(*a, **k):
+            calls[0] += 1
+            if calls[0] == 200:  # once, mid-stream: 0.8 s of wall time inside one reply
+                time.sleep(0.8)
+            return cycle(*a, **k)
+
+        backend.cycle = slow_cycle
+        return server
+
+    monkeypatch.setattr(sim, "start_embedded_cell", slowed)
+    plan = save_plan(tmp_path / "plan.mcap", cosine_plan(HOME, 0.2 * FAST, 0.5))
+    summary = run_stage.execute(
+        plan, ROBOT_DIR, tmp_path / "log.mcap", interpolation_ratio=1, show_progress=False
+    )
+    assert summary["lost_records"] == 0 and summary["n_records"] == summary["n_setpoints"]

@@ -57,7 +57,12 @@ COMMUNICATION_ERRORS = (ErrorCode.HEARTBEAT, ErrorCode.UNDERRUN)  # the master's
 # The embedded cell in virtual time waits for setpoints, so a master paused on a loaded machine changes
 # nothing in the run; its watchdog then only has to notice a master that is gone. 500 ms of wall time
 # stopped `make commission` three times in one afternoon at load 3–4; a real gateway keeps the default.
+# The same holds for the master's wait on a reply: the cell simulates a setpoint block's cycles before
+# it answers, in the master's process, and at load ≈ 4.7 one reply took longer than 0.5 s (a measurement
+# campaign stopped at pose 49 of 55).
 VIRTUAL_CELL_WATCHDOG_MS = 5000
+VIRTUAL_CELL_REQUEST_TIMEOUT_S = 5.0
+REQUEST_TIMEOUT_S = 0.5  # a real gateway or a realtime cell: a reply later than this is a fault
 
 
 class StreamSettings(BaseModel):

@@ -36,9 +36,6 @@ if TYPE_CHECKING:
     from rxcomm.model.robot import Robot
 
 
-REQUEST_TIMEOUT_S = 0.5
-
-
 # --- inputs ---------------------------------------------------------------------------------------
 def plan_kind(plan: Path) -> str:
     """'trajectory' for NAME.mcap, 'poses' for a YAML pose list."""
@@ -79,6 +76,7 @@ def connect(
     gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool
 ) -> Iterator[tuple[GatewayClient, Any]]:
     """A connected client and the embedded cell's server (None: a gateway); stops an embedded cell on exit."""
+    from rxcomm.execution.session import REQUEST_TIMEOUT_S, VIRTUAL_CELL_REQUEST_TIMEOUT_S
     from rxcomm.gateway.client import GatewayClient
     from rxcomm.gateway.net import parse_gateway_address
 
@@ -101,7 +99,9 @@ def connect(
     else:
         host, port = parse_gateway_address(gateway, allow_remote)
     try:
-        client = GatewayClient(host, port, timeout_s=REQUEST_TIMEOUT_S, allow_remote=allow_remote)
+        virtual = server is not None and not realtime
+        timeout_s = VIRTUAL_CELL_REQUEST_TIMEOUT_S if virtual else REQUEST_TIMEOUT_S
+        client = GatewayClient(host, port, timeout_s=timeout_s, allow_remote=allow_remote)
         client.connect()
         try:
             yield client, server
