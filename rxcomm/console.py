@@ -179,8 +179,9 @@ class PlainProgress:
                 return
             t["done"] = True
             long = time.monotonic() - t["t0"] >= self.period_s
-        if long:
-            self._emit(self.line(task_id) + " (done)")
+            reached = t["total"] is None or t["completed"] >= t["total"]
+        if long:  # a task the display stopped short of its total did not finish: say so
+            self._emit(self.line(task_id) + (" (done)" if reached else " (stopped)"))
 
     def _tick(self) -> None:
         while not self._stop.wait(self.period_s):

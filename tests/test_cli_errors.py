@@ -126,6 +126,18 @@ def test_plain_progress_prints_a_line_per_period_and_a_last_one():
     assert bar._tasks[phase]["done"]
 
 
+def test_plain_progress_says_stopped_for_a_task_cut_short():
+    """A campaign that fails at 57 % must not read "(done)" on the console."""
+    stream = io.StringIO()
+    bar = console.PlainProgress(period_s=0.1, stream=stream)
+    with bar:
+        task = bar.add_task("poses", total=100)
+        bar.update(task, completed=57)
+        time.sleep(0.25)
+    last = stream.getvalue().splitlines()[-1]
+    assert re.fullmatch(r"poses: 57 % \d+ s \(stopped\)", last), last
+
+
 def test_plain_progress_is_silent_for_short_tasks():
     stream = io.StringIO()
     with console.PlainProgress(period_s=5.0, stream=stream) as bar:
