@@ -23,14 +23,13 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 
-class ConfigPose(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class ConfigPose(Strict):
     q_rad: list[float] = Field(description="joint angles, rad, chain order")
     role: Literal["fit", "validation", "baseline"] = "fit"
     tcp_position_m: tuple[float, float, float] | None = Field(

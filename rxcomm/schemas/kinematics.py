@@ -16,15 +16,14 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 
-class MdhJoint(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class MdhJoint(Strict):
     joint: str
     alpha_rad: float = Field(description="α_{i−1}: twist of axis i about X_{i−1}, rad")
     a_m: float = Field(description="a_{i−1}: common-normal length along X_{i−1}, m")
@@ -33,9 +32,7 @@ class MdhJoint(BaseModel):
     beta_rad: float = Field(0.0, description="Hayati β_{i−1} about Y after α (0 in plain MDH), rad")
 
 
-class MdhForm(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class MdhForm(Strict):
     base: Placement = Field(description="robot base frame → MDH frame 0")
     joints: list[MdhJoint]
     tool: Placement = Field(description="MDH frame n → TCP")
@@ -43,9 +40,7 @@ class MdhForm(BaseModel):
     max_orientation_residual_rad: float = Field(description="max TCP orientation error vs the calibrated FK")
 
 
-class ZeroOffset(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class ZeroOffset(Strict):
     joint: str
     offset_rad: float = Field(description="calibrated − nominal θ_offset (encoder zero correction), rad")
     offset_deg: float

@@ -14,15 +14,14 @@ from __future__ import annotations
 import math
 from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
 from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 
-class MeasuredPose(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class MeasuredPose(Strict):
     q_rad: list[float] = Field(description="joint angles from the encoders, rad, chain order")
     position_m: tuple[float, float, float] = Field(description="TCP position in the tracker frame, m")
     quaternion_wxyz: tuple[float, float, float, float] | None = Field(
