@@ -13,6 +13,9 @@ envelope fields::
     cal = Calibration(**Calibration.envelope({"robot": urdf_path}, settings, summary), params_m=[...])
 
 The bare ``Artefact`` (no ``KIND``) validates the envelope fields of any kind; the MCAP reader uses it.
+The summary YAML beside an MCAP (a trajectory, a run log) derives from ``McapSummary``, which adds the
+MCAP's file name and hash after the envelope. A base of kinds that is no kind itself says
+``__abstract__ = True``.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, StringConstraints, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
 
 import rxcomm
 from rxcomm.schemas.plain import sha256_file, to_plain
@@ -62,6 +65,8 @@ class Artefact(BaseModel):
     @classmethod
     def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
         super().__pydantic_init_subclass__(**kwargs)
+        if cls.__dict__.get("__abstract__"):
+            return
         if not isinstance(getattr(cls, "KIND", None), str) or not isinstance(
             getattr(cls, "SCHEMA_VERSION", None), int
         ):
@@ -129,3 +134,14 @@ class Artefact(BaseModel):
     def envelope_dict(self) -> dict[str, Any]:
         """The envelope fields of this artefact as JSON-able values (for an MCAP metadata record)."""
         return self.model_dump(mode="json", include=set(ENVELOPE_FIELDS))
+
+
+class McapSummary(Artefact):
+    """The summary YAML beside an MCAP (``NAME.mcap`` -> ``NAME.yaml``): envelope, the MCAP's file name
+    and hash, then the kind's fields. The MCAP carries the same envelope as its ``rxcomm/envelope``
+    metadata record."""
+
+    __abstract__ = True
+
+    mcap_file: str = Field(description="file name of the MCAP beside this YAML")
+    mcap_sha256: Sha256Hex = Field(description="sha256 of that MCAP, to tie the summary to its samples")
