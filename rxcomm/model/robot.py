@@ -29,6 +29,11 @@ def _readonly(a) -> np.ndarray:
     return a
 
 
+def _per_joint(drives_field: str, doc: str | None = None) -> property:
+    """A `Robot` property: `drives_field` of every joint in drives.yaml, as a read-only array."""
+    return property(lambda robot: _readonly([getattr(j, drives_field) for j in robot.drives.joints]), doc=doc)
+
+
 @dataclass(frozen=True, eq=False)
 class Robot:
     """A fixed-base serial arm. Never mutated: a calibrated robot is a new `Robot` (see `with_model`).
@@ -60,47 +65,20 @@ class Robot:
     def joint_names(self) -> tuple[str, ...]:
         return tuple(j.name for j in self.drives.joints)
 
-    def _per_joint(self, attr: str) -> np.ndarray:
-        return _readonly([getattr(j, attr) for j in self.drives.joints])
-
-    @property
-    def tau_max(self) -> np.ndarray:
-        """Peak joint torque, N·m."""
-        return self._per_joint("peak_torque_nm")
-
-    @property
-    def tau_cont(self) -> np.ndarray:
-        return self._per_joint("continuous_torque_nm")
-
-    @property
-    def tau_rate_max(self) -> np.ndarray:
-        return self._per_joint("torque_rate_max_nm_per_s")
-
-    @property
-    def a_max(self) -> np.ndarray:
-        return self._per_joint("acceleration_max_rad_per_s2")
-
-    @property
-    def gear_ratio(self) -> np.ndarray:
-        return self._per_joint("gear_ratio")
-
-    @property
-    def rotor_inertia(self) -> np.ndarray:
-        """Motor-side rotor inertia, kg·m²."""
-        return self._per_joint("rotor_inertia_kgm2")
-
-    @property
-    def torque_constant(self) -> np.ndarray:
-        return self._per_joint("torque_constant_nm_per_a")
-
-    @property
-    def motor_sign(self) -> np.ndarray:
-        return self._per_joint("motor_sign")
-
-    @property
-    def encoder_offset(self) -> np.ndarray:
-        """Motor angle reported at the joint's calibrated zero, motor side, rad."""
-        return self._per_joint("encoder_offset_rad")
+    # Per joint, chain order, from drives.yaml (read-only arrays).
+    tau_max = _per_joint("peak_torque_nm", "Peak joint torque, N·m.")
+    tau_cont = _per_joint("continuous_torque_nm")
+    tau_rate_max = _per_joint("torque_rate_max_nm_per_s")
+    a_max = _per_joint("acceleration_max_rad_per_s2")
+    gear_ratio = _per_joint("gear_ratio")
+    rotor_inertia = _per_joint("rotor_inertia_kgm2", "Motor-side rotor inertia, kg·m².")
+    torque_constant = _per_joint("torque_constant_nm_per_a")
+    motor_sign = _per_joint("motor_sign")
+    encoder_offset = _per_joint(
+        "encoder_offset_rad", "Motor angle reported at the joint's calibrated zero, motor side, rad."
+    )
+    coulomb_prior = _per_joint("coulomb_friction_nm")
+    viscous_prior = _per_joint("viscous_friction_nm_s_per_rad")
 
     @property
     def coupled_motors(self) -> tuple[int, ...]:
@@ -127,14 +105,6 @@ class Robot:
         from dataclasses import replace
 
         return replace(self, drives=self.drives.model_copy(update={"friction": mode}))
-
-    @property
-    def coulomb_prior(self) -> np.ndarray:
-        return self._per_joint("coulomb_friction_nm")
-
-    @property
-    def viscous_prior(self) -> np.ndarray:
-        return self._per_joint("viscous_friction_nm_s_per_rad")
 
     @property
     def motor_coupling(self) -> np.ndarray:
