@@ -8,7 +8,7 @@ raises `InputError` naming the file and the field at fault.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -102,8 +102,6 @@ class Robot:
     def with_friction(self, mode: str) -> Robot:
         """The same robot with another friction model (e.g. to compare fits with and without motor
         friction)."""
-        from dataclasses import replace
-
         return replace(self, drives=self.drives.model_copy(update={"friction": mode}))
 
     @property
@@ -148,17 +146,11 @@ class Robot:
     def with_model(self, model: pin.Model) -> Robot:
         """The same drives on another kinematic/inertial model (e.g. a calibrated one)."""
         _check_chain(model, self.joint_names, self.urdf_path)
-        return Robot(
-            name=self.name,
+        return replace(
+            self,
             model=model,
-            drives=self.drives,
-            urdf_path=self.urdf_path,
-            drives_path=self.drives_path,
             tcp_frame_id=model.getFrameId(TCP_FRAME),
             flange_frame_id=model.getFrameId(self.drives.tcp.parent_frame),
-            q_min=self.q_min,
-            q_max=self.q_max,
-            v_max=self.v_max,
         )
 
 
