@@ -21,7 +21,7 @@ noise of `cell.yaml` (orientation likewise, rad). Version 2: the baseline became
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
 from pydantic import Field
 
@@ -38,9 +38,9 @@ class ConfigPose(Strict):
 
 
 class Configs(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Configs"
-    SCHEMA_VERSION: ClassVar[int] = 2
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Configs"
+    SCHEMA_VERSION = 2
+    REQUIRED_SUMMARY_KEYS = (
         "n_candidates",
         "n_selected",
         "observation_index",

@@ -1,13 +1,14 @@
 """The artefact envelope every rxcomm artefact carries (architecture §3).
 
 Subclasses are the artefacts of the stages. They set ``KIND`` (``"rxcomm/Calibration"``) and
-``SCHEMA_VERSION``, optionally ``REQUIRED_SUMMARY_KEYS``, and add their data fields after the
-envelope fields::
+``SCHEMA_VERSION``, optionally ``REQUIRED_SUMMARY_KEYS`` (class variables, declared here once: a
+subclass assigns them without annotation, as it does ``model_config``), and add their data fields
+after the envelope fields::
 
     class Calibration(Artefact):
-        KIND: ClassVar[str] = "rxcomm/Calibration"
-        SCHEMA_VERSION: ClassVar[int] = 1
-        REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ("n_identifiable", "seconds")
+        KIND = "rxcomm/Calibration"
+        SCHEMA_VERSION = 1
+        REQUIRED_SUMMARY_KEYS = ("n_identifiable", "seconds")
         params_m: list[float]
 
     cal = Calibration(**Calibration.envelope({"robot": urdf_path}, settings, summary), params_m=[...])
@@ -70,7 +71,7 @@ class Artefact(BaseModel):
         if not isinstance(getattr(cls, "KIND", None), str) or not isinstance(
             getattr(cls, "SCHEMA_VERSION", None), int
         ):
-            raise TypeError(f"{cls.__name__} must set KIND: ClassVar[str] and SCHEMA_VERSION: ClassVar[int]")
+            raise TypeError(f"{cls.__name__} must set KIND (a str) and SCHEMA_VERSION (an int)")
 
     @model_validator(mode="before")
     @classmethod

@@ -17,7 +17,7 @@ The samples `run` executes are in the trajectory MCAP named by `trajectory_file`
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
 from pydantic import Field, model_validator
 
@@ -82,9 +82,9 @@ class ExcitationStart(Strict):
 
 
 class Excitation(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Excitation"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Excitation"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = (
         "cond",
         "cond_raw",
         "baseline_cond",

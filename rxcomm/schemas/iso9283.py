@@ -19,7 +19,7 @@ why. Positions are in the robot's base frame (the tracker frame mapped by ``base
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
 from pydantic import Field
 
@@ -86,9 +86,9 @@ class BaseFrame(Strict):
 class Iso9283(Artefact):
     """ISO 9283 criteria measured by the tracker on one state of the robot."""
 
-    KIND: ClassVar[str] = "rxcomm/Iso9283"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ("n_criteria", "n_measured")
+    KIND = "rxcomm/Iso9283"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = ("n_criteria", "n_measured")
 
     robot: str
     cube: CubeDefinition

@@ -14,8 +14,6 @@ in these tables: it is a joint deflection c·τ, in calibration.yaml.
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 from pydantic import Field
 
 from rxcomm.schemas.cell import Placement
@@ -48,9 +46,9 @@ class ZeroOffset(Strict):
 
 
 class Kinematics(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Kinematics"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Kinematics"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = (
         "mdh_max_position_residual_m",
         "mdh_beta_max_position_residual_m",
         "n_sample_poses",

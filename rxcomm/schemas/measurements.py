@@ -12,7 +12,7 @@ they would have left on the same held-out poses.
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Literal
+from typing import Literal
 
 from pydantic import Field, model_validator
 
@@ -40,9 +40,9 @@ class MeasuredPose(Strict):
 
 
 class Measurements(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Measurements"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ("n_poses", "n_valid")
+    KIND = "rxcomm/Measurements"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = ("n_poses", "n_valid")
 
     robot: str = Field(description="robot name (URDF)")
     joint_names: list[str]

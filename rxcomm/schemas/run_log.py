@@ -32,7 +32,7 @@ summary says ``outcome`` and ``stop_reason``) and writes no ``NAME.yaml``.
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
 from pydantic import Field
 
@@ -121,9 +121,9 @@ class TrackerChannel(Strict):
 class RunLog(McapSummary):
     """Envelope + summary of a run log MCAP, plus how to read it."""
 
-    KIND: ClassVar[str] = "rxcomm/RunLog"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/RunLog"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = (
         "underruns",
         "max_lag_rad",
         "rms_lag_rad",

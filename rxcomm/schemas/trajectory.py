@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 from pydantic import Field
 
 from rxcomm.schemas.envelope import McapSummary
@@ -15,9 +13,9 @@ class TrajectorySummary(McapSummary):
     The MCAP carries the same envelope as its ``rxcomm/envelope`` metadata record.
     """
 
-    KIND: ClassVar[str] = "rxcomm/Trajectory"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Trajectory"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = (
         "duration_s",
         "solve_seconds",
         "max_limit_ratio",
