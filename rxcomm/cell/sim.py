@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.cell.backend import AxisFeedback, BackendState, TrackerReading
 from rxcomm.cell.drives import CascadedDrives, DriveGains, DriveTuning, drive_gains
@@ -37,14 +37,13 @@ from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
 from rxcomm.cell.tracker import MotionTracker, SimulatedTracker
 from rxcomm.cell.truth import SimTruth, load_truth
 from rxcomm.errors import InputError
+from rxcomm.schemas.strict import Strict
 
 NOISE_BLOCK = 1024
 
 
-class SimSettings(BaseModel):
+class SimSettings(Strict):
     """How the simulated cell runs (the physics itself comes from the truth file)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     q0_rad: tuple[float, ...] | None = Field(None, description="initial joint angles; None: all zero")
     seed: int | None = Field(None, description="noise seed; None: the truth file's seed")
