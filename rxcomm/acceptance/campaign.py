@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 from scipy.spatial.transform import Rotation
 
 from rxcomm.acceptance.alignment import velocity_on_grid
@@ -43,14 +43,13 @@ from rxcomm.planning.paths import build_curve, rpy_matrix
 from rxcomm.schemas.iso9283 import CRITERIA_UNITS, POSES, Criterion
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.run_log import TRACKER_TOPIC
+from rxcomm.schemas.strict import Strict
 
 COMMAND_SPEED_STEP_S = 0.004  # s between the FK samples of the command speed
 
 
-class CampaignSettings(BaseModel):
+class CampaignSettings(Strict):
     """How attained poses and paths are taken from the logs."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     min_dwell_s: float = Field(0.2, gt=0, description="a dwell: zero commanded velocity at least this, s")
     measure_fraction: float = Field(

@@ -10,7 +10,9 @@ Calls are serialised by the server (never concurrent): ``cycle`` from its cycle 
 and ``feedback`` from its Modbus thread. Arrays passed in are fresh copies the backend may keep.
 
 ``IdealBackend`` is a protocol test double (actual = demand, torque = feed-forward): it lets the
-gateway be tested without physics and must not be used to judge control performance.
+gateway be tested without physics and must not be used to judge control performance. It and the
+simulated cell (`rxcomm.cell.sim.SimulatedCell`) derive from ``BackendState``, which keeps the
+backend's constants, its latest feedback and the cycle count.
 """
 
 from __future__ import annotations
@@ -79,37 +81,27 @@ class CellBackend(Protocol):
         ...
 
 
-class IdealBackend:
-    """Protocol test backend: positions follow the demand exactly, torque equals feed-forward.
-
-    The tracker reports a fixed function of the joint positions (a rigid pseudo-TCP) when every
-    axis stood still during the last cycle, so tests can check the tracker path end to end.
-    """
+class BackendState:
+    """What every backend keeps, whatever its physics: the constants of `CellBackend` (the axis count
+    is that of the initial positions), the latest feedback (before the first cycle: at rest at the
+    initial positions) and the cycles run."""
 
     def __init__(
         self,
-        q0_rad: np.ndarray | None = None,
+        position_rad: np.ndarray,
         *,
-        n_axes: int = 6,
-        cycle_s: float = 400e-6,
-        rated_torque_nm: np.ndarray | None = None,
-        following_error_limit_rad: float = 0.05,
-        quick_stop_decel_rad_s2: float = 50.0,
-    ):
-        self._n = n_axes
+        cycle_s: float,
+        rated_torque_nm: np.ndarray,
+        following_error_limit_rad: np.ndarray,
+        quick_stop_decel_rad_s2: np.ndarray,
+    ) -> None:
+        self._n = len(position_rad)
         self._dt = cycle_s
-        self._q = np.zeros(n_axes) if q0_rad is None else np.array(q0_rad, dtype=float)
-        if self._q.shape != (n_axes,):
-            raise ValueError(f"q0_rad must have shape ({n_axes},)")
-        self._rated = (
-            np.array([180.0, 180.0, 90.0, 30.0, 30.0, 15.0])[:n_axes]
-            if rated_torque_nm is None
-            else np.asarray(rated_torque_nm, dtype=float)
-        )
-        self._fe_limit = np.full(n_axes, following_error_limit_rad)
-        self._qs_decel = np.full(n_axes, quick_stop_decel_rad_s2)
-        zero = np.zeros(n_axes)
-        self._fb = AxisFeedback(self._q.copy(), zero, zero, zero)
+        self._rated = rated_torque_nm
+        self._fe_limit = following_error_limit_rad
+        self._qs_decel = quick_stop_decel_rad_s2
+        zero = np.zeros(self._n)
+        self._fb = AxisFeedback(position_rad, zero, zero, zero)
         self.cycles = 0
 
     @property
@@ -134,6 +126,39 @@ class IdealBackend:
 
     def feedback(self) -> AxisFeedback:
         return self._fb
+
+
+class IdealBackend(BackendState):
+    """Protocol test backend: positions follow the demand exactly, torque equals feed-forward.
+
+    The tracker reports a fixed function of the joint positions (a rigid pseudo-TCP) when every
+    axis stood still during the last cycle, so tests can check the tracker path end to end.
+    """
+
+    def __init__(
+        self,
+        q0_rad: np.ndarray | None = None,
+        *,
+        n_axes: int = 6,
+        cycle_s: float = 400e-6,
+        rated_torque_nm: np.ndarray | None = None,
+        following_error_limit_rad: float = 0.05,
+        quick_stop_decel_rad_s2: float = 50.0,
+    ):
+        self._q = np.zeros(n_axes) if q0_rad is None else np.array(q0_rad, dtype=float)
+        if self._q.shape != (n_axes,):
+            raise ValueError(f"q0_rad must have shape ({n_axes},)")
+        super().__init__(
+            self._q.copy(),
+            cycle_s=cycle_s,
+            rated_torque_nm=(
+                np.array([180.0, 180.0, 90.0, 30.0, 30.0, 15.0])[:n_axes]
+                if rated_torque_nm is None
+                else np.asarray(rated_torque_nm, dtype=float)
+            ),
+            following_error_limit_rad=np.full(n_axes, following_error_limit_rad),
+            quick_stop_decel_rad_s2=np.full(n_axes, quick_stop_decel_rad_s2),
+        )
 
     def cycle(
         self, position_demand_rad: np.ndarray, torque_ff_nm: np.ndarray, enabled: np.ndarray

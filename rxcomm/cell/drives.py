@@ -46,16 +46,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters
 from rxcomm.model.robot import Robot
+from rxcomm.schemas.strict import Strict
 
 
-class DriveTuning(BaseModel):
+class DriveTuning(Strict):
     """How the drives are tuned (all axes alike; per-axis gains follow from the prior inertias)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     velocity_bandwidth_rad_s: float = Field(
         60.0, gt=0, description="velocity loop bandwidth ω_v (K_p = J·ω_v), rad/s"

@@ -27,7 +27,7 @@ import time
 from enum import StrEnum
 from types import TracebackType
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 from pymodbus.constants import ExcCodes
 from pymodbus.pdu import ExceptionResponse
 from pymodbus.server import ModbusTcpServer
@@ -41,6 +41,7 @@ from rxcomm.errors import GatewayError
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.net import is_loopback, quiet_pymodbus
 from rxcomm.io.tracker_csv import TrackerExport
+from rxcomm.schemas.strict import Strict
 
 VIRTUAL_BATCH_CYCLES = 64
 _log = logging.getLogger("rxcomm.cell")
@@ -53,9 +54,7 @@ class TimeMode(StrEnum):
     REALTIME = "realtime"
 
 
-class ServerConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class ServerConfig(Strict):
     host: str = "127.0.0.1"
     port: int = Field(0, ge=0, le=65535, description="0 = ephemeral; CellServer.port tells the choice")
     time_mode: TimeMode = TimeMode.VIRTUAL

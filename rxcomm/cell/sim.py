@@ -28,23 +28,22 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from rxcomm.cell.backend import AxisFeedback, TrackerReading
+from rxcomm.cell.backend import AxisFeedback, BackendState, TrackerReading
 from rxcomm.cell.drives import CascadedDrives, DriveGains, DriveTuning, drive_gains
 from rxcomm.cell.plant import Plant
 from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
 from rxcomm.cell.tracker import MotionTracker, SimulatedTracker
 from rxcomm.cell.truth import SimTruth, load_truth
 from rxcomm.errors import InputError
+from rxcomm.schemas.strict import Strict
 
 NOISE_BLOCK = 1024
 
 
-class SimSettings(BaseModel):
+class SimSettings(Strict):
     """How the simulated cell runs (the physics itself comes from the truth file)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     q0_rad: tuple[float, ...] | None = Field(None, description="initial joint angles; None: all zero")
     seed: int | None = Field(None, description="noise seed; None: the truth file's seed")
@@ -58,7 +57,7 @@ class SimSettings(BaseModel):
     tuning: DriveTuning = DriveTuning()
 
 
-class SimulatedCell:
+class SimulatedCell(BackendState):
     """The real backend of the simulated cell (`CellBackend`)."""
 
     def __init__(self, truth: SimTruth, settings: SimSettings | None = None):
@@ -103,37 +102,17 @@ class SimulatedCell:
             n,
             max_samples=s.tracker_max_samples,
         )
-        self._n = n
-        self._rated = np.array(robot.tau_cont, dtype=float)
         self._enabled = np.zeros(n, dtype=bool)
-        zero = np.zeros(n)
-        self._fb = AxisFeedback(self._encoder(), zero, zero, zero)
-        self.cycles = 0
+        g = self.gains
+        super().__init__(
+            self._encoder(),
+            cycle_s=g.cycle_s,
+            rated_torque_nm=np.array(robot.tau_cont, dtype=float),
+            following_error_limit_rad=g.following_error_limit_rad,
+            quick_stop_decel_rad_s2=g.quick_stop_decel_rad_s2,
+        )
 
     # ---- CellBackend ---------------------------------------------------------------------------
-
-    @property
-    def n_axes(self) -> int:
-        return self._n
-
-    @property
-    def cycle_s(self) -> float:
-        return self.gains.cycle_s
-
-    @property
-    def rated_torque_nm(self) -> np.ndarray:
-        return self._rated
-
-    @property
-    def following_error_limit_rad(self) -> np.ndarray:
-        return self.gains.following_error_limit_rad
-
-    @property
-    def quick_stop_decel_rad_s2(self) -> np.ndarray:
-        return self.gains.quick_stop_decel_rad_s2
-
-    def feedback(self) -> AxisFeedback:
-        return self._fb
 
     def cycle(
         self, position_demand_rad: np.ndarray, torque_ff_nm: np.ndarray, enabled: np.ndarray

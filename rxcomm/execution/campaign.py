@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
@@ -29,11 +29,10 @@ from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.measurements import MeasuredPose, Measurements
+from rxcomm.schemas.strict import Strict
 
 
-class CampaignSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class CampaignSettings(Strict):
     feedforward: bool = True
     speed_fraction: float = Field(0.2, gt=0, le=1, description="of velocity and acceleration limits")
     settle_s: float = Field(0.5, ge=0, description="demand held at each pose before reading the tracker, s")

@@ -31,9 +31,8 @@ from rxcomm.execution.summary import MotionStats, run_summary, tcp_error_and_spe
 from rxcomm.io.files import part_path
 from rxcomm.io.mcap_io import McapWriter, number_field, recover_mcap, vector_field
 from rxcomm.io.validate import check_kind
-from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
+from rxcomm.io.yaml_io import mcap_summary, summary_yaml_path, write_mcap_summary
 from rxcomm.model.robot import Robot
-from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.run_log import (
     GATEWAY_FIELDS,
     GATEWAY_TOPIC,
@@ -216,18 +215,14 @@ class RunLogWriter:
                     self.gateway({k: v[i:] for k, v in g.items()})
             summary = run_summary(self.robot, result, motion=self.motion if log is not None else None)
             data = self._yaml_data(result, summary)
-            RunLog.model_validate(data)  # a bad summary is a bug: the .part stays
+            mcap_summary(RunLog, data, self.path)  # a bad summary is a bug: the .part stays
             w.set_summary(summary)
         except BaseException:
             w.abort()
             raise
         if result.error is not None:
             return w.abort(), summary
-
-        def write_yaml(part: Path) -> None:
-            write_summary_yaml(self.path, RunLog.model_validate({**data, "mcap_sha256": sha256_file(part)}))
-
-        return w.finish(before_rename=write_yaml), summary
+        return w.finish(before_rename=lambda part: write_mcap_summary(RunLog, data, self.path, part)), summary
 
     def abandon(self) -> Path | None:
         """The stage failed outside the run (a bug, an interrupt): keep what is on disk as ``.part``."""
@@ -238,8 +233,6 @@ class RunLogWriter:
         sample_s = result.ratio * result.cycle_s
         return {
             **env,
-            "mcap_file": self.path.name,
-            "mcap_sha256": "0" * 64,
             "joint_names": list(self.robot.joint_names),
             "cycle_s": result.cycle_s,
             "interpolation_ratio": result.ratio,
@@ -252,18 +245,7 @@ class RunLogWriter:
                     topic=JOINTS_TOPIC, period_s=sample_s, n_messages=self.n_joint, fields=JOINT_FIELDS
                 ),
                 RunLogTopic(topic=GATEWAY_TOPIC, period_s=None, n_messages=self.n_gw, fields=GATEWAY_FIELDS),
-                *(
-                    [
-                        RunLogTopic(
-                            topic=TRACKER_TOPIC,
-                            period_s=1.0 / self._tracker.rate_hz,
-                            n_messages=self._tracker.n_samples,
-                            fields=TRACKER_FIELDS,
-                        )
-                    ]
-                    if self._tracker is not None
-                    else []
-                ),
+                *([tracker_topic(self._tracker)] if self._tracker is not None else []),
                 *(self._foxglove.topics() if self._foxglove is not None else ()),
             ],
             "tracker": self._tracker,
@@ -318,6 +300,16 @@ def write_tracker_channel(
     )
     w.flush()
     return channel.model_copy(update={"n_samples": int(keep.sum())})
+
+
+def tracker_topic(channel: TrackerChannel) -> RunLogTopic:
+    """The summary's entry for the ``/run/tracker`` channel of `channel`'s samples."""
+    return RunLogTopic(
+        topic=TRACKER_TOPIC,
+        period_s=1.0 / channel.rate_hz,
+        n_messages=channel.n_samples,
+        fields=TRACKER_FIELDS,
+    )
 
 
 def tracker_schema() -> dict[str, dict[str, Any]]:

@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.plan import StreamPlan
@@ -45,6 +45,7 @@ from rxcomm.gateway.registers import DriveState, ErrorCode, Status, StopCause
 from rxcomm.gateway.stream import STOP_BITS, stream
 from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE
 from rxcomm.model.robot import Robot
+from rxcomm.schemas.strict import Strict
 
 ROUND_TRIP_MARGIN = 3.0  # a block must last this many mean empty-block round trips: a full block's
 # encode/decode and the recording ride on it (measured: ≈ 1.5–2 × an empty poll on a loaded 2-core VM)
@@ -65,10 +66,8 @@ VIRTUAL_CELL_REQUEST_TIMEOUT_S = 5.0
 REQUEST_TIMEOUT_S = 0.5  # a real gateway or a realtime cell: a reply later than this is a fault
 
 
-class StreamSettings(BaseModel):
+class StreamSettings(Strict):
     """How setpoints are fed to the gateway."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     interpolation_ratio: int | None = Field(
         None,
@@ -88,10 +87,8 @@ class StreamSettings(BaseModel):
     stop_timeout_s: float = Field(3.0, gt=0, description="wait for the stop ramp before disabling, s")
 
 
-class RunSettings(BaseModel):
+class RunSettings(Strict):
     """What `run` does with a trajectory plan."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     feedforward: bool = Field(True, description="stream τ_ff of the model; False: zeros")
     approach: bool = Field(False, description="move to the plan's start first (jerk-limited)")

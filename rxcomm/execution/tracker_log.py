@@ -9,19 +9,11 @@ from pathlib import Path
 import numpy as np
 
 from rxcomm.errors import InputError
-from rxcomm.execution.log import _gateway_schema, _joint_schema, write_tracker_channel
+from rxcomm.execution.log import _gateway_schema, _joint_schema, tracker_topic, write_tracker_channel
 from rxcomm.io.mcap_io import McapWriter, read_mcap
-from rxcomm.io.yaml_io import read_yaml_artefact, summary_yaml_path, write_summary_yaml
+from rxcomm.io.yaml_io import read_yaml_artefact, summary_yaml_path, write_mcap_summary
 from rxcomm.schemas.plain import sha256_file
-from rxcomm.schemas.run_log import (
-    GATEWAY_TOPIC,
-    JOINTS_TOPIC,
-    TRACKER_FIELDS,
-    TRACKER_TOPIC,
-    RunLog,
-    RunLogTopic,
-    TrackerChannel,
-)
+from rxcomm.schemas.run_log import GATEWAY_TOPIC, JOINTS_TOPIC, TRACKER_TOPIC, RunLog, TrackerChannel
 
 
 def attach_tracker(
@@ -58,15 +50,6 @@ def attach_tracker(
     except BaseException:
         w.abort()
         raise
-    topics = [t for t in meta.topics if t.topic != TRACKER_TOPIC] + [
-        RunLogTopic(
-            topic=TRACKER_TOPIC, period_s=1.0 / kept.rate_hz, n_messages=kept.n_samples, fields=TRACKER_FIELDS
-        )
-    ]
-    data = {**meta.model_dump(mode="json"), "inputs": env["inputs"], "mcap_file": out.name, "topics": topics}
-    data["tracker"] = kept
-
-    def write_yaml(part: Path) -> None:
-        write_summary_yaml(out, RunLog.model_validate({**data, "mcap_sha256": sha256_file(part)}))
-
-    return w.finish(before_rename=write_yaml)
+    topics = [t for t in meta.topics if t.topic != TRACKER_TOPIC] + [tracker_topic(kept)]
+    data = {**meta.model_dump(mode="json"), "inputs": env["inputs"], "topics": topics, "tracker": kept}
+    return w.finish(before_rename=lambda part: write_mcap_summary(RunLog, data, out, part))

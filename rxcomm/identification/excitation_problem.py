@@ -9,15 +9,9 @@ extreme eigenpairs of W_nᵀW_n), chained through the column scaling and, per sa
 reverse sweep of the symbolic regressor (`rxcomm.model.symbolic`) to q, q̇, q̈ and so to x. Coulomb's
 sign is smoothed to tanh(q̇/ε) inside the NLP; reported figures use the exact sign and Pinocchio.
 
-**Constraints** (paper eq. 30): joint position (minus a margin), velocity, acceleration (fractions of
-the limits), motor torque |τ| ≤ fraction·peak from the prior (URDF + drives.yaml) model, and the
-tool (TCP), wrist centre (joint 5 origin) and elbow (joint 3 origin) inside the cell's allowed-region
-boxes. Position, velocity and acceleration are linear in x; torque and positions come with their
-Jacobians from CasADi. Constraints imposed at a finite grid are violated between its points (by 1–2 %
-at the paper's k = 80), so each solve is followed by a dense check (`check_samples` per period) and
-the worst violating times are added to the constraint grid (an exchange method for the
-semi-infinite problem) until the dense check holds; the result is verified again at the drive cycle
-with Pinocchio, independently of the CasADi model.
+**Constraints** (paper eq. 30): the design limits of `rxcomm.identification.excitation_limits` (its
+docstring says which, and how the exchange method and the dense check keep them between the grid
+points); here they become the SLSQP's inequality rows with their Jacobians from CasADi.
 """
 
 from __future__ import annotations

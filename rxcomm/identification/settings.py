@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from rxcomm.schemas.strict import Strict
 
 
-class IdentifySettings(BaseModel):
+class IdentifySettings(Strict):
     """Options of `rxcomm identify` (units in the names)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     cutoff_hz: Annotated[float, Field(gt=0)] | Literal["auto"] = Field(
         10.0,

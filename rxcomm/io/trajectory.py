@@ -19,9 +19,8 @@ import numpy as np
 from rxcomm.errors import InputError
 from rxcomm.io.mcap_io import McapWriter, field_for, read_mcap
 from rxcomm.io.validate import check_kind, validate_model
-from rxcomm.io.yaml_io import summary_yaml_path, write_summary_yaml
+from rxcomm.io.yaml_io import mcap_summary, summary_yaml_path, write_mcap_summary
 from rxcomm.schemas.envelope import Artefact
-from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.trajectory import TrajectorySummary
 
 TOPIC = "/trajectory"
@@ -125,14 +124,12 @@ def save_trajectory_mcap(
     check_kind(env, TrajectorySummary, file=path, prefix="envelope")
     fields = [*CORE_FIELDS, *traj.extra]
     columns = {"q": traj.q, "qd": traj.qd, "qdd": traj.qdd, "tau_ff": traj.tau_ff, **traj.extra}
-    data = {**env, "mcap_file": path.name, "mcap_sha256": "0" * 64}
-    data |= {"topic": TOPIC, "n_samples": traj.n, "fields": fields}
-    TrajectorySummary.model_validate(data)  # fail on a bad envelope/summary before writing anything
+    data = {**env, "topic": TOPIC, "n_samples": traj.n, "fields": fields}
+    mcap_summary(TrajectorySummary, data, path)  # fail on a bad envelope/summary before writing anything
     summary: list[TrajectorySummary] = []
 
     def write_yaml(part: Path) -> None:
-        summary.append(TrajectorySummary.model_validate({**data, "mcap_sha256": sha256_file(part)}))
-        write_summary_yaml(path, summary[0])
+        summary.append(write_mcap_summary(TrajectorySummary, data, path, part))
 
     with McapWriter(path, env) as w:
         if joint_names is not None:

@@ -7,6 +7,7 @@ wrong types. Writing is atomic (``NAME.part`` then rename).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -16,10 +17,11 @@ from pydantic import BaseModel
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, mcap_summary_path
 from rxcomm.io.validate import check_kind, validate_model
-from rxcomm.schemas.envelope import Artefact
-from rxcomm.schemas.plain import to_plain
+from rxcomm.schemas.envelope import Artefact, McapSummary
+from rxcomm.schemas.plain import sha256_file, to_plain
 
 A = TypeVar("A", bound=Artefact)
+S = TypeVar("S", bound=McapSummary)
 M = TypeVar("M", bound=BaseModel)
 
 
@@ -115,3 +117,21 @@ def summary_yaml_path(mcap_path: str | Path) -> Path:
 def write_summary_yaml(mcap_path: str | Path, artefact: Artefact) -> Path:
     """Write ``artefact`` (envelope + summary + its data) as ``NAME.yaml`` beside ``NAME.mcap``."""
     return write_yaml_artefact(summary_yaml_path(mcap_path), artefact)
+
+
+def mcap_summary(
+    cls: type[S], data: Mapping[str, Any], mcap_path: str | Path, part: str | Path | None = None
+) -> S:
+    """``data`` as ``cls``, the summary of the MCAP at ``mcap_path``: its file name and the sha256 of
+    ``part``, the MCAP's finished bytes (None: not written yet, a placeholder hash, to refuse bad data
+    before anything is written)."""
+    sha = "0" * 64 if part is None else sha256_file(part)
+    return cls.model_validate({**data, "mcap_file": Path(mcap_path).name, "mcap_sha256": sha})
+
+
+def write_mcap_summary(cls: type[S], data: Mapping[str, Any], mcap_path: str | Path, part: str | Path) -> S:
+    """Write ``NAME.yaml`` beside ``NAME.mcap`` from its finished ``.part`` (``McapWriter.finish``'s
+    ``before_rename`` step, so a visible ``NAME.mcap`` always has its YAML); returns the summary."""
+    summary = mcap_summary(cls, data, mcap_path, part)
+    write_summary_yaml(mcap_path, summary)
+    return summary

@@ -213,6 +213,11 @@ class _Chain:
     joint_frames: np.ndarray  # frame after M_j·exp6(δ_j), before Rot(q_j): [N, n, 4, 4]
     tcp: np.ndarray  # TCP after the tool error: [N, 4, 4]
 
+    def point(self, point: np.ndarray | None = None) -> np.ndarray:
+        """[N, 3] positions of `point` (in the TCP frame; None: the TCP origin)."""
+        x = self.tcp
+        return x[:, :3, 3] if point is None else x[:, :3, 3] + x[:, :3, :3] @ np.asarray(point, dtype=float)
+
 
 def _chain(
     robot: Robot, qs: np.ndarray, errors: ErrorModel | None, tracker_to_base: pin.SE3 | None
@@ -248,9 +253,8 @@ def predict_poses(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Batched `measured_pose`: (positions [N, 3] of the TCP or of `point` (in the TCP frame), rotations
     [N, 3, 3]) in the tracker frame (the base frame when `tracker_to_base` is None)."""
-    x = _chain(robot, qs, errors, tracker_to_base).tcp
-    p = x[:, :3, 3] if point is None else x[:, :3, 3] + x[:, :3, :3] @ np.asarray(point, dtype=float)
-    return p, x[:, :3, :3]
+    ch = _chain(robot, qs, errors, tracker_to_base)
+    return ch.point(point), ch.tcp[:, :3, :3]
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -286,7 +290,7 @@ def identification_jacobians(
     errors = ErrorModel.zeros(robot) if errors is None else errors
     ch = _chain(robot, qs, errors, tracker_to_base)
     n_pose = ch.tcp.shape[0]
-    p = ch.tcp[:, :3, 3] if point is None else ch.tcp[:, :3, 3] + ch.tcp[:, :3, :3] @ np.asarray(point)
+    p = ch.point(point)
     spatial = np.empty((n_pose, 6, 6 * (robot.n + 2)))
     spatial[:, :, 0:6] = _adjoint(ch.after_base) @ pin.Jexp6(errors.twist(BASE))
     for j, name in enumerate(robot.joint_names):
@@ -296,9 +300,7 @@ def identification_jacobians(
     spatial[:, :, -6:] = _adjoint(ch.tcp) @ pin.Jexp6(errors.twist(TOOL))
     # A spatial twist (v, ω) moves a point p by v + ω × p = v − [p]× ω.
     pos = spatial[:, :3] - _skew(p) @ spatial[:, 3:]
-    if position_only:
-        return pos
-    return np.concatenate([pos, spatial[:, 3:]], axis=1)
+    return _rows(pos, spatial[:, 3:], position_only)
 
 
 def joint_motion_jacobians(
@@ -315,17 +317,18 @@ def joint_motion_jacobians(
     twist Ad(B_j)·[0; axis_j] with B_j the frame before Rot(q_j)). Joint compliance (a deflection
     δq_j = c_j·τ_j) enters the measured pose through these columns.
     """
-    errors = ErrorModel.zeros(robot) if errors is None else errors
     ch = _chain(robot, qs, errors, tracker_to_base)
-    p = ch.tcp[:, :3, 3] if point is None else ch.tcp[:, :3, 3] + ch.tcp[:, :3, :3] @ np.asarray(point)
+    p = ch.point(point)
     axes = _joint_axes(robot)
     w = np.einsum("njab,jb->nja", ch.joint_frames[:, :, :3, :3], axes)  # [N, n, 3] axes in the world
     o = ch.joint_frames[:, :, :3, 3]  # [N, n, 3] points on the axes
     pos = np.cross(w, p[:, None, :] - o)  # ω × (p − o)
-    out = pos.transpose(0, 2, 1)
-    if position_only:
-        return out
-    return np.concatenate([out, w.transpose(0, 2, 1)], axis=1)
+    return _rows(pos.transpose(0, 2, 1), w.transpose(0, 2, 1), position_only)
+
+
+def _rows(pos: np.ndarray, rot: np.ndarray, position_only: bool) -> np.ndarray:
+    """[N, 3 or 6, k]: the position rows, then (unless `position_only`) the orientation rows."""
+    return pos if position_only else np.concatenate([pos, rot], axis=1)
 
 
 def joint_offset_names(robot: Robot) -> tuple[str, ...]:

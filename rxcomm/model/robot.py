@@ -8,7 +8,7 @@ raises `InputError` naming the file and the field at fault.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -27,6 +27,11 @@ def _readonly(a) -> np.ndarray:
     a = np.array(a, dtype=float)
     a.setflags(write=False)
     return a
+
+
+def _per_joint(drives_field: str, doc: str | None = None) -> property:
+    """A `Robot` property: `drives_field` of every joint in drives.yaml, as a read-only array."""
+    return property(lambda robot: _readonly([getattr(j, drives_field) for j in robot.drives.joints]), doc=doc)
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,47 +65,20 @@ class Robot:
     def joint_names(self) -> tuple[str, ...]:
         return tuple(j.name for j in self.drives.joints)
 
-    def _per_joint(self, attr: str) -> np.ndarray:
-        return _readonly([getattr(j, attr) for j in self.drives.joints])
-
-    @property
-    def tau_max(self) -> np.ndarray:
-        """Peak joint torque, N·m."""
-        return self._per_joint("peak_torque_nm")
-
-    @property
-    def tau_cont(self) -> np.ndarray:
-        return self._per_joint("continuous_torque_nm")
-
-    @property
-    def tau_rate_max(self) -> np.ndarray:
-        return self._per_joint("torque_rate_max_nm_per_s")
-
-    @property
-    def a_max(self) -> np.ndarray:
-        return self._per_joint("acceleration_max_rad_per_s2")
-
-    @property
-    def gear_ratio(self) -> np.ndarray:
-        return self._per_joint("gear_ratio")
-
-    @property
-    def rotor_inertia(self) -> np.ndarray:
-        """Motor-side rotor inertia, kg·m²."""
-        return self._per_joint("rotor_inertia_kgm2")
-
-    @property
-    def torque_constant(self) -> np.ndarray:
-        return self._per_joint("torque_constant_nm_per_a")
-
-    @property
-    def motor_sign(self) -> np.ndarray:
-        return self._per_joint("motor_sign")
-
-    @property
-    def encoder_offset(self) -> np.ndarray:
-        """Motor angle reported at the joint's calibrated zero, motor side, rad."""
-        return self._per_joint("encoder_offset_rad")
+    # Per joint, chain order, from drives.yaml (read-only arrays).
+    tau_max = _per_joint("peak_torque_nm", "Peak joint torque, N·m.")
+    tau_cont = _per_joint("continuous_torque_nm")
+    tau_rate_max = _per_joint("torque_rate_max_nm_per_s")
+    a_max = _per_joint("acceleration_max_rad_per_s2")
+    gear_ratio = _per_joint("gear_ratio")
+    rotor_inertia = _per_joint("rotor_inertia_kgm2", "Motor-side rotor inertia, kg·m².")
+    torque_constant = _per_joint("torque_constant_nm_per_a")
+    motor_sign = _per_joint("motor_sign")
+    encoder_offset = _per_joint(
+        "encoder_offset_rad", "Motor angle reported at the joint's calibrated zero, motor side, rad."
+    )
+    coulomb_prior = _per_joint("coulomb_friction_nm")
+    viscous_prior = _per_joint("viscous_friction_nm_s_per_rad")
 
     @property
     def coupled_motors(self) -> tuple[int, ...]:
@@ -124,17 +102,7 @@ class Robot:
     def with_friction(self, mode: str) -> Robot:
         """The same robot with another friction model (e.g. to compare fits with and without motor
         friction)."""
-        from dataclasses import replace
-
         return replace(self, drives=self.drives.model_copy(update={"friction": mode}))
-
-    @property
-    def coulomb_prior(self) -> np.ndarray:
-        return self._per_joint("coulomb_friction_nm")
-
-    @property
-    def viscous_prior(self) -> np.ndarray:
-        return self._per_joint("viscous_friction_nm_s_per_rad")
 
     @property
     def motor_coupling(self) -> np.ndarray:
@@ -178,17 +146,11 @@ class Robot:
     def with_model(self, model: pin.Model) -> Robot:
         """The same drives on another kinematic/inertial model (e.g. a calibrated one)."""
         _check_chain(model, self.joint_names, self.urdf_path)
-        return Robot(
-            name=self.name,
+        return replace(
+            self,
             model=model,
-            drives=self.drives,
-            urdf_path=self.urdf_path,
-            drives_path=self.drives_path,
             tcp_frame_id=model.getFrameId(TCP_FRAME),
             flange_frame_id=model.getFrameId(self.drives.tcp.parent_frame),
-            q_min=self.q_min,
-            q_max=self.q_max,
-            v_max=self.v_max,
         )
 
 

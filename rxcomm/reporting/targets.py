@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.reporting.document import (
     DEFAULT_TOLERANCE,
@@ -20,14 +20,13 @@ from rxcomm.reporting.document import (
     VerdictRow,
     ratio_verdict,
 )
+from rxcomm.schemas.strict import Strict
 
 
-class StageTargets(BaseModel):
+class StageTargets(Strict):
     """What each stage must reach. The calibration targets round up the paper's after-calibration
     Table 2 (max 0.41 mm per axis, 0.19°); a fit whose torque prediction explains less than 95 % of the
     validation torque variance is no model for feed-forward; feed-forward must at least halve the lag."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     heldout_max_position_error_m: float = Field(0.5e-3, gt=0, description="max |e_xyz| on held-out poses, m")
     heldout_max_orientation_error_deg: float = Field(0.2, gt=0, description="max rotation error, degrees")

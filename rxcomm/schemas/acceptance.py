@@ -14,7 +14,7 @@ runs' durations), ``tau_squared_integral`` (N²·m²·s, ∫τᵀτ dt of the me
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
 from pydantic import Field, model_validator
 
@@ -98,8 +98,8 @@ class VerdictRow(Strict):
 class Acceptance(Artefact):
     """Factory vs commissioned, criterion by criterion, with the verdict."""
 
-    KIND: ClassVar[str] = "rxcomm/Acceptance"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ("verdict", "n_pass", "n_fail", "n_not_measured")
+    KIND = "rxcomm/Acceptance"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = ("verdict", "n_pass", "n_fail", "n_not_measured")
 
     rows: list[VerdictRow]

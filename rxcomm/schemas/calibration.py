@@ -25,7 +25,7 @@ When the measurements hold `baseline` poses (a naive set, `select-configs --meas
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
 from pydantic import Field
 
@@ -118,9 +118,9 @@ class ComplianceEstimate(Strict):
 
 
 class Calibration(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Calibration"
-    SCHEMA_VERSION: ClassVar[int] = 2
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Calibration"
+    SCHEMA_VERSION = 2
+    REQUIRED_SUMMARY_KEYS = (
         "n_identifiable",
         "fit_max_position_error_m",
         "heldout_max_position_error_m",

@@ -21,16 +21,15 @@ noise of `cell.yaml` (orientation likewise, rad). Version 2: the baseline became
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 
-class ConfigPose(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class ConfigPose(Strict):
     q_rad: list[float] = Field(description="joint angles, rad, chain order")
     role: Literal["fit", "validation", "baseline"] = "fit"
     tcp_position_m: tuple[float, float, float] | None = Field(
@@ -39,9 +38,9 @@ class ConfigPose(BaseModel):
 
 
 class Configs(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Configs"
-    SCHEMA_VERSION: ClassVar[int] = 2
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Configs"
+    SCHEMA_VERSION = 2
+    REQUIRED_SUMMARY_KEYS = (
         "n_candidates",
         "n_selected",
         "observation_index",

@@ -13,8 +13,6 @@ Units: SI; parameter names as in `rxcomm.model.dynamics.parameter_names` (`joint
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 from pydantic import Field, model_validator
 
 from rxcomm.schemas.envelope import Artefact
@@ -80,9 +78,9 @@ class SpringEstimate(Strict):
 
 
 class Dynamics(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Dynamics"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Dynamics"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = (
         "n_base_params",
         "validation_nrmse",
         "validation_rms_nm",

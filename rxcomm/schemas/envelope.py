@@ -1,18 +1,22 @@
 """The artefact envelope every rxcomm artefact carries (architecture §3).
 
 Subclasses are the artefacts of the stages. They set ``KIND`` (``"rxcomm/Calibration"``) and
-``SCHEMA_VERSION``, optionally ``REQUIRED_SUMMARY_KEYS``, and add their data fields after the
-envelope fields::
+``SCHEMA_VERSION``, optionally ``REQUIRED_SUMMARY_KEYS`` (class variables, declared here once: a
+subclass assigns them without annotation, as it does ``model_config``), and add their data fields
+after the envelope fields::
 
     class Calibration(Artefact):
-        KIND: ClassVar[str] = "rxcomm/Calibration"
-        SCHEMA_VERSION: ClassVar[int] = 1
-        REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ("n_identifiable", "seconds")
+        KIND = "rxcomm/Calibration"
+        SCHEMA_VERSION = 1
+        REQUIRED_SUMMARY_KEYS = ("n_identifiable", "seconds")
         params_m: list[float]
 
     cal = Calibration(**Calibration.envelope({"robot": urdf_path}, settings, summary), params_m=[...])
 
 The bare ``Artefact`` (no ``KIND``) validates the envelope fields of any kind; the MCAP reader uses it.
+The summary YAML beside an MCAP (a trajectory, a run log) derives from ``McapSummary``, which adds the
+MCAP's file name and hash after the envelope. A base of kinds that is no kind itself says
+``__abstract__ = True``.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, StringConstraints, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
 
 import rxcomm
 from rxcomm.schemas.plain import sha256_file, to_plain
@@ -62,10 +66,12 @@ class Artefact(BaseModel):
     @classmethod
     def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
         super().__pydantic_init_subclass__(**kwargs)
+        if cls.__dict__.get("__abstract__"):
+            return
         if not isinstance(getattr(cls, "KIND", None), str) or not isinstance(
             getattr(cls, "SCHEMA_VERSION", None), int
         ):
-            raise TypeError(f"{cls.__name__} must set KIND: ClassVar[str] and SCHEMA_VERSION: ClassVar[int]")
+            raise TypeError(f"{cls.__name__} must set KIND (a str) and SCHEMA_VERSION (an int)")
 
     @model_validator(mode="before")
     @classmethod
@@ -129,3 +135,14 @@ class Artefact(BaseModel):
     def envelope_dict(self) -> dict[str, Any]:
         """The envelope fields of this artefact as JSON-able values (for an MCAP metadata record)."""
         return self.model_dump(mode="json", include=set(ENVELOPE_FIELDS))
+
+
+class McapSummary(Artefact):
+    """The summary YAML beside an MCAP (``NAME.mcap`` -> ``NAME.yaml``): envelope, the MCAP's file name
+    and hash, then the kind's fields. The MCAP carries the same envelope as its ``rxcomm/envelope``
+    metadata record."""
+
+    __abstract__ = True
+
+    mcap_file: str = Field(description="file name of the MCAP beside this YAML")
+    mcap_sha256: Sha256Hex = Field(description="sha256 of that MCAP, to tie the summary to its samples")

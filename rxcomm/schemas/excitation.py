@@ -17,17 +17,16 @@ The samples `run` executes are in the trajectory MCAP named by `trajectory_file`
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
 from rxcomm.schemas.envelope import Artefact, Sha256Hex
+from rxcomm.schemas.strict import Strict
 
 
-class ExcitationSettings(BaseModel):
+class ExcitationSettings(Strict):
     """Options of `rxcomm excite` (units in the names; fractions are of the robot's limits)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     harmonics: int = Field(5, ge=2, le=20, description="Fourier terms per joint (paper: N = 5)")
     omega_f_rad_s: float = Field(
@@ -73,9 +72,7 @@ class ExcitationSettings(BaseModel):
     )
 
 
-class ExcitationStart(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class ExcitationStart(Strict):
     seed: int
     initial_cond: float = Field(description="cond of the random feasible starting trajectory")
     cond: float = Field(description="cond after optimisation and refinement (sign Coulomb, k samples)")
@@ -85,9 +82,9 @@ class ExcitationStart(BaseModel):
 
 
 class Excitation(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Excitation"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Excitation"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = (
         "cond",
         "cond_raw",
         "baseline_cond",

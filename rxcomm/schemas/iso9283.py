@@ -19,11 +19,12 @@ why. Positions are in the robot's base frame (the tracker frame mapped by ``base
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 CriterionKey = Literal[
     "AP_p", "AP_a", "AP_b", "AP_c", "RP_l", "RP_a", "RP_b", "RP_c", "AT_p", "RT_p", "CO", "AV", "RV"
@@ -49,10 +50,8 @@ POSES = ("P1", "P2", "P3", "P4", "P5")
 PATHS = ("iso9283-line", "iso9283-circle-large", "iso9283-circle-small", "iso9283-rectangle")
 
 
-class Criterion(BaseModel):
+class Criterion(Strict):
     """One criterion at one test pose or on one test path."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     key: CriterionKey
     target: str = Field(description="test pose P1..P5 or test path (iso9283-line, ...)")
@@ -64,10 +63,8 @@ class Criterion(BaseModel):
     note: str = Field("", description="why not measured, or what the value rests on")
 
 
-class CubeDefinition(BaseModel):
+class CubeDefinition(Strict):
     """The ISO 9283 test cube (base frame) and its inclined plane's points."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     centre_m: tuple[float, float, float]
     side_m: float = Field(gt=0)
@@ -76,10 +73,8 @@ class CubeDefinition(BaseModel):
     points_m: dict[str, tuple[float, float, float]] = Field(description="P1..P5")
 
 
-class BaseFrame(BaseModel):
+class BaseFrame(Strict):
     """The robot base in the tracker frame the attained poses were mapped with."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     xyz_m: tuple[float, float, float]
     rpy_rad: tuple[float, float, float]
@@ -91,9 +86,9 @@ class BaseFrame(BaseModel):
 class Iso9283(Artefact):
     """ISO 9283 criteria measured by the tracker on one state of the robot."""
 
-    KIND: ClassVar[str] = "rxcomm/Iso9283"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ("n_criteria", "n_measured")
+    KIND = "rxcomm/Iso9283"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = ("n_criteria", "n_measured")
 
     robot: str
     cube: CubeDefinition

@@ -14,17 +14,14 @@ in these tables: it is a joint deflection c·τ, in calibration.yaml.
 
 from __future__ import annotations
 
-from typing import ClassVar
-
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 
-class MdhJoint(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class MdhJoint(Strict):
     joint: str
     alpha_rad: float = Field(description="α_{i−1}: twist of axis i about X_{i−1}, rad")
     a_m: float = Field(description="a_{i−1}: common-normal length along X_{i−1}, m")
@@ -33,9 +30,7 @@ class MdhJoint(BaseModel):
     beta_rad: float = Field(0.0, description="Hayati β_{i−1} about Y after α (0 in plain MDH), rad")
 
 
-class MdhForm(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class MdhForm(Strict):
     base: Placement = Field(description="robot base frame → MDH frame 0")
     joints: list[MdhJoint]
     tool: Placement = Field(description="MDH frame n → TCP")
@@ -43,9 +38,7 @@ class MdhForm(BaseModel):
     max_orientation_residual_rad: float = Field(description="max TCP orientation error vs the calibrated FK")
 
 
-class ZeroOffset(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class ZeroOffset(Strict):
     joint: str
     offset_rad: float = Field(description="calibrated − nominal θ_offset (encoder zero correction), rad")
     offset_deg: float
@@ -53,9 +46,9 @@ class ZeroOffset(BaseModel):
 
 
 class Kinematics(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Kinematics"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Kinematics"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = (
         "mdh_max_position_residual_m",
         "mdh_beta_max_position_residual_m",
         "n_sample_poses",

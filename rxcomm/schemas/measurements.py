@@ -12,17 +12,16 @@ they would have left on the same held-out poses.
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Literal
+from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
 from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.strict import Strict
 
 
-class MeasuredPose(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class MeasuredPose(Strict):
     q_rad: list[float] = Field(description="joint angles from the encoders, rad, chain order")
     position_m: tuple[float, float, float] = Field(description="TCP position in the tracker frame, m")
     quaternion_wxyz: tuple[float, float, float, float] | None = Field(
@@ -41,9 +40,9 @@ class MeasuredPose(BaseModel):
 
 
 class Measurements(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Measurements"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ("n_poses", "n_valid")
+    KIND = "rxcomm/Measurements"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = ("n_poses", "n_valid")
 
     robot: str = Field(description="robot name (URDF)")
     joint_names: list[str]

@@ -32,11 +32,12 @@ summary says ``outcome`` and ``stop_reason``) and writes no ``NAME.yaml``.
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from rxcomm.schemas.envelope import Artefact, Sha256Hex
+from rxcomm.schemas.envelope import McapSummary
+from rxcomm.schemas.strict import Strict
 
 # The MCAP side of the contract: topics and their fields (unit, meaning).
 JOINTS_TOPIC = "/run/joints"
@@ -87,19 +88,15 @@ TRACKER_FIELDS = {
 }
 
 
-class RunLogTopic(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class RunLogTopic(Strict):
     topic: str
     period_s: float | None = Field(description="message period, s (None: irregular)")
     n_messages: int = Field(ge=0)
     fields: dict[str, str] = Field(description="field name -> unit and meaning")
 
 
-class TrackerChannel(BaseModel):
+class TrackerChannel(Strict):
     """How the ``/run/tracker`` samples were taken and put on the joint log's time axis."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     source: Literal["simulated-cell", "csv"] = Field(
         description="the simulated cell's tracker during the run, or a real tracker's CSV export"
@@ -121,12 +118,12 @@ class TrackerChannel(BaseModel):
     )
 
 
-class RunLog(Artefact):
+class RunLog(McapSummary):
     """Envelope + summary of a run log MCAP, plus how to read it."""
 
-    KIND: ClassVar[str] = "rxcomm/RunLog"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/RunLog"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = (
         "underruns",
         "max_lag_rad",
         "rms_lag_rad",
@@ -134,8 +131,6 @@ class RunLog(Artefact):
         "duration_s",
     )
 
-    mcap_file: str = Field(description="file name of the MCAP beside this YAML")
-    mcap_sha256: Sha256Hex = Field(description="sha256 of that MCAP, to tie the summary to its samples")
     joint_names: list[str]
     cycle_s: float = Field(gt=0, description="drive cycle of the gateway, s")
     interpolation_ratio: int = Field(ge=1, description="drive cycles per setpoint (R)")

@@ -1,5 +1,6 @@
-"""The base of every nested contract model: unknown keys are errors (a typo must not be ignored) and
-values are frozen (an artefact read is a fact, not a scratchpad)."""
+"""The base of every nested contract model and of the settings models: unknown keys are errors (a typo
+must not be ignored) and values are frozen (an artefact read is a fact, not a scratchpad; settings
+are dumped into the envelope as they were used)."""
 
 from __future__ import annotations
 

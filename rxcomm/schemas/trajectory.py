@@ -2,22 +2,20 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 from pydantic import Field
 
-from rxcomm.schemas.envelope import Artefact, Sha256Hex
+from rxcomm.schemas.envelope import McapSummary
 
 
-class TrajectorySummary(Artefact):
+class TrajectorySummary(McapSummary):
     """Envelope + summary of a trajectory MCAP (cp, ptp), plus where its samples are.
 
     The MCAP carries the same envelope as its ``rxcomm/envelope`` metadata record.
     """
 
-    KIND: ClassVar[str] = "rxcomm/Trajectory"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = (
+    KIND = "rxcomm/Trajectory"
+    SCHEMA_VERSION = 1
+    REQUIRED_SUMMARY_KEYS = (
         "duration_s",
         "solve_seconds",
         "max_limit_ratio",
@@ -26,8 +24,6 @@ class TrajectorySummary(Artefact):
         "q_goal",
     )
 
-    mcap_file: str = Field(description="file name of the MCAP beside this YAML")
-    mcap_sha256: Sha256Hex = Field(description="sha256 of that MCAP, to tie the summary to its samples")
     topic: str = Field(description="MCAP topic of the samples")
     n_samples: int = Field(ge=1)
     fields: list[str] = Field(description="message fields: q, qd, qdd, tau_ff and any extras")
