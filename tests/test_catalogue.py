@@ -240,7 +240,7 @@ def test_plan_poses_visits_the_cube_at_the_catalogue_limits(tmp_path, rx130l):
     from rxcomm.stages import plan_poses
 
     out = tmp_path / "poses.mcap"
-    s = plan_poses.run(ROOT / "samples/rx130l", out, cycles=2, dwell_s=0.3)
+    s = plan_poses.command(ROOT / "samples/rx130l", out, cycles=2, dwell_s=0.3)
     assert s["order"] == "P1 P5 P4 P3 P2 P1 P5 P4 P3 P2 P1"
     assert 0.98 <= s["max_limit_ratio"] <= 1.0 + 1e-9
     traj, env = load_trajectory_mcap(out)
@@ -265,7 +265,7 @@ def test_plan_cycles_repeats_a_path_with_return_moves(tmp_path, rx130l):
     stage.command(
         ROOT / "samples/rx130l", ROOT / "samples/rx130l/paths/iso9283-line.yaml", one, timing="catalogue"
     )
-    s = plan_cycles.run(one, ROOT / "samples/rx130l", tmp_path / "line-3.mcap", cycles=3, dwell_s=0.2)
+    s = plan_cycles.command(one, ROOT / "samples/rx130l", tmp_path / "line-3.mcap", cycles=3, dwell_s=0.2)
     single, _ = load_trajectory_mcap(one)
     traj, env = load_trajectory_mcap(tmp_path / "line-3.mcap")
     assert s["n_cycles"] == 3 and s["cycle_duration_s"] == pytest.approx(single.duration_s)
