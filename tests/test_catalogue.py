@@ -154,7 +154,9 @@ def test_factory_cp_timing_honours_the_catalogue_and_is_slower_than_toppra(tmp_p
     path = ROOT / "samples/rx130l/paths/line-near-singularity.yaml"
     out = tmp_path / "factory-cp.mcap"
     s = stage.command(ROOT / "samples/rx130l", path, out, timing="catalogue")
-    fast = stage.command(ROOT / "samples/rx130l", path, tmp_path / "cp.mcap", method="toppra", torque_rate=False)
+    fast = stage.command(
+        ROOT / "samples/rx130l", path, tmp_path / "cp.mcap", method="toppra", torque_rate=False
+    )
     traj, env = load_trajectory_mcap(out)
     cat = env["settings"]["catalogue"]
     v = np.array([j["velocity_max_rad_s"] for j in cat["joints"]])
@@ -292,7 +294,9 @@ def test_no_catalogue_box_gives_the_iso_line_1_m_s(tmp_path, rx130l):
     spec, path = load_path(line, rx130l)
     jp = solve_path_ik(rx130l, path, spec.branch, None)
     b = catalogue_speed_bound(rx130l, jp, 1.0, n_points=401)
-    s = stage.command(ROOT / "samples/rx130l", line, tmp_path / "f.mcap", timing="catalogue", tcp_speed_max=1.0)
+    s = stage.command(
+        ROOT / "samples/rx130l", line, tmp_path / "f.mcap", timing="catalogue", tcp_speed_max=1.0
+    )
     print(f"\nISO line: any catalogue box ≤ {b.peak_m_s:.3f} m/s; the factory plan peaks at "
           f"{s['max_tcp_speed_m_s']:.3f} m/s")  # fmt: skip
     assert 0.85 < b.peak_m_s < 0.95
