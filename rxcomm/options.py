@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 import typer
@@ -12,6 +12,24 @@ from rxcomm.errors import InputError
 
 # The robot every stage works on: one option, one name, one help text (docs/cli.md).
 RobotDir = Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")]
+
+# Options that mean the same in several stages, with one help text.
+# plan-cp, plan-ptp: the optimal plan, or a generic controller's from the catalogue limits.
+Timing = Literal["optimal", "catalogue"]
+TRAJECTORY_OUTPUT = typer.Option("-o", "--output", help="Output trajectory NAME.mcap (+ NAME.yaml).")
+IdentifiedDynamics = Annotated[
+    Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
+]
+TimeWeight = Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")]
+# plan-poses, plan-cycles: a plan derived from catalogue timing.
+PLAN_OUTPUT = typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")
+PlanDynamics = Annotated[
+    Path | None, typer.Option(help="dynamics.yaml: the plan's torques (default: the prior model).")
+]
+# plan-poses, iso9283: where the ISO 9283 path files are.
+Iso9283Paths = Annotated[
+    Path | None, typer.Option("--paths", help="Directory of the ISO 9283 path specs (default ROBOT/paths).")
+]
 
 
 def parse_numbers(text: str, count: int, field: str, unit: str = "") -> np.ndarray:

@@ -204,8 +204,8 @@ def test_factory_and_optimal_runs_on_the_cell_give_a_cycle_time_verdict(tmp_path
 
     robot_dir = ROOT / "samples/rx130l"
     path = robot_dir / "paths/iso9283-line.yaml"
-    plan_stage.run(robot_dir, path, tmp_path / "f.mcap", timing="catalogue")
-    plan_stage.run(robot_dir, path, tmp_path / "c.mcap")
+    plan_stage.command(robot_dir, path, tmp_path / "f.mcap", timing="catalogue")
+    plan_stage.command(robot_dir, path, tmp_path / "c.mcap")
     kw = dict(interpolation_ratio=1, approach=True, show_progress=False)
     f = run_stage.execute(tmp_path / "f.mcap", robot_dir, tmp_path / "run-f.mcap", feedforward=False, **kw)
     c = run_stage.execute(tmp_path / "c.mcap", robot_dir, tmp_path / "run-c.mcap", **kw)
@@ -221,7 +221,9 @@ def test_factory_and_optimal_runs_on_the_cell_give_a_cycle_time_verdict(tmp_path
         "  - {criterion: cycle_time, unit: s, max_ratio: 0.7}\n"
         "  - {criterion: AT_p, unit: m, target: iso9283-line, max_commissioned: 0.0005}\n"
     )
-    summary = accept.run(th, tmp_path / "verdict.yaml", [tmp_path / "run-f.mcap"], [tmp_path / "run-c.mcap"])
+    summary = accept.command(
+        th, tmp_path / "verdict.yaml", [tmp_path / "run-f.mcap"], [tmp_path / "run-c.mcap"]
+    )
     rows = {r["criterion"]: r for r in load_yaml(tmp_path / "verdict.yaml")["rows"]}
     ratio = c["duration_s"] / f["duration_s"]
     print(f"\nISO line: factory {f['duration_s']:.3f} s, optimal {c['duration_s']:.3f} s, ratio {ratio:.3f}")

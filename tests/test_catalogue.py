@@ -153,8 +153,10 @@ def test_factory_cp_timing_honours_the_catalogue_and_is_slower_than_toppra(tmp_p
 
     path = ROOT / "samples/rx130l/paths/line-near-singularity.yaml"
     out = tmp_path / "factory-cp.mcap"
-    s = stage.run(ROOT / "samples/rx130l", path, out, timing="catalogue")
-    fast = stage.run(ROOT / "samples/rx130l", path, tmp_path / "cp.mcap", method="toppra", torque_rate=False)
+    s = stage.command(ROOT / "samples/rx130l", path, out, timing="catalogue")
+    fast = stage.command(
+        ROOT / "samples/rx130l", path, tmp_path / "cp.mcap", method="toppra", torque_rate=False
+    )
     traj, env = load_trajectory_mcap(out)
     cat = env["settings"]["catalogue"]
     v = np.array([j["velocity_max_rad_s"] for j in cat["joints"]])
@@ -240,7 +242,7 @@ def test_plan_poses_visits_the_cube_at_the_catalogue_limits(tmp_path, rx130l):
     from rxcomm.stages import plan_poses
 
     out = tmp_path / "poses.mcap"
-    s = plan_poses.run(ROOT / "samples/rx130l", out, cycles=2, dwell_s=0.3)
+    s = plan_poses.command(ROOT / "samples/rx130l", out, cycles=2, dwell_s=0.3)
     assert s["order"] == "P1 P5 P4 P3 P2 P1 P5 P4 P3 P2 P1"
     assert 0.98 <= s["max_limit_ratio"] <= 1.0 + 1e-9
     traj, env = load_trajectory_mcap(out)
@@ -262,10 +264,10 @@ def test_plan_cycles_repeats_a_path_with_return_moves(tmp_path, rx130l):
     from rxcomm.stages import plan_cycles
 
     one = tmp_path / "line.mcap"
-    stage.run(
+    stage.command(
         ROOT / "samples/rx130l", ROOT / "samples/rx130l/paths/iso9283-line.yaml", one, timing="catalogue"
     )
-    s = plan_cycles.run(one, ROOT / "samples/rx130l", tmp_path / "line-3.mcap", cycles=3, dwell_s=0.2)
+    s = plan_cycles.command(one, ROOT / "samples/rx130l", tmp_path / "line-3.mcap", cycles=3, dwell_s=0.2)
     single, _ = load_trajectory_mcap(one)
     traj, env = load_trajectory_mcap(tmp_path / "line-3.mcap")
     assert s["n_cycles"] == 3 and s["cycle_duration_s"] == pytest.approx(single.duration_s)
@@ -292,7 +294,9 @@ def test_no_catalogue_box_gives_the_iso_line_1_m_s(tmp_path, rx130l):
     spec, path = load_path(line, rx130l)
     jp = solve_path_ik(rx130l, path, spec.branch, None)
     b = catalogue_speed_bound(rx130l, jp, 1.0, n_points=401)
-    s = stage.run(ROOT / "samples/rx130l", line, tmp_path / "f.mcap", timing="catalogue", tcp_speed_max=1.0)
+    s = stage.command(
+        ROOT / "samples/rx130l", line, tmp_path / "f.mcap", timing="catalogue", tcp_speed_max=1.0
+    )
     print(f"\nISO line: any catalogue box ≤ {b.peak_m_s:.3f} m/s; the factory plan peaks at "
           f"{s['max_tcp_speed_m_s']:.3f} m/s")  # fmt: skip
     assert 0.85 < b.peak_m_s < 0.95

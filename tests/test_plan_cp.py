@@ -179,7 +179,7 @@ def test_toppra_grid_follows_the_joint_path_bending(rx130l, singular_jp):
 
 def plan_file(f: Path, tmp_path: Path, robot: str = "rx130l", **kw) -> dict:
     out = tmp_path / f"{f.stem}.mcap"
-    summary = stage.run(SAMPLES / robot, f, out, **kw)
+    summary = stage.command(SAMPLES / robot, f, out, **kw)
     assert out.exists() and out.with_suffix(".yaml").exists()
     return summary
 
@@ -192,7 +192,7 @@ def plan_file(f: Path, tmp_path: Path, robot: str = "rx130l", **kw) -> dict:
 )
 def test_sample_paths_plan_time_optimally_within_limits(tmp_path, rx130l, path_file, duration):
     out = tmp_path / "cp.mcap"
-    s = stage.run(SAMPLES / "rx130l", path_file, out)
+    s = stage.command(SAMPLES / "rx130l", path_file, out)
     print(
         f"\n{path_file.stem}: {s['duration_s']:.4f} s, max ratio {s['max_limit_ratio']:.4f}, "
         f"active {s['active_fraction']:.3f}, toppra alone {s['toppra_duration_s']:.4f} s, "

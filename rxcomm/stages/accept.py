@@ -29,6 +29,7 @@ def _summary_file(log: Path) -> Path:
     return mcap_summary_path(log) if log.suffix == ".mcap" else log
 
 
+@console.stage_command
 def command(
     thresholds: Annotated[
         Path,
@@ -51,26 +52,13 @@ def command(
     commissioned_iso9283: Annotated[
         Path | None, typer.Option(help="ISO 9283 criteria of the commissioned state (rxcomm/Iso9283).")
     ] = None,
-) -> None:
-    """Write the acceptance verdict: each criterion for the factory and the commissioned state."""
-    run(thresholds, output, factory_log or [], commissioned_log or [], factory_iso9283, commissioned_iso9283)
-
-
-@console.stage_command
-def run(
-    thresholds: Path,
-    output: Path,
-    factory_logs: list[Path],
-    commissioned_logs: list[Path],
-    factory_iso9283: Path | None = None,
-    commissioned_iso9283: Path | None = None,
 ) -> dict[str, object]:
-    """The stage as a function (tests call it): returns the summary."""
+    """Write the acceptance verdict: each criterion for the factory and the commissioned state."""
     from rxcomm.acceptance.verdict import acceptance_rows, overall
 
     output = Path(output)
-    f_files = [_summary_file(Path(p)) for p in factory_logs]
-    c_files = [_summary_file(Path(p)) for p in commissioned_logs]
+    f_files = [_summary_file(Path(p)) for p in factory_log or []]
+    c_files = [_summary_file(Path(p)) for p in commissioned_log or []]
     inputs = {
         "thresholds": Path(thresholds),
         **{f"factory_log_{i + 1}": p for i, p in enumerate(f_files)},

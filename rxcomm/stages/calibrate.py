@@ -10,9 +10,8 @@ and, with `--urdf-out`, a calibrated URDF (load it with `load_robot(ROBOT_DIR, u
 
 from __future__ import annotations
 
-from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import typer
@@ -32,19 +31,8 @@ if TYPE_CHECKING:
     from rxcomm.model.robot import Robot
 
 
-class Model(StrEnum):
-    auto = "auto"
-    frames = "frames"
-    offsets = "offsets"
-    full = "full"
-    full_compliance = "full+compliance"
-
-
-class Loss(StrEnum):
-    linear = "linear"
-    soft_l1 = "soft_l1"
-    huber = "huber"
-    cauchy = "cauchy"
+Model = Literal["auto", "frames", "offsets", "full", "full+compliance"]
+Loss = Literal["linear", "soft_l1", "huber", "cauchy"]
 
 
 def print_table(res: CalibrationResult) -> None:
@@ -108,80 +96,51 @@ def _parse_sigma(text: str | None) -> tuple[float | None, float | None]:
     return float(vals[0]), float(vals[1]) if vals.size == 2 else None
 
 
-def command(
-    robot_dir: RobotDir,
-    measurements: Annotated[
-        Path,
-        typer.Option(help="Measurements: a rxcomm/Measurements YAML (from run) or a tracker CSV."),
-    ],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output calibration.yaml.")],
-    urdf_out: Annotated[
-        Path | None,
-        typer.Option("--urdf-out", help="Also write the calibrated URDF here (with the TCP as link 'tcp')."),
-    ] = None,
-    mdh_out: Annotated[
-        Path | None,
-        typer.Option(
-            "--mdh-out",
-            help="Also write the calibrated kinematics as modified DH parameters and joint zero offsets "
-            "here (YAML, and a CSV beside it), with the residual MDH cannot express.",
-        ),
-    ] = None,
-    cell: Annotated[
-        Path | None,
-        typer.Option(
-            help="cell.yaml: nominal tracker_to_base and tracker noise (else from the measurements)."
-        ),
-    ] = None,
-    holdout: Annotated[
-        float | None,
-        typer.Option(
-            "--holdout-fraction",
-            help="Fraction of fit poses held out (default: 0 with validation poses, else 0.25).",
-        ),
-    ] = None,
-    loss: Annotated[Loss, typer.Option(help="Robust loss on the weighted residuals.")] = Loss.linear,
-    outlier_sigma: Annotated[float, typer.Option(help="Flag poses beyond this many robust σ.")] = 5.0,
-    keep_outliers: Annotated[bool, typer.Option(help="Keep flagged poses in the final fit.")] = False,
-    seed: Annotated[int, typer.Option(help="Seed of the held-out split.")] = 0,
-    tracker_sigma: Annotated[
-        str | None,
-        typer.Option(
-            help="Tracker noise POS_M[,ORI_RAD] (1σ per axis), e.g. 5e-5,1e-4; overrides the cell's. "
-            "Default: the cell's, the measurement file's, else estimated from the residuals."
-        ),
-    ] = None,
-    model: Annotated[
-        Model,
-        typer.Option(
-            "--error-model", help="Error model; auto: chosen by cross-validation over the fit poses."
-        ),
-    ] = Model.auto,
-    dynamics: Annotated[
-        Path | None,
-        typer.Option(
-            help="dynamics.yaml (identify): its holding torques bend the joints in the compliance "
-            "model (default: the prior model of the URDF and drives.yaml)."
-        ),
-    ] = None,
-) -> None:
-    """Identify the robot's geometric errors from tracker measurements; write the calibration."""
-    run(
-        robot_dir,
-        measurements,
-        output,
-        urdf_out=urdf_out,
-        mdh_out=mdh_out,
-        cell=cell,
-        holdout=holdout,
-        loss=loss.value,
-        outlier_sigma=outlier_sigma,
-        keep_outliers=keep_outliers,
-        seed=seed,
-        tracker_sigma=tracker_sigma,
-        model=model.value,
-        dynamics=dynamics,
-    )
+# The options, named here so that `command` reads as a list.
+MeasurementsOption = Annotated[
+    Path, typer.Option(help="Measurements: a rxcomm/Measurements YAML (from run) or a tracker CSV.")
+]
+UrdfOutOption = Annotated[
+    Path | None,
+    typer.Option("--urdf-out", help="Also write the calibrated URDF here (with the TCP as link 'tcp')."),
+]
+MdhOutOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--mdh-out",
+        help="Also write the calibrated kinematics as modified DH parameters and joint zero offsets "
+        "here (YAML, and a CSV beside it), with the residual MDH cannot express.",
+    ),
+]
+CellOption = Annotated[
+    Path | None,
+    typer.Option(help="cell.yaml: nominal tracker_to_base and tracker noise (else from the measurements)."),
+]
+HoldoutOption = Annotated[
+    float | None,
+    typer.Option(
+        "--holdout-fraction",
+        help="Fraction of fit poses held out (default: 0 with validation poses, else 0.25).",
+    ),
+]
+TrackerSigmaOption = Annotated[
+    str | None,
+    typer.Option(
+        help="Tracker noise POS_M[,ORI_RAD] (1σ per axis), e.g. 5e-5,1e-4; overrides the cell's. "
+        "Default: the cell's, the measurement file's, else estimated from the residuals."
+    ),
+]
+ModelOption = Annotated[
+    Model,
+    typer.Option("--error-model", help="Error model; auto: chosen by cross-validation over the fit poses."),
+]
+DynamicsOption = Annotated[
+    Path | None,
+    typer.Option(
+        help="dynamics.yaml (identify): its holding torques bend the joints in the compliance "
+        "model (default: the prior model of the URDF and drives.yaml)."
+    ),
+]
 
 
 def _cell_and_noise(
@@ -231,24 +190,23 @@ def _write_exports(
 
 
 @console.stage_command
-def run(
-    robot_dir: Path,
-    measurements: Path,
-    output: Path,
-    *,
-    urdf_out: Path | None = None,
-    mdh_out: Path | None = None,
-    cell: Path | None = None,
-    holdout: float | None = None,
-    loss: str = "linear",
-    outlier_sigma: float = 5.0,
-    keep_outliers: bool = False,
-    seed: int = 0,
-    tracker_sigma: str | None = None,
-    model: str = "auto",
-    dynamics: Path | None = None,
+def command(
+    robot_dir: RobotDir,
+    measurements: MeasurementsOption,
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output calibration.yaml.")],
+    urdf_out: UrdfOutOption = None,
+    mdh_out: MdhOutOption = None,
+    cell: CellOption = None,
+    holdout: HoldoutOption = None,
+    loss: Annotated[Loss, typer.Option(help="Robust loss on the weighted residuals.")] = "linear",
+    outlier_sigma: Annotated[float, typer.Option(help="Flag poses beyond this many robust σ.")] = 5.0,
+    keep_outliers: Annotated[bool, typer.Option(help="Keep flagged poses in the final fit.")] = False,
+    seed: Annotated[int, typer.Option(help="Seed of the held-out split.")] = 0,
+    tracker_sigma: TrackerSigmaOption = None,
+    model: ModelOption = "auto",
+    dynamics: DynamicsOption = None,
 ) -> dict[str, object]:
-    """The stage as a function (tests call it): returns the summary written to `output`."""
+    """Identify the robot's geometric errors from tracker measurements; write the calibration."""
     from rxcomm.calibration.artefact import calibration_artefact
     from rxcomm.calibration.fit import calibrate
     from rxcomm.calibration.measurements import read_measurements

@@ -13,9 +13,8 @@ rest-to-rest Fourier trajectory of `rxcomm.identification.excitation` and writes
 
 from __future__ import annotations
 
-from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import typer
@@ -36,9 +35,7 @@ if TYPE_CHECKING:
     from rxcomm.model.robot import Robot
 
 
-class Objective(StrEnum):
-    cond = "cond"
-    logdet = "logdet"
+Objective = Literal["cond", "logdet"]
 
 
 def trajectory_path(output: Path) -> Path:
@@ -121,52 +118,61 @@ def plot_excitation(
     return plotting.save_figure(fig, path, dpi=100)
 
 
+# The options whose help runs over several lines, named here so that `command` reads as a list.
+CellOption = Annotated[
+    Path, typer.Option(help="cell.yaml: its allowed_region bounds tool, wrist centre, elbow.")
+]
+TrajectoryOutOption = Annotated[
+    Path | None,
+    typer.Option(help="Trajectory MCAP for `run` (default: OUTPUT's stem + '-trajectory.mcap')."),
+]
+OmegaOption = Annotated[float, typer.Option("--omega-rad-s", help="Base frequency ω_f, rad/s (paper: 0.8).")]
+ObjectiveOption = Annotated[
+    Objective, typer.Option(help="cond(W) of the unit-column base regressor, or −log det(WᵀW)/p.")
+]
+PositionMarginOption = Annotated[
+    float | None,
+    typer.Option("--position-margin-rad", help="Kept from each joint limit, rad (default 0.05)."),
+]
+PositionMarginDegOption = Annotated[
+    float | None, typer.Option("--position-margin-deg", help="Kept from each joint limit, degrees.")
+]
+BaselineOption = Annotated[
+    int, typer.Option(help="Random feasible trajectories whose median cond is the baseline.")
+]
+StartOption = Annotated[
+    str | None, typer.Option(help="Fixed rest pose 'q1,…,q6' (rad); optimised when not given.")
+]
+
+
+@console.stage_command
 def command(
     robot_dir: RobotDir,
-    cell: Annotated[
-        Path, typer.Option(help="cell.yaml: its allowed_region bounds tool, wrist centre, elbow.")
-    ],
+    cell: CellOption,
     output: Annotated[Path, typer.Option("-o", "--output", help="Output excitation.yaml.")],
-    trajectory_out: Annotated[
-        Path | None,
-        typer.Option(help="Trajectory MCAP for `run` (default: OUTPUT's stem + '-trajectory.mcap')."),
-    ] = None,
+    trajectory_out: TrajectoryOutOption = None,
     harmonics: Annotated[int, typer.Option(help="Fourier harmonics per joint (paper: 5).")] = 5,
-    omega: Annotated[
-        float, typer.Option("--omega-rad-s", help="Base frequency ω_f, rad/s (paper: 0.8).")
-    ] = 0.8,
+    omega: OmegaOption = 0.8,
     samples: Annotated[int, typer.Option(help="Objective samples per period k (paper: 80).")] = 80,
     periods: Annotated[int, typer.Option(help="Periods in the executed trajectory.")] = 1,
     starts: Annotated[int, typer.Option(help="Seeded random feasible starts; the best is kept.")] = 4,
     seed: Annotated[int, typer.Option(help="Seed of the random starts and baseline.")] = 0,
-    objective: Annotated[
-        Objective, typer.Option(help="cond(W) of the unit-column base regressor, or −log det(WᵀW)/p.")
-    ] = Objective.cond,
+    objective: ObjectiveOption = "cond",
     torque_fraction: Annotated[float, typer.Option(help="Of peak torque, prior model.")] = 0.8,
     velocity_fraction: Annotated[float, typer.Option(help="Of the velocity limits.")] = 0.95,
     acceleration_fraction: Annotated[float, typer.Option(help="Of the acceleration limits.")] = 0.95,
-    position_margin: Annotated[
-        float | None,
-        typer.Option("--position-margin-rad", help="Kept from each joint limit, rad (default 0.05)."),
-    ] = None,
-    position_margin_deg: Annotated[
-        float | None, typer.Option("--position-margin-deg", help="Kept from each joint limit, degrees.")
-    ] = None,
+    position_margin: PositionMarginOption = None,
+    position_margin_deg: PositionMarginDegOption = None,
     max_iterations: Annotated[int, typer.Option(help="SLSQP iterations per start.")] = 150,
-    baseline_trajectories: Annotated[
-        int, typer.Option(help="Random feasible trajectories whose median cond is the baseline.")
-    ] = 10,
-    start: Annotated[
-        str | None, typer.Option(help="Fixed rest pose 'q1,…,q6' (rad); optimised when not given.")
-    ] = None,
+    baseline_trajectories: BaselineOption = 10,
+    start: StartOption = None,
     start_deg: Annotated[str | None, typer.Option(help="Fixed rest pose 'q1,…,q6' in degrees.")] = None,
     plot: Annotated[bool, typer.Option(help="Write OUTPUT.png: trajectory and tool path.")] = False,
-) -> None:
+) -> Excitation:
     """Design the optimal exciting trajectory (min cond of the base regressor) within every limit."""
-    start = console.checked(radians_text, start, start_deg, "start")
-    position_margin = console.checked(
-        radians_value, position_margin, position_margin_deg, "position-margin", 0.05
-    )
+    from rxcomm.model.robot import load_robot, robot_files
+
+    start = radians_text(start, start_deg, "start")
     values = {
         "harmonics": harmonics,
         "omega_f_rad_s": omega,
@@ -174,15 +180,93 @@ def command(
         "periods": periods,
         "starts": starts,
         "seed": seed,
-        "objective": objective.value,
+        "objective": objective,
         "torque_fraction": torque_fraction,
         "velocity_fraction": velocity_fraction,
         "acceleration_fraction": acceleration_fraction,
-        "position_margin_rad": position_margin,
+        "position_margin_rad": radians_value(position_margin, position_margin_deg, "position-margin", 0.05),
         "max_iterations": max_iterations,
         "baseline_trajectories": baseline_trajectories,
     }
-    run(robot_dir, cell, output, trajectory_out=trajectory_out, settings=values, start=start, plot=plot)
+    output, traj_path = _outputs(output, trajectory_out)
+    check_outputs(
+        {
+            "output": output,
+            "trajectory-out": traj_path,
+            "plot": output.with_suffix(".png") if plot else None,
+        },
+        {"cell": cell, **robot_files(robot_dir)},
+    )
+    robot = load_robot(robot_dir)
+    cell_model = read_yaml_model(cell, Cell)
+    if start is not None:
+        values["start_rad"] = parse_numbers(start, robot.n, "start", "rad").tolist()
+    opts = settings_from_options(ExcitationSettings, values)
+    design = _design(robot, cell_model.allowed_region, opts)
+    inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "cell": Path(cell)}
+    art, summary = _write(robot, design, opts, inputs, output, traj_path)
+    if plot:
+        png = plot_excitation(robot, design, opts, cell_model.allowed_region, output.with_suffix(".png"))
+        console.out.print(f"plot: {png}")
+    console.summary_table(f"excite → {output} (+ {traj_path.name})", summary)
+    return art
+
+
+def _outputs(output: Path, trajectory_out: Path | None) -> tuple[Path, Path]:
+    """excitation.yaml and the trajectory MCAP beside it (or where `--trajectory-out` says)."""
+    output = Path(output)
+    if output.suffix not in (".yaml", ".yml"):
+        raise InputError("the output must be a .yaml file", field="output")
+    traj_path = Path(trajectory_out) if trajectory_out is not None else trajectory_path(output)
+    if traj_path.suffix != ".mcap":
+        raise InputError("the trajectory output must be NAME.mcap", field="trajectory-out")
+    return output, traj_path
+
+
+def _design(robot: Robot, region: AllowedRegion | None, opts: ExcitationSettings) -> ExcitationDesign:
+    """`design_excitation` with a progress bar per phase."""
+    from rxcomm.identification.excitation import design_excitation
+
+    with console.progress() as bar:
+        tasks: dict[str, int] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(f"excite: {stage}", total=total)
+            bar.update(tasks[stage], completed=done)
+
+        return design_excitation(robot, region, opts, progress=progress)
+
+
+def _write(
+    robot, design, opts, inputs: dict[str, Path], output: Path, traj_path: Path
+) -> tuple[Excitation, dict]:
+    """The trajectory MCAP (+ its YAML) `run` executes and excitation.yaml; returns the artefact and
+    its summary."""
+    from rxcomm.io.trajectory import save_trajectory_mcap
+    from rxcomm.model.limits import check_limits
+
+    samples = design.samples
+    report = check_limits(robot, samples.t, samples.q, samples.qd, samples.qdd, samples.tau_ff)
+    traj_summary = {
+        "duration_s": samples.duration_s,
+        "solve_seconds": design.seconds,
+        "max_limit_ratio": design.max_limit_ratio,
+        "active_fraction": report.active_fraction(),
+        "q_start": samples.q[0].tolist(),
+        "q_goal": samples.q[-1].tolist(),
+        "cond": design.cond,
+    }
+    output.parent.mkdir(parents=True, exist_ok=True)
+    traj_path.parent.mkdir(parents=True, exist_ok=True)
+    env = TrajectorySummary.envelope(inputs, opts, traj_summary)
+    save_trajectory_mcap(traj_path, samples, env, robot.joint_names)
+    summary = design_summary(design)
+    art = excitation_artefact(
+        robot, design, opts.periods, Excitation.envelope(inputs, opts, summary), traj_path, output
+    )
+    write_yaml_artefact(output, art)
+    return art, summary
 
 
 def design_summary(design: ExcitationDesign) -> dict[str, object]:
@@ -221,96 +305,10 @@ def excitation_artefact(
         a_rad_s=traj.a.tolist(),
         b_rad_s=traj.b.tolist(),
         base_parameters=list(design.bset.names),
-        starts=[
-            ExcitationStart(
-                seed=s.seed,
-                initial_cond=s.initial_cond,
-                cond=s.cond,
-                feasible=s.feasible,
-                iterations=s.iterations,
-                seconds=s.seconds,
-            )
-            for s in design.starts
-        ],
+        starts=[ExcitationStart.model_validate(s, from_attributes=True) for s in design.starts],
         limit_ratios=design.limit_ratios,
         trajectory_file=traj_path.name
         if traj_path.parent.resolve() == output.parent.resolve()
         else str(traj_path),
         trajectory_sha256=sha256_file(traj_path),
     )
-
-
-@console.stage_command
-def run(
-    robot_dir: Path,
-    cell: Path,
-    output: Path,
-    *,
-    trajectory_out: Path | None = None,
-    settings: ExcitationSettings | dict | None = None,
-    start: str | None = None,
-    plot: bool = False,
-) -> Excitation:
-    """The stage as a function (tests call it): returns the artefact written."""
-    from rxcomm.identification.excitation import design_excitation
-    from rxcomm.io.trajectory import save_trajectory_mcap
-    from rxcomm.model.limits import check_limits
-    from rxcomm.model.robot import load_robot, robot_files
-
-    output = Path(output)
-    if output.suffix not in (".yaml", ".yml"):
-        raise InputError("the output must be a .yaml file", field="output")
-    traj_path = Path(trajectory_out) if trajectory_out is not None else trajectory_path(output)
-    if traj_path.suffix != ".mcap":
-        raise InputError("the trajectory output must be NAME.mcap", field="trajectory-out")
-    check_outputs(
-        {
-            "output": output,
-            "trajectory-out": traj_path,
-            "plot": output.with_suffix(".png") if plot else None,
-        },
-        {"cell": cell, **robot_files(robot_dir)},
-    )
-    robot = load_robot(robot_dir)
-    cell_model = read_yaml_model(cell, Cell)
-    values = settings.model_dump() if isinstance(settings, ExcitationSettings) else dict(settings or {})
-    if start is not None:
-        values["start_rad"] = parse_numbers(start, robot.n, "start", "rad").tolist()
-    opts = settings_from_options(ExcitationSettings, values)
-
-    with console.progress() as bar:
-        tasks: dict[str, int] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(f"excite: {stage}", total=total)
-            bar.update(tasks[stage], completed=done)
-
-        design = design_excitation(robot, cell_model.allowed_region, opts, progress=progress)
-
-    samples = design.samples
-    report = check_limits(robot, samples.t, samples.q, samples.qd, samples.qdd, samples.tau_ff)
-    inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "cell": Path(cell)}
-    traj_summary = {
-        "duration_s": samples.duration_s,
-        "solve_seconds": design.seconds,
-        "max_limit_ratio": design.max_limit_ratio,
-        "active_fraction": report.active_fraction(),
-        "q_start": samples.q[0].tolist(),
-        "q_goal": samples.q[-1].tolist(),
-        "cond": design.cond,
-    }
-    output.parent.mkdir(parents=True, exist_ok=True)
-    traj_path.parent.mkdir(parents=True, exist_ok=True)
-    env = TrajectorySummary.envelope(inputs, opts, traj_summary)
-    save_trajectory_mcap(traj_path, samples, env, robot.joint_names)
-    summary = design_summary(design)
-    art = excitation_artefact(
-        robot, design, opts.periods, Excitation.envelope(inputs, opts, summary), traj_path, output
-    )
-    write_yaml_artefact(output, art)
-    if plot:
-        png = plot_excitation(robot, design, opts, cell_model.allowed_region, output.with_suffix(".png"))
-        console.out.print(f"plot: {png}")
-    console.summary_table(f"excite → {output} (+ {traj_path.name})", summary)
-    return art

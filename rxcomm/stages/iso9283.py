@@ -19,7 +19,7 @@ from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
-from rxcomm.options import RobotDir
+from rxcomm.options import Iso9283Paths, RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283
@@ -150,6 +150,19 @@ def plot_criteria(art: Iso9283, out: Path) -> Path:
     return plotting.save_figure(fig, out, dpi=110)
 
 
+def _cycle_log(what: str) -> Any:
+    """A repeatable `--NAME-log` option: run logs of one cycle each of a test path."""
+    return Annotated[
+        list[Path] | None, typer.Option(help=f"Run log of one cycle of the {what} (repeatable).")
+    ]
+
+
+LineLog = _cycle_log("ISO line")
+CircleLog = _cycle_log("large circle")
+SmallCircleLog = _cycle_log("small circle")
+RectangleLog = _cycle_log("rectangle")
+
+
 def command(
     robot: RobotDir,
     output: Annotated[Path, typer.Option("-o", "--output", help="The criteria YAML.")] = Path("iso9283.yaml"),
@@ -157,26 +170,11 @@ def command(
         list[Path] | None,
         typer.Option("--pose-log", help="Pose-cycle run log with tracker data (repeatable)."),
     ] = None,
-    line_log: Annotated[
-        list[Path] | None,
-        typer.Option("--line-log", help="Run log of one cycle of the ISO line (repeatable)."),
-    ] = None,
-    circle_log: Annotated[
-        list[Path] | None,
-        typer.Option("--circle-log", help="Run log of one cycle of the large circle (repeatable)."),
-    ] = None,
-    small_circle_log: Annotated[
-        list[Path] | None,
-        typer.Option("--small-circle-log", help="Run log of one cycle of the small circle (repeatable)."),
-    ] = None,
-    rectangle_log: Annotated[
-        list[Path] | None,
-        typer.Option("--rectangle-log", help="Run log of one cycle of the rectangle (repeatable)."),
-    ] = None,
-    paths: Annotated[
-        Path | None,
-        typer.Option("--paths", help="Directory of the ISO 9283 path specs (default ROBOT/paths)."),
-    ] = None,
+    line_log: LineLog = None,
+    circle_log: CircleLog = None,
+    small_circle_log: SmallCircleLog = None,
+    rectangle_log: RectangleLog = None,
+    paths: Iso9283Paths = None,
     calibration: Annotated[
         Path | None,
         typer.Option("--calibration", help="calibration.yaml: the base frame in the tracker frame."),

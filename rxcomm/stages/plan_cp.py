@@ -10,9 +10,8 @@ writes the ISO 9283 test-plane paths of the robot (and ``--cell`` workspace) to 
 from __future__ import annotations
 
 import time
-from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import typer
@@ -23,7 +22,7 @@ from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs, trajectory_output
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
-from rxcomm.options import RobotDir, parse_numbers
+from rxcomm.options import TRAJECTORY_OUTPUT, IdentifiedDynamics, RobotDir, TimeWeight, Timing, parse_numbers
 from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -31,16 +30,6 @@ if TYPE_CHECKING:
     from rxcomm.io.trajectory import Trajectory
     from rxcomm.model.robot import Robot
     from rxcomm.planning.cp import CpPlan
-
-
-class Method(StrEnum):
-    nlp = "nlp"
-    toppra = "toppra"
-
-
-class Timing(StrEnum):
-    optimal = "optimal"
-    catalogue = "catalogue"
 
 
 # --- inputs -----------------------------------------------------------------------------------------
@@ -168,123 +157,90 @@ def write_iso9283(robot: Robot, out_dir: Path, cell: Path | None, rpy_deg: str) 
 
 
 # --- the stage --------------------------------------------------------------------------------------
+Method = Literal["nlp", "toppra"]
+
+# The options, named here so that `command` reads as a list.
+PathOption = Annotated[
+    Path | None, typer.Option("--path", help="Path file (kind rxcomm/Path), TCP in the base frame.")
+]
+CalibrationOption = Annotated[
+    Path | None, typer.Option(help="calibration.yaml: IK along the path on the calibrated robot.")
+]
+EnergyWeightOption = Annotated[
+    float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)² (needs nlp).")
+]
+TorqueRateOption = Annotated[
+    bool,
+    typer.Option(
+        "--torque-rate-limits/--no-torque-rate-limits", help="Honour the drives' torque-rate limits."
+    ),
+]
+MethodOption = Annotated[
+    Method, typer.Option(help="nlp: the path NLP warm-started by toppra; toppra: toppra alone (fast).")
+]
+IntervalsOption = Annotated[int, typer.Option("--path-intervals", help="Grid intervals along the path.")]
+TcpSpeedOption = Annotated[
+    float | None,
+    typer.Option("--max-tcp-speed-m-s", help="TCP speed limit, m/s (default: the path file's, else none)."),
+]
+TcpAccelerationOption = Annotated[
+    float | None,
+    typer.Option(
+        "--max-tcp-acceleration-m-s2",
+        help="TCP acceleration limit, m/s² (default: the path file's, else none).",
+    ),
+]
+PlotOption = Annotated[
+    bool, typer.Option(help="Write NAME.png: TCP speed (Fig. 7), binding limits (Fig. 8).")
+]
+Iso9283Option = Annotated[
+    Path | None,
+    typer.Option(help="Write the robot's ISO 9283 test-plane paths to this directory and exit."),
+]
+CellOption = Annotated[Path | None, typer.Option(help="cell.yaml: workspace box for --iso9283.")]
+IsoRpyOption = Annotated[
+    str, typer.Option(help="TCP orientation for --iso9283: URDF roll,pitch,yaw in degrees.")
+]
+TimingOption = Annotated[
+    Timing,
+    typer.Option(
+        help="optimal: the planner under the model's torque limits; catalogue: a generic controller's "
+        "toppra timing from the catalogue joint speeds/accelerations of the prior model with the rated "
+        "payload (no torque limits; --method, --k2, --torque-rate do not apply)."
+    ),
+]
+
+
+@console.stage_command
 def command(
     robot_dir: RobotDir,
-    path: Annotated[
-        Path | None, typer.Option("--path", help="Path file (kind rxcomm/Path), TCP in the base frame.")
-    ] = None,
-    output: Annotated[
-        Path | None, typer.Option("-o", "--output", help="Output trajectory NAME.mcap (+ NAME.yaml).")
-    ] = None,
-    dynamics: Annotated[
-        Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
-    ] = None,
-    calibration: Annotated[
-        Path | None, typer.Option(help="calibration.yaml: IK along the path on the calibrated robot.")
-    ] = None,
-    k1: Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")] = 1.0,
-    k2: Annotated[float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)² (needs nlp).")] = 0.0,
-    torque_rate: Annotated[
-        bool,
-        typer.Option(
-            "--torque-rate-limits/--no-torque-rate-limits", help="Honour the drives' torque-rate limits."
-        ),
-    ] = True,
-    method: Annotated[
-        Method, typer.Option(help="nlp: the path NLP warm-started by toppra; toppra: toppra alone (fast).")
-    ] = Method.nlp,
-    intervals: Annotated[int, typer.Option("--path-intervals", help="Grid intervals along the path.")] = 200,
-    tcp_speed_max: Annotated[
-        float | None,
-        typer.Option(
-            "--max-tcp-speed-m-s", help="TCP speed limit, m/s (default: the path file's, else none)."
-        ),
-    ] = None,
-    tcp_acceleration_max: Annotated[
-        float | None,
-        typer.Option(
-            "--max-tcp-acceleration-m-s2",
-            help="TCP acceleration limit, m/s² (default: the path file's, else none).",
-        ),
-    ] = None,
-    plot: Annotated[
-        bool, typer.Option(help="Write NAME.png: TCP speed (Fig. 7), binding limits (Fig. 8).")
-    ] = False,
-    iso9283: Annotated[
-        Path | None,
-        typer.Option(help="Write the robot's ISO 9283 test-plane paths to this directory and exit."),
-    ] = None,
-    cell: Annotated[Path | None, typer.Option(help="cell.yaml: workspace box for --iso9283.")] = None,
-    iso_rpy_deg: Annotated[
-        str, typer.Option(help="TCP orientation for --iso9283: URDF roll,pitch,yaw in degrees.")
-    ] = "180,0,0",
-    timing: Annotated[
-        Timing,
-        typer.Option(
-            help="optimal: the planner under the model's torque limits; catalogue: a generic controller's "
-            "toppra timing from the catalogue joint speeds/accelerations of the prior model with the rated "
-            "payload (no torque limits; --method, --k2, --torque-rate do not apply)."
-        ),
-    ] = Timing.optimal,
-) -> None:
-    """Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`."""
-    if iso9283 is not None:
-        iso_paths(robot_dir, iso9283, cell=cell, rpy_deg=iso_rpy_deg)
-        return
-    run(
-        robot_dir,
-        path,
-        output,
-        dynamics=dynamics,
-        calibration=calibration,
-        k1=k1,
-        k2=k2,
-        torque_rate=torque_rate,
-        method=method.value,
-        intervals=intervals,
-        tcp_speed_max=tcp_speed_max,
-        tcp_acceleration_max=tcp_acceleration_max,
-        plot=plot,
-        timing=timing.value,
-    )
-
-
-@console.stage_command
-def iso_paths(robot_dir: Path, out_dir: Path, *, cell: Path | None = None, rpy_deg: str = "180,0,0") -> dict:
-    from rxcomm.model.robot import load_robot, robot_files
-
-    check_output_dir(out_dir, "iso9283", {"cell": cell, **robot_files(robot_dir)})
-    return write_iso9283(load_robot(robot_dir), Path(out_dir), cell, rpy_deg)
-
-
-@console.stage_command
-def run(
-    robot_dir: Path,
-    path: Path | None,
-    output: Path | None,
-    *,
-    dynamics: Path | None = None,
-    calibration: Path | None = None,
-    k1: float = 1.0,
-    k2: float = 0.0,
-    torque_rate: bool = True,
-    method: str = "nlp",
-    intervals: int = 200,
-    tcp_speed_max: float | None = None,
-    tcp_acceleration_max: float | None = None,
-    plot: bool = False,
-    timing: str = "optimal",
+    path: PathOption = None,
+    output: Annotated[Path | None, TRAJECTORY_OUTPUT] = None,
+    dynamics: IdentifiedDynamics = None,
+    calibration: CalibrationOption = None,
+    k1: TimeWeight = 1.0,
+    k2: EnergyWeightOption = 0.0,
+    torque_rate: TorqueRateOption = True,
+    method: MethodOption = "nlp",
+    intervals: IntervalsOption = 200,
+    tcp_speed_max: TcpSpeedOption = None,
+    tcp_acceleration_max: TcpAccelerationOption = None,
+    plot: PlotOption = False,
+    iso9283: Iso9283Option = None,
+    cell: CellOption = None,
+    iso_rpy_deg: IsoRpyOption = "180,0,0",
+    timing: TimingOption = "optimal",
 ) -> dict[str, object]:
-    """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    """Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`."""
     from rxcomm.calibration.loading import load_calibrated_robot
-    from rxcomm.io.trajectory import save_trajectory_mcap
     from rxcomm.model.catalogue import catalogue_limits
     from rxcomm.model.robot import load_robot, robot_files
-    from rxcomm.planning.catalogue_timing import filtered_path_deviation_m
     from rxcomm.planning.cp import CpSettings
     from rxcomm.planning.paths import load_path
     from rxcomm.planning.timing import PlanDynamics
 
+    if iso9283 is not None:
+        return iso_paths(robot_dir, iso9283, cell=cell, rpy_deg=iso_rpy_deg)
     t_all = time.perf_counter()
     path, output = _given_paths(path, output)
     check_outputs(
@@ -316,7 +272,6 @@ def run(
     dyn = PlanDynamics.load(robot, dynamics, settings.coulomb_eps_rad_s)
     label = f"plan-cp: {spec.name or path.name} ({timing if catalogue else settings.method}, N = {intervals})"
     plan = _timed_plan(robot, cpath, dyn, settings, catalogue, label)
-    summary = summary_of(plan, robot)
     run_settings = {
         **settings.model_dump(mode="json"),
         "dynamics_model": "identified" if dynamics is not None else "prior",
@@ -324,17 +279,38 @@ def run(
         "branch": plan.joint_path.labels,
         "timing": timing,
     }
+    return _write(
+        robot, plan, cpath, catalogue, inputs, run_settings, output, t_all, plot, spec.name or path.stem
+    )
+
+
+@console.stage_command
+def iso_paths(robot_dir: Path, out_dir: Path, *, cell: Path | None = None, rpy_deg: str = "180,0,0") -> dict:
+    from rxcomm.model.robot import load_robot, robot_files
+
+    check_output_dir(out_dir, "iso9283", {"cell": cell, **robot_files(robot_dir)})
+    return write_iso9283(load_robot(robot_dir), Path(out_dir), cell, rpy_deg)
+
+
+def _write(
+    robot, plan, cpath, catalogue, inputs, settings, output: Path, t_all: float, plot: bool, name: str
+):
+    """The trajectory MCAP + YAML (and with `plot` the PNG); returns the summary."""
+    from rxcomm.io.trajectory import save_trajectory_mcap
+    from rxcomm.planning.catalogue_timing import filtered_path_deviation_m
+
+    summary = summary_of(plan, robot)
     if catalogue is not None:  # how the limits were found; what the setpoint filter rounds off
-        run_settings["catalogue"] = catalogue.as_dict()
+        settings["catalogue"] = catalogue.as_dict()
         summary["max_filter_deviation_m"] = filtered_path_deviation_m(robot, plan, cpath)
     summary["seconds"] = time.perf_counter() - t_all
-    env = TrajectorySummary.envelope(inputs, run_settings, summary)
+    env = TrajectorySummary.envelope(inputs, settings, summary)
     output.parent.mkdir(parents=True, exist_ok=True)
     save_trajectory_mcap(output, trajectory_of(plan), env, robot.joint_names)
     console.summary_table(f"plan-cp → {output}", summary)
     _print_active(plan)
     if plot:
-        title = f"{spec.name or path.stem}: {plan.duration_s:.3f} s ({plan.method}, k2 = {k2:g}), "
+        title = f"{name}: {plan.duration_s:.3f} s ({plan.method}, k2 = {settings['k2']:g}), "
         title += f"{plan.active_fraction:.1%} with a limit active"
         console.out.print(f"plot: {plot_cp(plan, robot, output.with_suffix('.png'), title)}")
     return summary

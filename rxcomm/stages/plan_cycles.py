@@ -18,29 +18,21 @@ import typer
 
 from rxcomm import console
 from rxcomm.io.files import check_outputs, trajectory_output
-from rxcomm.options import RobotDir
+from rxcomm.options import PLAN_OUTPUT, PlanDynamics, RobotDir
 from rxcomm.schemas.trajectory import TrajectorySummary
-
-
-def command(
-    plan: Annotated[Path, typer.Argument(help="The trajectory of one cycle (NAME.mcap, e.g. from plan-cp).")],
-    robot_dir: RobotDir,
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")],
-    cycles: Annotated[int, typer.Option(help="Cycles of the path (ISO 9283: 10).")] = 10,
-    dwell_s: Annotated[float, typer.Option(help="Hold at each end of the path, s.")] = 0.3,
-    dynamics: Annotated[
-        Path | None, typer.Option(help="dynamics.yaml: the plan's torques (default: the prior model).")
-    ] = None,
-) -> None:
-    """Repeat a test path's plan for the ISO 9283 cycles, with return moves at the catalogue limits."""
-    run(plan, robot_dir, output, cycles=cycles, dwell_s=dwell_s, dynamics=dynamics)
+from rxcomm.stages.summary import motion_summary
 
 
 @console.stage_command
-def run(
-    plan: Path, robot_dir: Path, output: Path, *, cycles: int = 10, dwell_s: float = 0.3, dynamics=None
+def command(
+    plan: Annotated[Path, typer.Argument(help="The trajectory of one cycle (NAME.mcap, e.g. from plan-cp).")],
+    robot_dir: RobotDir,
+    output: Annotated[Path, PLAN_OUTPUT],
+    cycles: Annotated[int, typer.Option(help="Cycles of the path (ISO 9283: 10).")] = 10,
+    dwell_s: Annotated[float, typer.Option(help="Hold at each end of the path, s.")] = 0.3,
+    dynamics: PlanDynamics = None,
 ) -> dict[str, object]:
-    """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    """Repeat a test path's plan for the ISO 9283 cycles, with return moves at the catalogue limits."""
     from rxcomm.io.trajectory import Trajectory, load_trajectory_mcap, save_trajectory_mcap
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.catalogue import catalogue_limits
@@ -62,13 +54,8 @@ def run(
     tau = PtpDynamics.from_parameters(robot, params).torque(rep.q, rep.qd, rep.qdd)
     traj = Trajectory(rep.t, rep.q, rep.qd, rep.qdd, tau)
     report = check_limits(robot, traj.t, traj.q, traj.qd, traj.qdd, tau)
-    summary = {
-        "duration_s": traj.duration_s,
-        "solve_seconds": time.perf_counter() - t_all,
-        "max_limit_ratio": report.max_ratio,
-        "active_fraction": report.active_fraction(),
-        "q_start": traj.q[0].tolist(),
-        "q_goal": traj.q[-1].tolist(),
+    summary = motion_summary(traj.duration_s, time.perf_counter() - t_all, report, traj.q[0], traj.q[-1])
+    summary |= {
         "n_cycles": cycles,
         "cycle_duration_s": one.duration_s,
         "seconds": time.perf_counter() - t_all,

@@ -19,53 +19,28 @@ from rxcomm import console
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs, trajectory_output
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
-from rxcomm.options import RobotDir
+from rxcomm.options import PLAN_OUTPUT, Iso9283Paths, PlanDynamics, RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.summary import motion_summary
 
 PLAN_CYCLES = 8  # the plan is sampled every 8 drive cycles: it dwells and moves slowly (run resamples)
 
 
+@console.stage_command
 def command(
     robot_dir: RobotDir,
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")],
-    paths: Annotated[
-        Path | None, typer.Option(help="Directory of the ISO 9283 path specs (default ROBOT/paths).")
-    ] = None,
+    output: Annotated[Path, PLAN_OUTPUT],
+    paths: Iso9283Paths = None,
     calibration: Annotated[
         Path | None, typer.Option(help="calibration.yaml: the poses' IK on the calibrated robot.")
     ] = None,
-    dynamics: Annotated[
-        Path | None, typer.Option(help="dynamics.yaml: the plan's torques (default: the prior model).")
-    ] = None,
+    dynamics: PlanDynamics = None,
     cycles: Annotated[int, typer.Option(help="Pose cycles (ISO 9283: 30).")] = 30,
     dwell_s: Annotated[float, typer.Option(help="Hold at each pose, s (the tracker measures in it).")] = 0.5,
-) -> None:
-    """Plan the ISO 9283 pose cycle P1 → P5 → P4 → P3 → P2 at the catalogue limits, for `run`."""
-    run(
-        robot_dir,
-        output,
-        paths=paths,
-        calibration=calibration,
-        dynamics=dynamics,
-        cycles=cycles,
-        dwell_s=dwell_s,
-    )
-
-
-@console.stage_command
-def run(
-    robot_dir: Path,
-    output: Path,
-    *,
-    paths: Path | None = None,
-    calibration: Path | None = None,
-    dynamics: Path | None = None,
-    cycles: int = 30,
-    dwell_s: float = 0.5,
 ) -> dict[str, object]:
-    """The stage as a function (tests call it): returns the summary written beside the MCAP."""
+    """Plan the ISO 9283 pose cycle P1 → P5 → P4 → P3 → P2 at the catalogue limits, for `run`."""
     from rxcomm.calibration.loading import load_calibrated_robot
     from rxcomm.io.trajectory import save_trajectory_mcap
     from rxcomm.model.base_parameters import load_dynamics
@@ -86,20 +61,15 @@ def run(
     catalogue = catalogue_limits(nominal)  # the maker's, as the factory state's timing
     robot = nominal if calibration is None else load_calibrated_robot(nominal, calibration)
     params = None if dynamics is None else load_dynamics(dynamics, robot)
-    command, compliance = _commanded(nominal, calibration, params)
+    encoder, compliance = _commanded(nominal, calibration, params)
     spec = read_yaml_model(rectangle, PathSpec)
     sample_s = PLAN_CYCLES * robot.drives.cycle_s
     t0 = time.perf_counter()
     traj, order, report = pose_cycle_plan(
-        robot, spec, catalogue, PtpDynamics.from_parameters(robot, params), cycles, dwell_s, sample_s, command
+        robot, spec, catalogue, PtpDynamics.from_parameters(robot, params), cycles, dwell_s, sample_s, encoder
     )
-    summary = {
-        "duration_s": traj.duration_s,
-        "solve_seconds": time.perf_counter() - t0,
-        "max_limit_ratio": report.max_ratio,
-        "active_fraction": report.active_fraction(),
-        "q_start": traj.q[0].tolist(),
-        "q_goal": traj.q[-1].tolist(),
+    summary = motion_summary(traj.duration_s, time.perf_counter() - t0, report, traj.q[0], traj.q[-1])
+    summary |= {
         "n_cycles": cycles,
         "dwell_s": dwell_s,
         "order": " ".join(order),

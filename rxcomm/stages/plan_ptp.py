@@ -8,9 +8,9 @@ OCP of `rxcomm.planning.ptp` between two rest states and writes the trajectory a
 from __future__ import annotations
 
 import time
-from enum import StrEnum
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, get_args
 
 import numpy as np
 import typer
@@ -19,35 +19,25 @@ from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs, trajectory_output
 from rxcomm.io.validate import settings_from_options
-from rxcomm.options import POSE_PREFIX, RobotDir, parse_numbers, radians_text
+from rxcomm.options import (
+    POSE_PREFIX,
+    TRAJECTORY_OUTPUT,
+    IdentifiedDynamics,
+    RobotDir,
+    TimeWeight,
+    Timing,
+    parse_numbers,
+    radians_text,
+)
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.summary import motion_summary
 
 if TYPE_CHECKING:
     from rxcomm.model.dynamics import DynamicParameters
     from rxcomm.model.robot import Robot
     from rxcomm.planning.ptp import PtpResult
-    from rxcomm.planning.ptp_problem import PtpLimits, PtpOptions
-
-
-class Shoulder(StrEnum):
-    front = "front"
-    back = "back"
-
-
-class Elbow(StrEnum):
-    up = "up"
-    down = "down"
-
-
-class Wrist(StrEnum):
-    positive = "positive"
-    negative = "negative"
-
-
-class Timing(StrEnum):
-    optimal = "optimal"
-    catalogue = "catalogue"
+    from rxcomm.planning.ptp_problem import PtpLimits
 
 
 # --- inputs -----------------------------------------------------------------------------------------
@@ -136,13 +126,36 @@ def plot_ptp(result: PtpResult, limits: PtpLimits, joint_names, path: Path, titl
 
 
 # --- the stage --------------------------------------------------------------------------------------
-# The options whose help runs over several lines, named here so that `command` reads as a list.
+def _branch_choice(field: str) -> object:
+    """The values of a `Branch` field (its Literal without None), the choices of its option."""
+    return next(a for a in get_args(Branch.model_fields[field].annotation) if a is not type(None))
+
+
+Shoulder, Elbow, Wrist = (_branch_choice(f) for f in ("shoulder", "elbow", "wrist"))
+
+# The options, named here so that `command` reads as a list.
 StartOption = Annotated[
     str | None,
     typer.Option(
         help="Start at rest: joint angles 'q1,…,q6' (rad) or a TCP pose 'pose:x,y,z,α,β,γ' "
         "(m; Cardan x-y-z angles in rad; base frame). This or --start-deg is required."
     ),
+]
+StartDegOption = Annotated[
+    str | None, typer.Option(help="As --start with every angle in degrees (poses: m and deg).")
+]
+GoalOption = Annotated[str | None, typer.Option(help="Goal at rest, as --start.")]
+GoalDegOption = Annotated[str | None, typer.Option(help="Goal at rest, as --start-deg.")]
+CalibrationOption = Annotated[
+    Path | None,
+    typer.Option(help="calibration.yaml: IK of poses and the model use the calibrated robot."),
+]
+EnergyWeightOption = Annotated[float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)².")]
+IntervalsOption = Annotated[
+    int, typer.Option("--time-intervals", help="Jerk intervals of the OCP time grid.")
+]
+MarginOption = Annotated[
+    float, typer.Option("--margin-fraction", help="Limits tightened by this fraction in the NLP.")
 ]
 AccelerationLimitsOption = Annotated[
     bool,
@@ -151,6 +164,14 @@ AccelerationLimitsOption = Annotated[
         "solves the paper's problem (torque, torque rate, velocity, position only), which `run` refuses."
     ),
 ]
+TcpBoxOption = Annotated[
+    str | None,
+    typer.Option("--tcp-box-m", help="Keep the TCP in 'xmin,ymin,zmin,xmax,ymax,zmax' (m, base frame)."),
+]
+ShoulderOption = Annotated[Shoulder, typer.Option(help="IK branch for poses: shoulder.")]
+ElbowOption = Annotated[Elbow, typer.Option(help="IK branch for poses: elbow.")]
+WristOption = Annotated[Wrist, typer.Option(help="IK branch for poses: sign of J5.")]
+MaxWallOption = Annotated[float | None, typer.Option("--max-wall-s", help="Solver wall-time cap, s.")]
 CompileOption = Annotated[
     bool,
     typer.Option(
@@ -159,116 +180,66 @@ CompileOption = Annotated[
         "or $RXCOMM_CACHE_DIR): ~2× faster solves after a one-off ~1 min compile.",
     ),
 ]
-
-
-def command(
-    robot_dir: RobotDir,
-    output: Annotated[
-        Path, typer.Option("-o", "--output", help="Output trajectory NAME.mcap (+ NAME.yaml).")
-    ],
-    start: StartOption = None,
-    start_deg: Annotated[
-        str | None, typer.Option(help="As --start with every angle in degrees (poses: m and deg).")
-    ] = None,
-    goal: Annotated[str | None, typer.Option(help="Goal at rest, as --start.")] = None,
-    goal_deg: Annotated[str | None, typer.Option(help="Goal at rest, as --start-deg.")] = None,
-    dynamics: Annotated[
-        Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
-    ] = None,
-    calibration: Annotated[
-        Path | None,
-        typer.Option(help="calibration.yaml: IK of poses and the model use the calibrated robot."),
-    ] = None,
-    k1: Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")] = 1.0,
-    k2: Annotated[float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)².")] = 0.0,
-    intervals: Annotated[
-        int, typer.Option("--time-intervals", help="Jerk intervals of the OCP time grid.")
-    ] = 50,
-    margin: Annotated[
-        float, typer.Option("--margin-fraction", help="Limits tightened by this fraction in the NLP.")
-    ] = 0.01,
-    acceleration_limits: AccelerationLimitsOption = True,
-    tcp_box: Annotated[
-        str | None,
-        typer.Option("--tcp-box-m", help="Keep the TCP in 'xmin,ymin,zmin,xmax,ymax,zmax' (m, base frame)."),
-    ] = None,
-    shoulder: Annotated[Shoulder, typer.Option(help="IK branch for poses: shoulder.")] = Shoulder.front,
-    elbow: Annotated[Elbow, typer.Option(help="IK branch for poses: elbow.")] = Elbow.up,
-    wrist: Annotated[Wrist, typer.Option(help="IK branch for poses: sign of J5.")] = Wrist.positive,
-    max_wall: Annotated[float | None, typer.Option("--max-wall-s", help="Solver wall-time cap, s.")] = None,
-    compile_: CompileOption = False,
-    fallback: Annotated[
-        bool,
-        typer.Option(help="If the solver fails, write the fastest feasible ruckig profile (still exit 3)."),
-    ] = False,
-    plot: Annotated[bool, typer.Option(help="Write NAME.png: normalised torques and velocities.")] = False,
-    timing: Annotated[
-        Timing,
-        typer.Option(help="optimal: the OCP; catalogue: the factory's ruckig profile (model.catalogue)."),
-    ] = Timing.optimal,
-) -> None:
-    """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
-    start, goal = (
-        console.checked(state_text, *pair) for pair in ((start, start_deg, "start"), (goal, goal_deg, "goal"))
-    )
-    run(
-        robot_dir,
-        start,
-        goal,
-        output,
-        dynamics=dynamics,
-        calibration=calibration,
-        k1=k1,
-        k2=k2,
-        intervals=intervals,
-        margin=margin,
-        acceleration_limits=acceleration_limits,
-        tcp_box=tcp_box,
-        branch=Branch(shoulder=shoulder.value, elbow=elbow.value, wrist=wrist.value),
-        max_wall=max_wall,
-        compile_=compile_,
-        fallback=fallback,
-        plot=plot,
-        timing=timing.value,
-    )
+FallbackOption = Annotated[
+    bool, typer.Option(help="If the solver fails, write the fastest feasible ruckig profile (still exit 3).")
+]
+PlotOption = Annotated[bool, typer.Option(help="Write NAME.png: normalised torques and velocities.")]
+TimingOption = Annotated[
+    Timing, typer.Option(help="optimal: the OCP; catalogue: the factory's ruckig profile (model.catalogue).")
+]
 
 
 @console.stage_command
-def run(
-    robot_dir: Path,
-    start: str,
-    goal: str,
-    output: Path,
-    *,
-    dynamics: Path | None = None,
-    calibration: Path | None = None,
-    k1: float = 1.0,
-    k2: float = 0.0,
-    intervals: int = 50,
-    margin: float = 0.01,
-    acceleration_limits: bool = False,
-    tcp_box: str | None = None,
-    branch: Branch | None = None,
-    max_wall: float | None = None,
-    compile_: bool = False,
-    fallback: bool = False,
-    plot: bool = False,
-    timing: str = "optimal",
+def command(
+    robot_dir: RobotDir,
+    output: Annotated[Path, TRAJECTORY_OUTPUT],
+    start: StartOption = None,
+    start_deg: StartDegOption = None,
+    goal: GoalOption = None,
+    goal_deg: GoalDegOption = None,
+    dynamics: IdentifiedDynamics = None,
+    calibration: CalibrationOption = None,
+    k1: TimeWeight = 1.0,
+    k2: EnergyWeightOption = 0.0,
+    intervals: IntervalsOption = 50,
+    margin: MarginOption = 0.01,
+    acceleration_limits: AccelerationLimitsOption = True,
+    tcp_box: TcpBoxOption = None,
+    shoulder: ShoulderOption = "front",
+    elbow: ElbowOption = "up",
+    wrist: WristOption = "positive",
+    max_wall: MaxWallOption = None,
+    compile_: CompileOption = False,
+    fallback: FallbackOption = False,
+    plot: PlotOption = False,
+    timing: TimingOption = "optimal",
 ) -> dict[str, object]:
-    """The stage as a function (tests call it): returns the summary written beside the MCAP."""
-    from rxcomm.io.trajectory import save_trajectory_mcap
+    """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
     from rxcomm.model.robot import robot_files
-    from rxcomm.planning.ptp import PtpNotConverged, plan_ptp
-    from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits
+    from rxcomm.planning.ptp_problem import PtpDynamics, PtpOptions
 
+    start, goal = state_text(start, start_deg, "start"), state_text(goal, goal_deg, "goal")
     t_all, output = time.perf_counter(), trajectory_output(output)
     check_outputs(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {"dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
     )
     robot, params, inputs = _planning_model(robot_dir, calibration, dynamics)
-    options = _options(intervals, k1, k2, margin, acceleration_limits, tcp_box, max_wall, compile_)
-    branch = branch or Branch()
+    options = settings_from_options(
+        PtpOptions,
+        dict(
+            n_intervals=intervals,
+            k1=k1,
+            k2_per_nm2=k2,
+            margin=margin,
+            acceleration_limits=acceleration_limits,
+            tcp_box_m=parse_box(tcp_box),
+            max_wall_s=max_wall,
+            compile=compile_,
+        ),
+        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"},
+    )
+    branch = Branch(shoulder=shoulder, elbow=elbow, wrist=wrist)
     q_start, start_kind = parse_state(robot, start, "start", branch)
     q_goal, goal_kind = parse_state(robot, goal, "goal", branch, near=q_start)
     dyn = PtpDynamics.from_parameters(robot, params)
@@ -283,57 +254,10 @@ def run(
         "calibrated": calibration is not None,
         "timing": timing,
     }
+    target = _Target(output, inputs, settings, t_all)
     if timing == "catalogue":
-        return _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, output, inputs, settings, t_all)
-    with console.phase(f"plan-ptp: solving the OCP (N = {intervals})"):
-        try:
-            result = plan_ptp(robot, dyn, q_start, q_goal, options)
-        except PtpNotConverged as e:
-            if fallback:
-                _write_fallback(robot, dyn, q_start, q_goal, options, output, inputs, settings, e)
-            raise
-    summary = summary_of(result, q_start, q_goal, options.margin)
-    summary["seconds"] = time.perf_counter() - t_all
-    env = TrajectorySummary.envelope(inputs, settings, summary)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    save_trajectory_mcap(output, result.trajectory, env, robot.joint_names)
-    if plot:
-        limits = PtpLimits.from_robot(robot, acceleration=acceleration_limits)
-        title = f"PtP {result.duration_s:.3f} s (k1 = {k1:g}, k2 = {k2:g}): every limit, value / limit"
-        console.out.print(
-            f"plot: {plot_ptp(result, limits, robot.joint_names, output.with_suffix('.png'), title)}"
-        )
-    console.summary_table(f"plan-ptp → {output}", summary)
-    return summary
-
-
-def _options(
-    intervals: int,
-    k1: float,
-    k2: float,
-    margin: float,
-    acceleration_limits: bool,
-    tcp_box: str | None,
-    max_wall: float | None,
-    compile_: bool,
-) -> PtpOptions:
-    """The OCP's options from the command line's, a bad value named by its option."""
-    from rxcomm.planning.ptp_problem import PtpOptions
-
-    return settings_from_options(
-        PtpOptions,
-        dict(
-            n_intervals=intervals,
-            k1=k1,
-            k2_per_nm2=k2,
-            margin=margin,
-            acceleration_limits=acceleration_limits,
-            tcp_box_m=parse_box(tcp_box),
-            max_wall_s=max_wall,
-            compile=compile_,
-        ),
-        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"},
-    )
+        return _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, target)
+    return _write_optimal(robot, dyn, q_start, q_goal, options, target, fallback=fallback, plot=plot)
 
 
 def _planning_model(
@@ -356,9 +280,51 @@ def _planning_model(
     return robot, params, inputs
 
 
-def _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, output, inputs, settings, t_all) -> dict:
+@dataclass(frozen=True)
+class _Target:
+    """Where a plan is written and what its envelope records beside the samples."""
+
+    output: Path  # NAME.mcap (NAME.yaml beside it)
+    inputs: dict[str, Path]
+    settings: dict[str, object]
+    t_all: float  # time.perf_counter() when the stage started
+
+    def save(self, traj, summary: dict[str, object], joint_names=None, **settings: object) -> None:
+        """The MCAP and its summary YAML; `settings` adds to the recorded settings."""
+        from rxcomm.io.trajectory import save_trajectory_mcap
+
+        env = TrajectorySummary.envelope(self.inputs, {**self.settings, **settings}, summary)
+        self.output.parent.mkdir(parents=True, exist_ok=True)
+        save_trajectory_mcap(self.output, traj, env, joint_names)
+
+
+def _write_optimal(robot, dyn, q_start, q_goal, options, target: _Target, *, fallback: bool, plot: bool):
+    """The OCP's optimum (or, if it fails and `fallback`, the kinematic profile before exit 3)."""
+    from rxcomm.planning.ptp import PtpNotConverged, plan_ptp
+    from rxcomm.planning.ptp_problem import PtpLimits
+
+    with console.phase(f"plan-ptp: solving the OCP (N = {options.n_intervals})"):
+        try:
+            result = plan_ptp(robot, dyn, q_start, q_goal, options)
+        except PtpNotConverged as e:
+            if fallback:
+                _write_fallback(robot, dyn, q_start, q_goal, options, target, e)
+            raise
+    summary = summary_of(result, q_start, q_goal, options.margin)
+    summary["seconds"] = time.perf_counter() - target.t_all
+    target.save(result.trajectory, summary, robot.joint_names)
+    if plot:
+        limits = PtpLimits.from_robot(robot, acceleration=options.acceleration_limits)
+        title = f"PtP {result.duration_s:.3f} s (k1 = {options.k1:g}, k2 = {options.k2_per_nm2:g}): "
+        title += "every limit, value / limit"
+        png = plot_ptp(result, limits, robot.joint_names, target.output.with_suffix(".png"), title)
+        console.out.print(f"plot: {png}")
+    console.summary_table(f"plan-ptp → {target.output}", summary)
+    return summary
+
+
+def _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, target: _Target) -> dict:
     """The factory's move: the catalogue limits of the nominal prior robot, ruckig's profile."""
-    from rxcomm.io.trajectory import save_trajectory_mcap
     from rxcomm.model.catalogue import catalogue_limits
     from rxcomm.model.robot import load_robot
     from rxcomm.planning.catalogue_timing import plan_ptp_catalogue
@@ -366,49 +332,29 @@ def _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, output, inputs, set
     catalogue = catalogue_limits(load_robot(robot_dir))
     t0 = time.perf_counter()
     traj, report = plan_ptp_catalogue(robot, dyn, q_start, q_goal, catalogue)
-    solve_s = time.perf_counter() - t0
     limit, joint, t_worst, _ = report.worst()
-    summary: dict[str, object] = {
-        "duration_s": traj.duration_s,
-        "solve_seconds": solve_s,
-        "max_limit_ratio": report.max_ratio,
-        "active_fraction": report.active_fraction(),
-        "q_start": np.asarray(q_start).tolist(),
-        "q_goal": np.asarray(q_goal).tolist(),
+    summary = motion_summary(traj.duration_s, time.perf_counter() - t0, report, q_start, q_goal)
+    summary |= {
         "tau_squared_integral_nm2_s": float(np.trapezoid(np.sum(traj.tau_ff**2, axis=1), traj.t)),
         "worst_limit": f"{limit} {joint} at {t_worst:.4f} s",
         "limits_checked": ", ".join(report.ratios),
         "fallback": False,
         **{f"max_{k}_ratio": v for k, v in report.max_by_limit().items()},
-        "seconds": time.perf_counter() - t_all,
+        "seconds": time.perf_counter() - target.t_all,
     }
-    env = TrajectorySummary.envelope(inputs, {**settings, "catalogue": catalogue.as_dict()}, summary)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    save_trajectory_mcap(output, traj, env)
-    console.summary_table(f"plan-ptp (catalogue timing) → {output}", summary)
+    target.save(traj, summary, catalogue=catalogue.as_dict())
+    console.summary_table(f"plan-ptp (catalogue timing) → {target.output}", summary)
     return summary
 
 
-def _write_fallback(robot, dyn, q_start, q_goal, options, output, inputs, settings, error) -> None:
-    from rxcomm.io.trajectory import save_trajectory_mcap
+def _write_fallback(robot, dyn, q_start, q_goal, options, target: _Target, error) -> None:
     from rxcomm.planning.ptp import kinematic_fallback
 
     traj, report = kinematic_fallback(robot, dyn, q_start, q_goal, options)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    summary = {
-        "duration_s": traj.duration_s,
-        "solve_seconds": error.solution.solve_seconds,
-        "max_limit_ratio": report.max_ratio,
-        "active_fraction": report.active_fraction(),
-        "q_start": np.asarray(q_start).tolist(),
-        "q_goal": np.asarray(q_goal).tolist(),
-        "solver_status": error.status,
-        "fallback": True,
-    }
-    save_trajectory_mcap(
-        output, traj, TrajectorySummary.envelope(inputs, settings, summary), robot.joint_names
-    )
+    summary = motion_summary(traj.duration_s, error.solution.solve_seconds, report, q_start, q_goal)
+    summary |= {"solver_status": error.status, "fallback": True}
+    target.save(traj, summary, robot.joint_names)
     console.err.print(
         f"[yellow]fallback[/]: wrote the kinematic (ruckig) profile, {traj.duration_s:.3f} s, "
-        f"max limit ratio {report.max_ratio:.3f}, to {output}"
+        f"max limit ratio {report.max_ratio:.3f}, to {target.output}"
     )

@@ -164,6 +164,15 @@ def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Re
     return Report(title, preamble, verdict, sections, verdict_note(verdict)), missing
 
 
+def _image_loader(build: Path):
+    def load(name: str) -> bytes | None:
+        path = build / name
+        return path.read_bytes() if path.is_file() else None
+
+    return load
+
+
+@console.stage_command
 def command(
     build_dir: Annotated[
         Path, typer.Argument(help="Directory holding the chain's artefacts (make commission: build/).")
@@ -174,22 +183,9 @@ def command(
             "-o", "--output", help="Markdown file to write (default: BUILD/report.md); NAME.html beside it."
         ),
     ] = None,
-) -> None:
+) -> list[str]:
     """Write the commissioning report (Markdown + self-contained HTML): the verdict, each stage's figures,
     parameter tables and plots, every run, the comparison with the paper."""
-    run(build_dir, output)
-
-
-def _image_loader(build: Path):
-    def load(name: str) -> bytes | None:
-        path = build / name
-        return path.read_bytes() if path.is_file() else None
-
-    return load
-
-
-@console.stage_command
-def run(build_dir: Path, output: Path | None = None) -> list[str]:
     build_dir = Path(build_dir)
     output = build_dir / "report.md" if output is None else Path(output)
     if not build_dir.is_dir():

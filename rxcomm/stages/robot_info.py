@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -82,15 +81,9 @@ def robot_facts(robot: Robot) -> dict[str, object]:
     return facts
 
 
-def command(
-    robot_dir: RobotDir,
-) -> None:
-    """Print a robot's DOF, limits, reach, mass, the stretched-pose gravity load and identifiability."""
-    run(robot_dir)
-
-
 @console.stage_command
-def run(robot_dir: Path) -> dict[str, object]:
+def command(robot_dir: RobotDir) -> dict[str, object]:
+    """Print a robot's DOF, limits, reach, mass, the stretched-pose gravity load and identifiability."""
     from rxcomm.model.robot import load_robot
 
     robot = load_robot(robot_dir)

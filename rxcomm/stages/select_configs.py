@@ -12,9 +12,8 @@ prediction error each set should leave after calibration at the tracker noise of
 from __future__ import annotations
 
 import time
-from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import typer
@@ -28,12 +27,6 @@ if TYPE_CHECKING:  # the library (pinocchio, scipy) is imported where used: `--h
     from rxcomm.model.robot import Robot
     from rxcomm.schemas.cell import Cell
     from rxcomm.schemas.configs import Configs
-
-
-class CriterionOption(StrEnum):
-    min_eig = "min-eig"
-    det_root = "det-root"
-    cond = "cond"
 
 
 def read_cell(path: Path) -> Cell:
@@ -151,78 +144,54 @@ def plot_configs(robot: Robot, sel: PoseSelection, path: Path, title: str) -> Pa
     return plotting.save_figure(fig, path, dpi=110)
 
 
+# The options whose help runs over several lines, named here so that `command` reads as a list.
+CriterionName = Literal["min-eig", "det-root", "cond"]
+IntervalsOption = Annotated[
+    int, typer.Option("--grid-intervals", help="Joint-grid intervals per joint (midpoints; 13⁶ ≈ 4.8 M).")
+]
+MaxCandidatesOption = Annotated[
+    int, typer.Option(help="Seeded uniform subset of the feasible grid poses to select from (0: all).")
+]
+CriterionOption = Annotated[
+    CriterionName,
+    typer.Option(
+        help="Observation index: det-root det(Λ)^(1/p) (predicts best), min-eig σ_min(ΘᵀΘ) "
+        "(the paper's), cond λ_max/λ_min."
+    ),
+]
+ValidationPosesOption = Annotated[
+    int,
+    typer.Option(
+        "--validation-poses",
+        help="Extra random feasible poses to measure for validation (held out); as many as fit "
+        "poses let one campaign tell two pose sets apart.",
+    ),
+]
+MeasureBaselineOption = Annotated[
+    bool,
+    typer.Option(
+        help="Also list the naive set (the linear scan) for run to measure, so calibrate reports "
+        "the held-out error it would have left beside the selected set's (n more poses to measure)."
+    ),
+]
+
+
+@console.stage_command
 def command(
     robot_dir: RobotDir,
     cell: Annotated[Path, typer.Option(help="cell.yaml: workspace, self-collision, tracker.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output configs.yaml.")],
     n: Annotated[int, typer.Option("--poses", help="Number of measurement poses to select.")] = 32,
-    intervals: Annotated[
-        int, typer.Option("--grid-intervals", help="Joint-grid intervals per joint (midpoints; 13⁶ ≈ 4.8 M).")
-    ] = 13,
-    max_candidates: Annotated[
-        int,
-        typer.Option(help="Seeded uniform subset of the feasible grid poses to select from (0: all)."),
-    ] = 4000,
-    criterion: Annotated[
-        CriterionOption,
-        typer.Option(
-            help="Observation index: det-root det(Λ)^(1/p) (predicts best), min-eig σ_min(ΘᵀΘ) "
-            "(the paper's), cond λ_max/λ_min."
-        ),
-    ] = CriterionOption.det_root,
+    intervals: IntervalsOption = 13,
+    max_candidates: MaxCandidatesOption = 4000,
+    criterion: CriterionOption = "det-root",
     restarts: Annotated[int, typer.Option(help="Restarts of the exchange algorithm (best kept).")] = 5,
-    n_validation: Annotated[
-        int,
-        typer.Option(
-            "--validation-poses",
-            help="Extra random feasible poses to measure for validation (held out); as many as fit "
-            "poses let one campaign tell two pose sets apart.",
-        ),
-    ] = 32,
+    n_validation: ValidationPosesOption = 32,
     seed: Annotated[int, typer.Option(help="Seed of the sub-sampling, starts and validation poses.")] = 0,
-    measure_baseline: Annotated[
-        bool,
-        typer.Option(
-            help="Also list the naive set (the linear scan) for run to measure, so calibrate reports "
-            "the held-out error it would have left beside the selected set's (n more poses to measure)."
-        ),
-    ] = False,
+    measure_baseline: MeasureBaselineOption = False,
     plot: Annotated[bool, typer.Option(help="Write NAME.png with the selected poses.")] = False,
-) -> None:
-    """Select measurement poses that make the geometric error parameters well identifiable."""
-    run(
-        robot_dir,
-        cell,
-        output,
-        n=n,
-        intervals=intervals,
-        max_candidates=max_candidates,
-        criterion=criterion.value,
-        restarts=restarts,
-        n_validation=n_validation,
-        seed=seed,
-        measure_baseline=measure_baseline,
-        plot=plot,
-    )
-
-
-@console.stage_command
-def run(
-    robot_dir: Path,
-    cell: Path,
-    output: Path,
-    *,
-    n: int = 32,
-    intervals: int = 13,
-    max_candidates: int = 4000,
-    criterion: str = "det-root",
-    restarts: int = 5,
-    n_validation: int = 32,
-    seed: int = 0,
-    measure_baseline: bool = False,
-    plot: bool = False,
 ) -> dict[str, object]:
-    """The stage as a function (tests call it): returns the summary written to `output`."""
+    """Select measurement poses that make the geometric error parameters well identifiable."""
     from rxcomm.calibration.pose_selection import Criterion
     from rxcomm.io.files import check_outputs
     from rxcomm.io.yaml_io import write_yaml_artefact
@@ -251,17 +220,9 @@ def run(
         "seed": seed,
         "measure_baseline": measure_baseline,
     }
-    sel = _select_with_progress(
-        robot,
-        cell_model,
-        n,
-        intervals=intervals,
-        max_candidates=max_candidates or None,
-        criterion=criterion,
-        restarts=restarts,
-        seed=seed,
-        n_validation=n_validation,
-    )
+    # the selection runs with the settings the artefact records (0 candidates: all of them)
+    options = {k: v for k, v in settings.items() if k not in ("n", "measure_baseline")}
+    sel = _select_with_progress(robot, cell_model, n, **options | {"max_candidates": max_candidates or None})
     seconds = time.perf_counter() - t0
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "cell": Path(cell)}
     art = configs_artefact(robot, sel, inputs, settings, seconds, measure_baseline)

@@ -1,0 +1,27 @@
+"""The summary head every trajectory-writing stage gives (`TrajectorySummary.REQUIRED_SUMMARY_KEYS`).
+
+Not a subcommand: the plan stages (plan-ptp, plan-cycles, plan-poses) share it.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from rxcomm.model.limits import LimitReport
+
+
+def motion_summary(
+    duration_s: float, solve_seconds: float, report: LimitReport, q_start, q_goal
+) -> dict[str, object]:
+    """The required summary keys of a motion checked against its limits in `report`."""
+    return {
+        "duration_s": duration_s,
+        "solve_seconds": solve_seconds,
+        "max_limit_ratio": report.max_ratio,
+        "active_fraction": report.active_fraction(),
+        "q_start": np.asarray(q_start).tolist(),
+        "q_goal": np.asarray(q_goal).tolist(),
+    }
