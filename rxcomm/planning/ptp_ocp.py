@@ -54,6 +54,8 @@ from rxcomm.planning.ptp_problem import (
     PtpLimits,
     PtpOptions,
     PtpSolution,
+    ipopt_options,
+    run_ipopt,
 )
 
 LIMIT_NAMES = ("position", "velocity", "acceleration", "torque", "torque_rate", "tcp_box")
@@ -210,21 +212,7 @@ class PtpOcp:
                 window, xi, wts, x, p, lam_f, lam_g, var_index, row_index, fast
             )
 
-        ipopt = {
-            "max_iter": options.max_iter,
-            "tol": options.tol,
-            # the time converges to ~1e-5 long before IPOPT's default tolerances: stop there
-            "acceptable_tol": 1e-4,
-            "acceptable_iter": 5,
-            "acceptable_obj_change_tol": 1e-6,
-            "print_level": 0,
-            "sb": "yes",
-            "mu_strategy": "adaptive",
-            "hessian_approximation": options.hessian,
-        }
-        if options.max_wall_s is not None:
-            ipopt["max_wall_time"] = float(options.max_wall_s)
-        nlp_opts["ipopt"] = ipopt
+        nlp_opts["ipopt"] = ipopt_options(options, options.hessian)
         self.solver = ca.nlpsol("ptp", "ipopt", {"x": x, "f": f, "g": g}, nlp_opts)
         self._objective = ca.Function("objective", [x], [f])
         self.build_seconds = time.perf_counter() - t_build
@@ -421,12 +409,7 @@ class PtpOcp:
         """
         q_start, q_goal = np.asarray(q_start, float), np.asarray(q_goal, float)
         lbx, ubx, lbg, ubg = self._bounds(q_start, q_goal, margins or self.margins(), accel_caps, rate_scale)
-        x0 = np.clip(self._pack(guess), lbx, ubx)
-        t0 = time.perf_counter()
-        res = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        seconds = time.perf_counter() - t0
-        stats = self.solver.stats()
-        w = np.asarray(res["x"]).ravel()
+        w, outcome = run_ipopt(self.solver, self._pack(guess), lbx, ubx, lbg, ubg)
         sol = self._unpack(w)
         return PtpSolution(
             duration_s=sol.duration_s,
@@ -435,11 +418,7 @@ class PtpOcp:
             qdd=sol.qdd,
             jerk=sol.jerk,
             tau=self.dynamics.torque(sol.q, sol.qd, sol.qdd),
-            objective=float(res["f"]),
-            status=str(stats.get("return_status", "unknown")),
-            success=bool(stats.get("success", False)),
-            iterations=int(stats.get("iter_count", -1)),
-            solve_seconds=seconds,
+            **outcome,
         )
 
 

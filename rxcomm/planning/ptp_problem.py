@@ -7,6 +7,7 @@ forward-dynamics shooting peer (`ptp_shooting`), so none of them imports another
 from __future__ import annotations
 
 import hashlib
+import time
 from dataclasses import dataclass
 from typing import Literal
 
@@ -201,8 +202,55 @@ class NodeGuess:
         return cls(T, q, qd, qdd, np.diff(qdd, axis=0) / (T / n_intervals))
 
 
+def ipopt_options(options: PtpOptions, hessian: str) -> dict:
+    """IPOPT's options for the PtP NLPs (`ptp_ocp` and its shooting peer): the options' caps and
+    tolerance, `hessian` "exact" or "limited-memory"."""
+    ipopt = {
+        "max_iter": options.max_iter,
+        "tol": options.tol,
+        # the time converges to ~1e-5 long before IPOPT's default tolerances: stop there
+        "acceptable_tol": 1e-4,
+        "acceptable_iter": 5,
+        "acceptable_obj_change_tol": 1e-6,
+        "print_level": 0,
+        "sb": "yes",
+        "mu_strategy": "adaptive",
+        "hessian_approximation": hessian,
+    }
+    if options.max_wall_s is not None:
+        ipopt["max_wall_time"] = float(options.max_wall_s)
+    return ipopt
+
+
 @dataclass(frozen=True, eq=False)
-class PtpSolution:
+class IpoptOutcome:
+    """How IPOPT got to a PtP NLP's answer (the fields both solutions share)."""
+
+    objective: float
+    status: str
+    success: bool
+    iterations: int
+    solve_seconds: float
+
+
+def run_ipopt(solver: ca.Function, x0, lbx, ubx, lbg, ubg) -> tuple[np.ndarray, dict]:
+    """Solve from `x0` (clipped into the bounds); the solution vector and the `IpoptOutcome` fields.
+    Never raises on non-convergence: see `success`, `status`."""
+    t0 = time.perf_counter()
+    res = solver(x0=np.clip(x0, lbx, ubx), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    seconds = time.perf_counter() - t0
+    stats = solver.stats()
+    return np.asarray(res["x"]).ravel(), {
+        "objective": float(res["f"]),
+        "status": str(stats.get("return_status", "unknown")),
+        "success": bool(stats.get("success", False)),
+        "iterations": int(stats.get("iter_count", -1)),
+        "solve_seconds": seconds,
+    }
+
+
+@dataclass(frozen=True, eq=False)
+class PtpSolution(IpoptOutcome):
     """The OCP's answer on its grid, and how IPOPT got there."""
 
     duration_s: float
@@ -211,11 +259,6 @@ class PtpSolution:
     qdd: np.ndarray
     jerk: np.ndarray
     tau: np.ndarray
-    objective: float
-    status: str
-    success: bool
-    iterations: int
-    solve_seconds: float
 
     @property
     def n_intervals(self) -> int:
