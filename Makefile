@@ -146,7 +146,8 @@ CP_ARGS = --robot $(ROBOT) --path $(CP_PATH) $(MODEL_ARGS) --plot
 $(B)/cp.mcap: $(CP_PATH) $(MODEL) $(ROBOT_FILES) $(call params,plan-cp,$(CP_ARGS))
 	$(RX) plan-cp $(CP_ARGS) -o $@
 
-# The CP plan's end states come from cp.yaml (written beside cp.mcap).
+# The CP plan's end states come from cp.yaml (written beside cp.mcap). k2 stays 0 (time-optimal):
+# a k2 > 0 lowers ∫τᵀτ but raises the electrical energy (architecture.md, "Electrical energy").
 PTP_ARGS = --robot $(ROBOT) $(MODEL_ARGS) --plot
 $(B)/ptp.mcap: $(B)/cp.mcap $(MODEL) $(ROBOT_FILES) $(call params,plan-ptp,$(PTP_ARGS))
 	$(RX) plan-ptp --start=$(call QOF,$(B)/cp.yaml,q_start) --goal=$(call QOF,$(B)/cp.yaml,q_goal) \

@@ -18,7 +18,7 @@ from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.model.base_parameters import base_parameters, dynamics_artefact_fields
-from rxcomm.model.dynamics import RobotDynamics, prior_parameters, truth_parameters
+from rxcomm.model.dynamics import COULOMB_EPS_NLP_RAD_S, RobotDynamics, prior_parameters, truth_parameters
 from rxcomm.model.geometric_errors import ErrorModel
 from rxcomm.model.geometric_errors import parameter_names as geometric_parameter_names
 from rxcomm.model.kinematics import cardan_xyz, solve_pose_ik, tcp_pose
@@ -367,8 +367,9 @@ def test_cli_uses_identified_dynamics(tmp_path, m900):
     assert r.exit_code == 0, r.output
     traj, env = load_trajectory_mcap(out)
     assert env["settings"]["dynamics_model"] == "identified" and "dynamics" in env["inputs"]
-    ident = RobotDynamics(m900, true, coulomb_eps_rad_s=PTP_COULOMB_EPS_RAD_S)
-    prior = RobotDynamics(m900, prior_parameters(m900), coulomb_eps_rad_s=PTP_COULOMB_EPS_RAD_S)
+    # the plan's τ_ff is the torque `run` streams: its friction smoothing, not the NLP's
+    ident = RobotDynamics(m900, true, coulomb_eps_rad_s=COULOMB_EPS_NLP_RAD_S)
+    prior = RobotDynamics(m900, prior_parameters(m900), coulomb_eps_rad_s=COULOMB_EPS_NLP_RAD_S)
     s = slice(None, None, 40)
     np.testing.assert_allclose(
         traj.tau_ff[s], ident.inverse_dynamics(traj.q[s], traj.qd[s], traj.qdd[s]), atol=1e-8

@@ -5,10 +5,27 @@ solve, dense check, re-solve), the sampling at the drive cycle, the result and t
 
 Dense check with a margin: between nodes nothing is enforced, so the NLP uses every limit tightened to
 (1 − margin) (default 1 %); the optimum is then sampled at the drive cycle by exact integration of the
-piecewise-constant jerk, torques from the same inverse dynamics, and every limit is checked on those
-samples (`rxcomm.model.limits`): the max ratio is the summary's `max_limit_ratio`. If a limit is still
-exceeded by more than `DENSE_TOLERANCE`, its margin grows by the excess and the NLP is solved again
-from that solution (bounds only; coarse grids need it, N ≥ 50 rarely does).
+piecewise-constant jerk, and every limit is checked on those samples as `run` checks them
+(`rxcomm.model.limits`, torques from the output model: Coulomb friction smoothed with `run`'s
+ε = 0.02 rad/s, the torque rate of the whole torque): the max ratio is the summary's
+`max_limit_ratio`. A limit exceeded by more than `SAMPLED_LIMIT_TOLERANCE` (what `run` accepts) is
+tightened and the NLP solved again from that solution (bounds only, at most `max_resolves` times);
+a plan still beyond it is refused (InfeasibleError), never written for `run` to refuse.
+
+The paper's problem (`PtpOptions.acceleration_limits` False: torque, torque rate, velocity, position)
+is a benchmark `run` refuses anyway (its accelerations exceed the drives'): it keeps the paper's
+statement, the torque rate of the NLP's torque without its Coulomb part, sampled torques from the
+NLP's model, re-solves above `PAPER_TOLERANCE` and no refusal. With its unlimited accelerations every
+reversal's friction step would be several times a limit, and bounding it costs ~15 % of the time.
+
+Velocity reversals: the NLP's torque-rate rows leave Coulomb friction out (`ptp_ocp` module doc), but
+the output torque steps by 2·Fc where a joint reverses, at a rate ≈ Fc·|q̈|/ε: on the RX130L's J3
+(identified Fc ≈ 15 N·m) a reversal at its 8 rad/s² limit alone is 1.01 × its 6000 N·m/s. Energy-
+weighted optima (k2 ≥ 1e-4) swing J3 out to its position limit and back at full deceleration, so the
+plan failed `run`'s check (1.004 × at k2 = 1e-3). Where the excess is the friction step (the rate of
+the torque without it is below the bound), |q̈| of that joint is capped at the nodes around the
+reversal to what brings the step under the bound (`tighten_torque_rate`); a cap costs a few ms. Where the
+rest of the torque is too fast between the nodes, the torque-rate margin grows by the excess.
 """
 
 from __future__ import annotations
@@ -22,10 +39,7 @@ import pinocchio as pin
 
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import Trajectory
-from rxcomm.model.limits import (
-    LimitReport,
-    TorqueRateLimit,
-)
+from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE, LimitReport
 from rxcomm.model.robot import Robot
 from rxcomm.planning.ptp_ocp import PtpOcp, cached_ocp
 from rxcomm.planning.ptp_problem import (
@@ -38,7 +52,7 @@ from rxcomm.planning.ptp_problem import (
 )
 from rxcomm.planning.warm_start import KinematicProfile, feasible_profile, ruckig_profile
 
-DENSE_TOLERANCE = 0.01  # re-solve with a wider margin when the dense check exceeds a limit by more
+PAPER_TOLERANCE = 0.01  # the paper's problem (no acceleration limits): re-solve above 1 % (module doc)
 
 
 # --- sampling at the drive cycle and the dense check ------------------------------------------------
@@ -64,12 +78,15 @@ def integrate_jerk(q0, qd0, qdd0, jerk, h: float, t) -> tuple[np.ndarray, np.nda
     )
 
 
-def sample_solution(sol: PtpSolution, dynamics: PtpDynamics, cycle_s: float, q_goal=None) -> Trajectory:
+def sample_solution(
+    sol: PtpSolution, dynamics: PtpDynamics, cycle_s: float, q_goal=None, output: bool = True
+) -> Trajectory:
     """The optimum at the drive cycle: the jerk profile integrated exactly, torques from the dynamics.
 
     T is rounded up to a whole number of cycles by a uniform time stretch (q̇ × r, q̈ × r², jerk × r³
     with r = T/T' ≥ 0.9993 for T ≥ 0.5 s at 400 µs): only slower. The last sample is the goal at rest
-    exactly (`q_goal` removes the NLP's ~1e-9 rad residual).
+    exactly (`q_goal` removes the NLP's ~1e-9 rad residual). Torques: the output model's (`run`'s
+    friction smoothing), or with `output` False the NLP's.
     """
     N, T = sol.n_intervals, sol.duration_s
     n_cycles = max(int(np.ceil(T / cycle_s - 1e-9)), 1)
@@ -79,7 +96,8 @@ def sample_solution(sol: PtpSolution, dynamics: PtpDynamics, cycle_s: float, q_g
     q, qd, qdd = integrate_jerk(sol.q[0], sol.qd[0] * r, sol.qdd[0] * r**2, sol.jerk * r**3, T2 / N, t)
     q[-1] = sol.q[-1] if q_goal is None else q_goal
     qd[-1] = qdd[-1] = 0.0
-    return Trajectory(t, q, qd, qdd, dynamics.torque(q, qd, qdd))
+    tau = dynamics.output_torque(q, qd, qdd) if output else dynamics.torque(q, qd, qdd)
+    return Trajectory(t, q, qd, qdd, tau)
 
 
 def sample_profile(profile: KinematicProfile, dynamics: PtpDynamics, cycle_s: float) -> Trajectory:
@@ -87,17 +105,66 @@ def sample_profile(profile: KinematicProfile, dynamics: PtpDynamics, cycle_s: fl
     n_cycles = max(int(np.ceil(profile.duration_s / cycle_s - 1e-9)), 1)
     t = np.arange(n_cycles + 1) * cycle_s
     q, qd, qdd = profile.at(t)
-    return Trajectory(t, q, qd, qdd, dynamics.torque(q, qd, qdd))
+    return Trajectory(t, q, qd, qdd, dynamics.output_torque(q, qd, qdd))
 
 
-def dense_report(traj: Trajectory, dynamics: PtpDynamics, limits: PtpLimits, joint_names) -> LimitReport:
-    """Every PtP limit on the drive-cycle samples; the torque rate of τ without its Coulomb part."""
-    smooth = dynamics.rate_torque(traj.q, traj.qd, traj.tau_ff)
+def dense_report(
+    traj: Trajectory, limits: PtpLimits, joint_names, without_friction: PtpDynamics | None = None
+) -> LimitReport:
+    """Every PtP limit on the drive-cycle samples, as `run` checks them (the torque rate of the whole
+    sampled torque, Coulomb friction included); with `without_friction` the torque rate of the NLP's
+    torque without its Coulomb part (the paper's problem, module doc)."""
     ratios = {}
     for lim in limits.dense_checks():
-        tau = smooth if isinstance(lim, TorqueRateLimit) else traj.tau_ff
+        tau = traj.tau_ff
+        if without_friction is not None and lim.name == "torque_rate":
+            tau = without_friction.rate_torque(traj.q, traj.qd, tau)
         ratios[lim.name] = lim.ratios(traj.t, traj.q, traj.qd, traj.qdd, tau)
     return LimitReport(t=traj.t, ratios=ratios, joint_names=tuple(joint_names))
+
+
+def tighten_torque_rate(
+    traj: Trajectory,
+    dynamics: PtpDynamics,
+    limits: PtpLimits,
+    rate: np.ndarray,
+    caps: np.ndarray,
+    rate_scale: np.ndarray,
+    margin: float,
+) -> None:
+    """Tighten the NLP where the sampled torque rate exceeds its limit (module doc).
+
+    `rate` [n, dof]: the torque-rate ratios of `traj`; `caps` [N+1, dof] (rad/s², the NLP's node grid,
+    updated in place). At every sample above 1 + `SAMPLED_LIMIT_TOLERANCE` where the friction step's
+    rate c (∝ |q̈|) is the larger part and the rest is below 1 − `margin`, c is scaled to the room left:
+    |q̈| ≤ s·|q̈(t)| with s = (1 − margin − rate without friction)/c ∈ [0.2, 0.98] (|q̈| the largest of
+    the sample and its neighbours), at the four nodes around it (the reversal moves a little when
+    re-solved), at every node if that joint was capped in an earlier pass (its reversal moved out of
+    the caps: the joint is not what sets the time there). At the other samples above the tolerance (a
+    torque at its rate limit plus a little friction, e.g. where a joint starts) the NLP's torque-rate
+    rows of that joint at the same nodes are scaled down by the excess (`rate_scale` [N+1, dof], in
+    place), as plan-cp tightens its limits locally.
+    """
+    t, N = traj.t, caps.shape[0] - 1
+    friction = dynamics.output_coulomb_torque(traj.qd)
+    c = np.abs(np.gradient(friction, t, axis=0)) / limits.tau_rate_max
+    rest = np.abs(np.gradient(traj.tau_ff - friction, t, axis=0)) / limits.tau_rate_max
+    h = traj.duration_s / N
+    # |q̈| around each sample (the one-sided rate at the ends sees the next sample's)
+    qdd = np.abs(traj.qdd)
+    qdd_near = np.maximum(qdd, np.maximum(np.roll(qdd, 1, axis=0), np.roll(qdd, -1, axis=0)))
+    capped_before = np.isfinite(caps).any(axis=0)
+    for i, j in zip(*np.nonzero(rate > 1.0 + SAMPLED_LIMIT_TOLERANCE), strict=True):
+        k = min(int(t[i] / h), N - 1)
+        near = slice(max(k - 1, 0), min(k + 3, N + 1))
+        if c[i, j] <= rest[i, j] or rest[i, j] >= 1.0 - margin:  # not a reversal's step
+            rate_scale[near, j] = np.minimum(rate_scale[near, j], 1.0 - (rate[i, j] - 1.0) - margin)
+            continue
+        s = float(np.clip((1.0 - margin - rest[i, j]) / c[i, j], 0.2, 0.98))
+        # a joint capped in an earlier pass whose reversal moved out of its caps is not what sets
+        # the time there: cap it on the whole motion
+        nodes = slice(1, N) if capped_before[j] else slice(max(k - 1, 1), min(k + 3, N))
+        caps[nodes, j] = np.minimum(caps[nodes, j], s * qdd_near[i, j])
 
 
 def tcp_box_ratio(robot: Robot, q: np.ndarray, box: tuple[Vec3, Vec3]) -> float:
@@ -208,16 +275,18 @@ def plan_ptp(
     *,
     warm_start: KinematicProfile | None = None,
     ocp: PtpOcp | None = None,
-    max_resolves: int = 2,
+    max_resolves: int = 4,
 ) -> PtpResult:
     """Plan the optimal rest-to-rest motion from `q_start` to `q_goal` (rad).
 
     Raises InputError (exit 2) for end points outside the limits, InfeasibleError (exit 3) for end
-    points the drives cannot hold, PtpNotConverged (exit 3) when IPOPT fails. `warm_start` overrides
-    the ruckig profile; `ocp` a built NLP (default: `cached_ocp`).
-    If the dense check finds a limit exceeded by more than `DENSE_TOLERANCE` between the nodes, that
-    limit's margin grows by the excess and the NLP is solved again from the solution (at most
-    `max_resolves` times; coarse grids need it, N ≥ 50 rarely does).
+    points the drives cannot hold or a plan still beyond a limit after the re-solves, PtpNotConverged
+    (exit 3) when IPOPT fails. `warm_start` overrides the ruckig profile; `ocp` a built NLP (default:
+    `cached_ocp`).
+    If the dense check finds a limit exceeded by more than `SAMPLED_LIMIT_TOLERANCE` between the nodes,
+    the NLP is solved again from the solution with that limit tightened (at most `max_resolves` times):
+    the friction step of a velocity reversal by local |q̈| caps (`tighten_torque_rate`), anything else by
+    growing that limit's margin by the excess.
     """
     options = options or PtpOptions()
     limits = PtpLimits.from_robot(robot, acceleration=options.acceleration_limits)
@@ -236,28 +305,56 @@ def plan_ptp(
     ocp = ocp or cached_ocp(dynamics, limits, options)
     build = time.perf_counter() - t0
     margins = ocp.margins()
+    # a plan for `run` (acceleration limits on) is checked as run checks it; the paper's problem as
+    # the paper states it (module doc)
+    for_run = options.acceleration_limits
+    tolerance = SAMPLED_LIMIT_TOLERANCE if for_run else PAPER_TOLERANCE
+    caps = np.full((ocp.N + 1, robot.n), np.inf)  # local |q̈| caps at velocity reversals, rad/s²
+    rate_scale = np.ones((ocp.N + 1, robot.n))  # local torque-rate bounds (factors)
     guess = NodeGuess.from_profile(warm_start, ocp.N)
     seconds, iterations = 0.0, 0
     for attempt in range(1 + max_resolves):
-        sol = ocp.solve(q_start, q_goal, guess, margins)
+        sol = ocp.solve(q_start, q_goal, guess, margins, caps, rate_scale)
         seconds, iterations = seconds + sol.solve_seconds, iterations + sol.iterations
         sol = replace(sol, solve_seconds=seconds, iterations=iterations)
         if not sol.success:
             raise PtpNotConverged(sol.status, sol)
-        traj = sample_solution(sol, dynamics, robot.drives.cycle_s, q_goal=q_goal)
-        report = dense_report(traj, dynamics, limits, robot.joint_names)
+        traj = sample_solution(sol, dynamics, robot.drives.cycle_s, q_goal=q_goal, output=for_run)
+        report = dense_report(traj, limits, robot.joint_names, None if for_run else dynamics)
         ratios = report.max_by_limit()
         if options.tcp_box_m is not None:
             ratios["tcp_box"] = tcp_box_ratio(robot, traj.q, options.tcp_box_m)
-        over = {k: r for k, r in ratios.items() if r > 1.0 + DENSE_TOLERANCE}
-        if not over or attempt == max_resolves:
+        over = {k: r for k, r in ratios.items() if r > 1.0 + tolerance}
+        if not over:
             break
-        # between the nodes a limit was exceeded: tighten that limit by the excess and solve again
-        # from this solution (only bounds change, the NLP is reused)
+        if attempt == max_resolves:
+            if for_run:
+                raise _beyond_limits(report, ratios, attempt)
+            break
+        # between the nodes a limit was exceeded: tighten it and solve again from this solution
+        # (only bounds change, the NLP is reused)
+        if for_run and over.pop("torque_rate", None) is not None:
+            tighten_torque_rate(
+                traj, dynamics, limits, report.ratios["torque_rate"], caps, rate_scale, options.margin
+            )
         for k, r in over.items():
             margins[k] += r - 1.0 + options.margin
         guess = NodeGuess(sol.duration_s, sol.q, sol.qd, sol.qdd, sol.jerk)
     return PtpResult(traj, report, sol, warm_start, build, ratios.get("tcp_box"), margins, attempt)
+
+
+def _beyond_limits(report: LimitReport, ratios: dict[str, float], resolves: int) -> InfeasibleError:
+    """The refusal of a plan `run` would refuse: its worst limit, where and when."""
+    limit, joint, t_s, ratio = report.worst()
+    if ratios.get("tcp_box", 0.0) > ratio:
+        limit, joint, ratio, where = "tcp_box", "TCP", ratios["tcp_box"], ""
+    else:
+        where = f" of {joint} at t = {t_s:.4f} s"
+    return InfeasibleError(
+        f"plan-ptp: after {resolves} re-solves the sampled plan is {ratio:.4f} × the {limit} limit{where} "
+        f"(run accepts ≤ {1.0 + SAMPLED_LIMIT_TOLERANCE:g}); try more --time-intervals or a wider "
+        "--margin-fraction"
+    )
 
 
 def kinematic_fallback(
@@ -273,7 +370,7 @@ def kinematic_fallback(
 
     def check(p: KinematicProfile) -> tuple[Trajectory, LimitReport]:
         tr = sample_profile(p, dynamics, cycle)
-        return tr, dense_report(tr, dynamics, limits, robot.joint_names)
+        return tr, dense_report(tr, limits, robot.joint_names)
 
     def ratio(p: KinematicProfile) -> float:
         tr, rep = check(p)

@@ -20,8 +20,10 @@ constrained on both sides of every node (with u_{k−1} and with u_k). Finite di
 (τ_{k+1} − τ_k)/h were measured to under-check by 15 % (N = 50) and 6 % (N = 100) between nodes, the
 derivative by < 0.1 %. The rate limit applies to the torque *without Coulomb friction*: a smooth sign
 tanh(q̇/ε) steps by 2·Fc within 2ε/|q̈| at every velocity reversal, a rate set by ε, not by the
-drive (with the identification's ε = 0.02 rad/s ≈ 4·10⁴ N·m/s on J2 against 1.2·10⁴); limiting it
-would make every reversal crawl. The Coulomb step is what a drive's friction compensation delivers.
+drive (Fc·|q̈|/ε; with `run`'s ε = 0.02 rad/s ≈ 4·10⁴ N·m/s on J2 at the paper's unlimited
+accelerations against 1.2·10⁴, 0.75 × at J2's 6 rad/s²); limiting it in the rows would make every
+reversal crawl. The sampled plan is checked with the step (as `run` checks it):
+`ptp` bounds it after the solve where it exceeds the limit, by local |q̈| caps (`solve(accel_caps=)`).
 
 Friction smoothing: the PtP model uses ε = 0.1 rad/s (`PTP_COULOMB_EPS_RAD_S`; ≈ 6 °/s, 2–3 % of the
 joints' top speeds), not the identification's 0.02. With 0.02 the friction step of a reversing joint
@@ -52,6 +54,8 @@ from rxcomm.planning.ptp_problem import (
     PtpLimits,
     PtpOptions,
     PtpSolution,
+    ipopt_options,
+    run_ipopt,
 )
 
 LIMIT_NAMES = ("position", "velocity", "acceleration", "torque", "torque_rate", "tcp_box")
@@ -154,6 +158,9 @@ class PtpOcp:
         row_index = np.full((N + 1, n_rows), -1)
         row_index[row_valid] = np.arange(int(row_valid.sum()))
         self.row_kinds = np.array([kinds[i] for k in range(N + 1) for i in range(n_rows) if row_valid[k, i]])
+        # node and joint of every row (the per-joint blocks of a window are n rows long, in joint order)
+        self.row_node, local = (a[row_valid] for a in np.indices((N + 1, n_rows)))
+        self.row_joint = local % n
         ng = len(self.row_kinds)
 
         x = ca.MX.sym("x", self.nx)
@@ -205,21 +212,7 @@ class PtpOcp:
                 window, xi, wts, x, p, lam_f, lam_g, var_index, row_index, fast
             )
 
-        ipopt = {
-            "max_iter": options.max_iter,
-            "tol": options.tol,
-            # the time converges to ~1e-5 long before IPOPT's default tolerances: stop there
-            "acceptable_tol": 1e-4,
-            "acceptable_iter": 5,
-            "acceptable_obj_change_tol": 1e-6,
-            "print_level": 0,
-            "sb": "yes",
-            "mu_strategy": "adaptive",
-            "hessian_approximation": options.hessian,
-        }
-        if options.max_wall_s is not None:
-            ipopt["max_wall_time"] = float(options.max_wall_s)
-        nlp_opts["ipopt"] = ipopt
+        nlp_opts["ipopt"] = ipopt_options(options, options.hessian)
         self.solver = ca.nlpsol("ptp", "ipopt", {"x": x, "f": f, "g": g}, nlp_opts)
         self._objective = ca.Function("objective", [x], [f])
         self.build_seconds = time.perf_counter() - t_build
@@ -336,7 +329,14 @@ class PtpOcp:
         m.update(override)
         return m
 
-    def _bounds(self, q_start: np.ndarray, q_goal: np.ndarray, margins: dict[str, float]):
+    def _bounds(
+        self,
+        q_start: np.ndarray,
+        q_goal: np.ndarray,
+        margins: dict[str, float],
+        accel_caps=None,
+        rate_scale=None,
+    ):
         n, N, lim = self.dof, self.N, self.limits
         half = (lim.q_max - lim.q_min) / 2
         mp = margins["position"]
@@ -353,12 +353,17 @@ class PtpOcp:
             else (1.0 - margins["acceleration"]) * lim.a_max / self.a_ref
         )
         a_b = np.tile(a_lim[:, None], N + 1)
+        if accel_caps is not None:  # local |q̈| caps per node [N+1, n], rad/s² (ptp: velocity reversals)
+            a_b = np.minimum(a_b, np.asarray(accel_caps, float).T / self.a_ref[:, None])
         a_b[:, [0, -1]] = 0.0
         u_b = np.full(n * N, np.inf)
         lbx = np.concatenate([[1e-3 / self.t_ref], q_lb.ravel("F"), -v_b.ravel("F"), -a_b.ravel("F"), -u_b])
         ubx = np.concatenate([[100.0 / self.t_ref], q_ub.ravel("F"), v_b.ravel("F"), a_b.ravel("F"), u_b])
         bound = {k: 1.0 - v for k, v in margins.items()} | {"defects": 0.0}
         ubg = np.array([bound[k] for k in self.row_kinds])
+        if rate_scale is not None:  # local torque-rate bounds per node [N+1, n], a factor ≤ 1
+            rate = self.row_kinds == "torque_rate"
+            ubg[rate] *= np.asarray(rate_scale, float)[self.row_node[rate], self.row_joint[rate]]
         return lbx, ubx, -ubg, ubg
 
     def _pack(self, guess: NodeGuess) -> np.ndarray:
@@ -388,20 +393,23 @@ class PtpOcp:
         )
 
     def solve(
-        self, q_start, q_goal, guess: NodeGuess, margins: dict[str, float] | None = None
+        self,
+        q_start,
+        q_goal,
+        guess: NodeGuess,
+        margins: dict[str, float] | None = None,
+        accel_caps: np.ndarray | None = None,
+        rate_scale: np.ndarray | None = None,
     ) -> PtpSolution:
-        """Solve from `guess` (on this grid) with limits tightened by `margins` (default: the options').
+        """Solve from `guess` (on this grid) with limits tightened by `margins` (default: the options'),
+        |q̈| at each node capped by `accel_caps` [N+1, dof] (rad/s², inf: no cap; default none) and the
+        torque-rate rows of each node and joint scaled by `rate_scale` [N+1, dof] (≤ 1; default 1).
 
         Never raises on non-convergence: see `.success`, `.status`.
         """
         q_start, q_goal = np.asarray(q_start, float), np.asarray(q_goal, float)
-        lbx, ubx, lbg, ubg = self._bounds(q_start, q_goal, margins or self.margins())
-        x0 = np.clip(self._pack(guess), lbx, ubx)
-        t0 = time.perf_counter()
-        res = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        seconds = time.perf_counter() - t0
-        stats = self.solver.stats()
-        w = np.asarray(res["x"]).ravel()
+        lbx, ubx, lbg, ubg = self._bounds(q_start, q_goal, margins or self.margins(), accel_caps, rate_scale)
+        w, outcome = run_ipopt(self.solver, self._pack(guess), lbx, ubx, lbg, ubg)
         sol = self._unpack(w)
         return PtpSolution(
             duration_s=sol.duration_s,
@@ -410,11 +418,7 @@ class PtpOcp:
             qdd=sol.qdd,
             jerk=sol.jerk,
             tau=self.dynamics.torque(sol.q, sol.qd, sol.qdd),
-            objective=float(res["f"]),
-            status=str(stats.get("return_status", "unknown")),
-            success=bool(stats.get("success", False)),
-            iterations=int(stats.get("iter_count", -1)),
-            solve_seconds=seconds,
+            **outcome,
         )
 
 

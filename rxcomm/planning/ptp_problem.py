@@ -7,6 +7,7 @@ forward-dynamics shooting peer (`ptp_shooting`), so none of them imports another
 from __future__ import annotations
 
 import hashlib
+import time
 from dataclasses import dataclass
 from typing import Literal
 
@@ -14,7 +15,7 @@ import casadi as ca
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from rxcomm.model.dynamics import DynamicParameters, prior_parameters
+from rxcomm.model.dynamics import COULOMB_EPS_NLP_RAD_S, DynamicParameters, prior_parameters
 from rxcomm.model.limits import (
     AccelerationLimit,
     PositionLimit,
@@ -109,14 +110,20 @@ class PtpLimits:
 class PtpDynamics:
     """What the OCP needs of the robot's dynamics, as CasADi Functions with named inputs.
 
-    `inv_dyn` (q, qd, qdd) → tau: the joint torque the drives deliver (torque limit, objective, τ_ff).
-    `coulomb` (qd) → tau: its Coulomb-friction part, left out of the torque-rate limit (module doc).
+    `inv_dyn` (q, qd, qdd) → tau: the NLP's joint torque (torque limit, objective), Coulomb friction
+    smoothed wide (`PTP_COULOMB_EPS_RAD_S`, `ptp_ocp` module doc).
+    `coulomb` (qd) → tau: its Coulomb-friction part, left out of the NLP's torque-rate rows.
     `tcp_fk` (q) → (p, R): the TCP placement, needed only for a TCP box.
+    `output` (q, qd, qdd) → tau: the torque of the sampled plan, Coulomb friction smoothed as `run`
+    computes its feed-forward and checks it (`COULOMB_EPS_NLP_RAD_S`); `output_coulomb` (qd) → tau its
+    Coulomb part. Without them the sampled torque is `inv_dyn`'s.
     """
 
     inv_dyn: ca.Function
     coulomb: ca.Function | None = None
     tcp_fk: ca.Function | None = None
+    output: ca.Function | None = None
+    output_coulomb: ca.Function | None = None
 
     @classmethod
     def from_parameters(
@@ -125,15 +132,24 @@ class PtpDynamics:
         params: DynamicParameters | None = None,
         coulomb_eps_rad_s: float = PTP_COULOMB_EPS_RAD_S,
     ) -> PtpDynamics:
-        """From `rxcomm.model.symbolic` with `params` (default: the robot's priors), Coulomb friction smoothed
-        as tanh(q̇/ε) with ε = `coulomb_eps_rad_s` (module doc: why wider than the identification's)."""
+        """From `rxcomm.model.symbolic` with `params` (default: the robot's priors): the NLP's model with
+        Coulomb friction smoothed as tanh(q̇/ε), ε = `coulomb_eps_rad_s` (`ptp_ocp` module doc: why wider
+        than the output's), and the output's with `run`'s ε = `COULOMB_EPS_NLP_RAD_S`."""
         params = prior_parameters(robot) if params is None else params
-        inv_dyn = inverse_dynamics_function(robot, params, coulomb_eps_rad_s)
         qd = ca.SX.sym("qd", robot.n)
-        coulomb = ca.Function(
-            "coulomb", [qd], [ca.DM(params.coulomb_nm) * ca.tanh(qd / coulomb_eps_rad_s)], ["qd"], ["tau"]
+
+        def coulomb(eps: float) -> ca.Function:
+            return ca.Function(
+                "coulomb", [qd], [ca.DM(params.coulomb_nm) * ca.tanh(qd / eps)], ["qd"], ["tau"]
+            )
+
+        return cls(
+            inverse_dynamics_function(robot, params, coulomb_eps_rad_s),
+            coulomb(coulomb_eps_rad_s),
+            forward_kinematics_function(robot),
+            inverse_dynamics_function(robot, params, COULOMB_EPS_NLP_RAD_S),
+            coulomb(COULOMB_EPS_NLP_RAD_S),
         )
-        return cls(inv_dyn, coulomb, forward_kinematics_function(robot))
 
     @property
     def dof(self) -> int:
@@ -146,14 +162,25 @@ class PtpDynamics:
         return h.hexdigest()
 
     def torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """τ [n, dof] at many samples (one mapped call)."""
-        return np.asarray(self.inv_dyn.map(q.shape[0])(q.T, qd.T, qdd.T)).T.reshape(q.shape)
+        """The NLP's τ [n, dof] at many samples (one mapped call)."""
+        return _mapped(self.inv_dyn, q, qd, qdd)
+
+    def output_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """The sampled plan's τ [n, dof] (`output`, else the NLP's)."""
+        return _mapped(self.output or self.inv_dyn, q, qd, qdd)
 
     def rate_torque(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """The torque whose rate is limited: τ minus its Coulomb part."""
-        if self.coulomb is None:
-            return tau
-        return tau - np.asarray(self.coulomb.map(q.shape[0])(qd.T)).T.reshape(q.shape)
+        """The torque whose rate the NLP limits: the NLP's τ minus its Coulomb part."""
+        return tau if self.coulomb is None else tau - _mapped(self.coulomb, qd)
+
+    def output_coulomb_torque(self, qd: np.ndarray) -> np.ndarray:
+        """The Coulomb part of `output_torque` [n, dof] (zeros without `output_coulomb`)."""
+        return np.zeros_like(qd) if self.output_coulomb is None else _mapped(self.output_coulomb, qd)
+
+
+def _mapped(f: ca.Function, *args: np.ndarray) -> np.ndarray:
+    """`f` at many samples: each argument [n, dof], the result [n, dof] (one mapped call)."""
+    return np.asarray(f.map(args[0].shape[0])(*(a.T for a in args))).T.reshape(args[0].shape)
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,8 +202,55 @@ class NodeGuess:
         return cls(T, q, qd, qdd, np.diff(qdd, axis=0) / (T / n_intervals))
 
 
+def ipopt_options(options: PtpOptions, hessian: str) -> dict:
+    """IPOPT's options for the PtP NLPs (`ptp_ocp` and its shooting peer): the options' caps and
+    tolerance, `hessian` "exact" or "limited-memory"."""
+    ipopt = {
+        "max_iter": options.max_iter,
+        "tol": options.tol,
+        # the time converges to ~1e-5 long before IPOPT's default tolerances: stop there
+        "acceptable_tol": 1e-4,
+        "acceptable_iter": 5,
+        "acceptable_obj_change_tol": 1e-6,
+        "print_level": 0,
+        "sb": "yes",
+        "mu_strategy": "adaptive",
+        "hessian_approximation": hessian,
+    }
+    if options.max_wall_s is not None:
+        ipopt["max_wall_time"] = float(options.max_wall_s)
+    return ipopt
+
+
 @dataclass(frozen=True, eq=False)
-class PtpSolution:
+class IpoptOutcome:
+    """How IPOPT got to a PtP NLP's answer (the fields both solutions share)."""
+
+    objective: float
+    status: str
+    success: bool
+    iterations: int
+    solve_seconds: float
+
+
+def run_ipopt(solver: ca.Function, x0, lbx, ubx, lbg, ubg) -> tuple[np.ndarray, dict]:
+    """Solve from `x0` (clipped into the bounds); the solution vector and the `IpoptOutcome` fields.
+    Never raises on non-convergence: see `success`, `status`."""
+    t0 = time.perf_counter()
+    res = solver(x0=np.clip(x0, lbx, ubx), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    seconds = time.perf_counter() - t0
+    stats = solver.stats()
+    return np.asarray(res["x"]).ravel(), {
+        "objective": float(res["f"]),
+        "status": str(stats.get("return_status", "unknown")),
+        "success": bool(stats.get("success", False)),
+        "iterations": int(stats.get("iter_count", -1)),
+        "solve_seconds": seconds,
+    }
+
+
+@dataclass(frozen=True, eq=False)
+class PtpSolution(IpoptOutcome):
     """The OCP's answer on its grid, and how IPOPT got there."""
 
     duration_s: float
@@ -185,11 +259,6 @@ class PtpSolution:
     qdd: np.ndarray
     jerk: np.ndarray
     tau: np.ndarray
-    objective: float
-    status: str
-    success: bool
-    iterations: int
-    solve_seconds: float
 
     @property
     def n_intervals(self) -> int:

@@ -23,23 +23,25 @@ import casadi as ca
 import numpy as np
 
 from rxcomm.planning.ptp_ocp import _sx_function
-from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
+from rxcomm.planning.ptp_problem import (
+    IpoptOutcome,
+    PtpDynamics,
+    PtpLimits,
+    PtpOptions,
+    ipopt_options,
+    run_ipopt,
+)
 from rxcomm.planning.warm_start import KinematicProfile
 
 
 @dataclass(frozen=True, eq=False)
-class ShootingSolution:
+class ShootingSolution(IpoptOutcome):
     """The shooting NLP's answer on its grid ([N+1, dof] arrays) and how IPOPT got there."""
 
     duration_s: float
     q: np.ndarray
     qd: np.ndarray
     tau: np.ndarray
-    objective: float
-    status: str
-    success: bool
-    iterations: int
-    solve_seconds: float
     build_seconds: float
     max_defect: float
 
@@ -118,26 +120,13 @@ class ShootingOcp:
         J = options.k1 * T + options.k2_per_nm2 * h * (ca.sum1(tau**2) @ ca.DM(wts))
         self._g_sizes = (2 * n * N, n * N)
         self._defect = ca.Function("defect", [w], [defect])
-        ipopt = {
-            "max_iter": options.max_iter,
-            "tol": options.tol,
-            "acceptable_tol": 1e-4,
-            "acceptable_iter": 5,
-            "acceptable_obj_change_tol": 1e-6,
-            "print_level": 0,
-            "sb": "yes",
-            "mu_strategy": "adaptive",
-            "hessian_approximation": "limited-memory",
-        }
-        if options.max_wall_s is not None:
-            ipopt["max_wall_time"] = float(options.max_wall_s)
         self.solver = ca.nlpsol(
             "ptp_shooting",
             "ipopt",
             {"x": w, "f": J, "g": ca.vertcat(ca.vec(defect), ca.vec(rate))},
-            {"ipopt": ipopt, "print_time": False, "expand": expand},
+            {"ipopt": ipopt_options(options, "limited-memory"), "print_time": False, "expand": expand},
         )
-        self._eval = ca.Function("outputs", [w], [T, J])
+        self._duration = ca.Function("duration", [w], [T])
         self.build_seconds = time.perf_counter() - t_build
 
     def _bounds(self, q_start, q_goal):
@@ -173,25 +162,15 @@ class ShootingOcp:
     def solve(self, q_start, q_goal, warm_start: KinematicProfile) -> ShootingSolution:
         q_start, q_goal = np.asarray(q_start, float), np.asarray(q_goal, float)
         lbx, ubx, lbg, ubg = self._bounds(q_start, q_goal)
-        x0 = np.clip(self.guess_from_profile(warm_start), lbx, ubx)
-        t0 = time.perf_counter()
-        res = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        seconds = time.perf_counter() - t0
-        stats = self.solver.stats()
-        w = np.asarray(res["x"]).ravel()
+        w, outcome = run_ipopt(self.solver, self.guess_from_profile(warm_start), lbx, ubx, lbg, ubg)
         n, N = self.dof, self.N
         o = np.cumsum((0, *self._sizes))
-        T, J = (float(v) for v in self._eval(w))
         return ShootingSolution(
-            duration_s=T,
+            duration_s=float(self._duration(w)),
             q=w[o[1] : o[2]].reshape(N + 1, n),
             qd=w[o[2] : o[3]].reshape(N + 1, n) * self.v_ref,
             tau=w[o[3] : o[4]].reshape(N + 1, n) * self.tau_ref,
-            objective=J,
-            status=str(stats.get("return_status", "unknown")),
-            success=bool(stats.get("success", False)),
-            iterations=int(stats.get("iter_count", -1)),
-            solve_seconds=seconds,
+            **outcome,
             build_seconds=self.build_seconds,
             max_defect=float(np.max(np.abs(np.asarray(self._defect(w))))),
         )

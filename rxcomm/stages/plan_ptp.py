@@ -89,7 +89,7 @@ def summary_of(result: PtpResult, q_start, q_goal, margin: float) -> dict[str, o
         "tau_squared_integral_nm2_s": result.tau_squared_integral,
         "warm_start_duration_s": result.warm_start.duration_s,
         "worst_limit": f"{limit} {joint} at {t_worst:.4f} s",
-        # what max_limit_ratio covers (the torque rate is of τ without Coulomb friction, ptp module doc)
+        # what max_limit_ratio covers (the torque rate as `run` checks it, ptp module doc)
         "limits_checked": ", ".join(rep.ratios) + (", tcp_box" if result.tcp_box_ratio is not None else ""),
         "fallback": False,
         "resolves": result.resolves,
