@@ -50,7 +50,9 @@ $(BUILD):
 # exactly the rules that use it and what depends on their outputs. A target NAME.mcap also stands
 # for the NAME.yaml / NAME.png its command writes beside it.
 N_POSES   ?= 32
-CP_PATH   ?= $(ROBOT)/paths/line-near-singularity.yaml
+# The reference task's CP path: the RX130L's line near the wrist singularity (paper §5.2); a robot
+# without one runs its ISO 9283 line instead.
+CP_PATH   ?= $(firstword $(wildcard $(ROBOT)/paths/line-near-singularity.yaml) $(ROBOT)/paths/iso9283-line.yaml)
 VAL_PATH  ?= $(ROBOT)/paths/iso9283-circle-large.yaml
 # The embedded simulated cell each `run` starts on a loopback port; stages never read this file.
 TRUTH     ?= $(ROBOT)/truth.yaml
@@ -185,6 +187,10 @@ $(B)/run-factory-cp.mcap: $(B)/factory-cp.mcap $(SIM_FILES) $(call params,run-fa
 
 $(B)/run-factory-ptp.mcap: $(B)/factory-ptp.mcap $(SIM_FILES) $(call params,run-factory-ptp,$(FACTORY_RUN_ARGS))
 	$(RX) run $< $(FACTORY_RUN_ARGS) -o $@
+
+# A path file the chain reads that the robot directory lacks: say how to write it, not make's "No rule".
+$(ROBOT)/paths/%.yaml:
+	@echo "error: $@: no such path file (a robot's ISO 9283 paths: rxcomm plan-cp --robot $(ROBOT) --iso9283 $(ROBOT)/paths; any other path: a rxcomm/Path YAML, rxcomm/schemas/path.py)" >&2; exit 2
 
 # ---- ISO 9283 in both states, measured by the tracker during motion (rxcomm iso9283) -----------------
 # The pose test (P1 → P5 → P4 → P3 → P2, dwells, catalogue-limit moves in both states: it measures at

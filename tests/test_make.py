@@ -270,3 +270,25 @@ def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(bu
     assert _remade(built, "-W", "build/calibration.yaml")[0] == after_cal
     assert _remade(built, "-W", "build/calibration-prior.yaml")[0] == {"report.md"}
     assert _remade(built, "-W", "build/dynamics.yaml")[0] == after_cal | {"calibration.yaml"}
+
+
+def test_a_robot_without_the_singular_line_runs_its_iso_line_and_a_missing_path_is_one_clear_error(tmp_path):
+    """A robot directory the project does not ship: its CP path is its ISO 9283 line; a path file it
+    lacks stops make with the file and how to write it (exit 2), not "No rule to make target"."""
+    shutil.copy(ROOT / "Makefile", tmp_path / "Makefile")
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    robot = tmp_path / "newbot"
+    shutil.copytree(ROOT / "samples/m900", robot)
+    assert not (robot / "paths/line-near-singularity.yaml").exists()
+    (tmp_path / ".venv").mkdir()
+    (tmp_path / ".venv" / ".installed").touch()
+    out = _make(tmp_path, "-n", "commission", "ROBOT=newbot")
+    assert out.returncode == 0, out.stderr
+    plan_cp = [ln for ln in out.stdout.splitlines() if " plan-cp " in ln and "build/cp.mcap" in ln]
+    assert plan_cp and "--path newbot/paths/iso9283-line.yaml" in plan_cp[0]
+    (robot / "paths/iso9283-line.yaml").unlink()
+    out = _make(tmp_path, "build/factory-cp.mcap", "ROBOT=newbot")  # the path is its first input
+    assert out.returncode == 2
+    assert "newbot/paths/iso9283-line.yaml: no such path file" in out.stderr
+    assert "--iso9283 newbot/paths" in out.stderr
+    assert not (tmp_path / "build" / "factory-cp.mcap").exists()
