@@ -32,7 +32,6 @@ if TYPE_CHECKING:
     from rxcomm.planning.cp import CpPlan
 
 
-# --- inputs -----------------------------------------------------------------------------------------
 # --- outputs ----------------------------------------------------------------------------------------
 def summary_of(plan: CpPlan, robot: Robot) -> dict[str, object]:
     from rxcomm.planning.cp import path_deviation_m
