@@ -19,7 +19,7 @@
    τ_ff from the inverse dynamics with smoothed Coulomb friction (the same the NLP models).
 6. Every limit checked on the samples (`rxcomm.model.limits.check_limits` + TCP limits). Between grid nodes
    sampled values can exceed a limit by a fraction of a percent (toppra's interpolation, the NLP's
-   node-wise constraints); where a limit is above `target_ratio` (1 +
+   node- and midpoint-wise constraints); where a limit is above `target_ratio` (1 +
    `model.limits.SAMPLED_LIMIT_TOLERANCE` = 1.002, what `run` accepts) it is tightened locally, at the
    nodes of that interval, by its excess and the timing re-solved (at most `max_refinements` times).
    A plan still above 1.01 × a limit is refused (`InfeasibleError`).

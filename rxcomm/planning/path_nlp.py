@@ -22,7 +22,11 @@ with Coulomb friction smoothed exactly as the output feed-forward is (`rxcomm.mo
 a' = dσ̈/dσ of the interval, constrained at both ends of every interval (callers put nodes where a joint
 reverses, where the friction term peaks); inside the end ramps the friction band's peak is bounded in
 closed form. Joint accelerations are also constrained at interval midpoints: where a joint is at its
-limit exactly where it reverses (q' = 0), σ̈ drops out of the node rows and would zig-zag.
+limit exactly where it reverses (q' = 0), σ̈ drops out of the node rows and would zig-zag. So is the
+speed bound (joint velocities, TCP speed: σ̇² ≤ bound, a bound on b at the nodes): where it binds on
+consecutive nodes the time depends on the nodes alone and σ̈ could alternate ±a between them, bulging
+σ̇² by a·Δσ/2 in between; with the midpoint row σ̇² can exceed the bound inside an interval by at most
+an eighth of its rise over that interval (the vertex of the quadratic between midpoint and node).
 
 No symbolic robot model is needed: along a fixed path the dynamics are numbers at the nodes. The NLP is
 an MX graph (builds in ~0.1 s; SX took 2.5 s) with all path data and per-node limits as parameters,
