@@ -23,7 +23,7 @@ from rxcomm.planning.cp_grid import toppra_grid
 from rxcomm.planning.path_ik import solve_path_ik
 from rxcomm.planning.path_nlp import _solver, optimise_path
 from rxcomm.planning.paths import build_path
-from rxcomm.planning.timing import PlanDynamics, nlp_setup
+from rxcomm.planning.timing import NlpProblem, PlanDynamics
 from rxcomm.planning.topp import PlanLimits, ToppraPath, time_optimal
 from rxcomm.schemas.path import PathSpec
 
@@ -104,7 +104,7 @@ def bench_plan_cp(quick: bool = False) -> list[Row]:
     lim = cp.plan_limits(robot, settings)
     tgrid = toppra_grid(jp, 200, robot.a_max)
     warm = time_optimal(jp.spline, jp.length_m, tgrid, lim, dyn.exact).profile
-    setup = nlp_setup(dyn, jp, path, lim, warm, 200)
+    setup = NlpProblem(dyn, jp, path, lim, 200).setup(warm)
     t0 = time.perf_counter()
     _solver(201, robot.n, True, False, 500)
     build = time.perf_counter() - t0

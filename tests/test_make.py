@@ -51,6 +51,12 @@ ALL = {
     "run-factory-iso-line.mcap",
     "run-poses.mcap",
     "run-iso-line.mcap",
+    "factory-iso-circle.mcap",
+    "iso-circle.mcap",
+    "factory-iso-circle-cycles.mcap",
+    "iso-circle-cycles.mcap",
+    "run-factory-iso-circle.mcap",
+    "run-iso-circle.mcap",
     "iso9283-factory.yaml",
     "iso9283.yaml",
     "verdict.yaml",
@@ -59,11 +65,13 @@ ALL = {
 # The factory state (issue 17): catalogue timing of the CP path and the PtP move, run without feed-forward.
 FACTORY_PLANS = {"factory-cp.mcap", "factory-ptp.mcap"}
 FACTORY_RUNS = {"run-factory-cp.mcap", "run-factory-ptp.mcap"}
-# ISO 9283 in both states: the pose cycle and the ISO line, their runs with the tracker, the criteria.
+# ISO 9283 in both states: the pose cycle, the ISO line and the large circle, their runs with the
+# tracker, the criteria.
 ISO_RUNS = {"run-factory-poses.mcap", "run-factory-iso-line.mcap", "run-poses.mcap", "run-iso-line.mcap"}
+ISO_RUNS |= {"run-factory-iso-circle.mcap", "run-iso-circle.mcap"}
 # what the identified dynamics (and the calibration) feed of it
 ISO_ON_MODEL = {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "run-poses.mcap", "run-iso-line.mcap"}
-ISO_ON_MODEL |= {"iso9283.yaml"}
+ISO_ON_MODEL |= {"iso-circle.mcap", "iso-circle-cycles.mcap", "run-iso-circle.mcap", "iso9283.yaml"}
 # The rules whose command talks to the simulated cell (`run`: it reads truth.yaml) ...
 ON_CELL = {
     "calib-meas.yaml",
@@ -87,6 +95,7 @@ AFTER_CELL = {
     "report.md",
 }
 AFTER_CELL |= {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "iso9283-factory.yaml", "iso9283.yaml"}
+AFTER_CELL |= {"iso-circle.mcap", "iso-circle-cycles.mcap"}
 # select-configs and what follows the pose set: measurement, calibration, the planners on the
 # calibrated robot, their runs, the report. Excitation, identification's logs and robot-info do not.
 AFTER_POSES = {
@@ -214,6 +223,8 @@ def test_other_inputs_rebuild_what_reads_them(built):
         "factory-poses.mcap",
         "factory-iso-line.mcap",
         "factory-iso-line-cycles.mcap",
+        "factory-iso-circle.mcap",
+        "factory-iso-circle-cycles.mcap",
     }
     assert _remade(built, "-W", str(ROBOT / "cell.yaml"))[0] == ALL - not_cell
     # The planners' calibration bends the joints with the identified torques: it follows identify.
@@ -231,6 +242,10 @@ def test_other_inputs_rebuild_what_reads_them(built):
         poses | after,
         {"factory-poses", "poses", "iso9283"} - {"iso9283"},
     )
+    # the circle's speed: its plans in both states, their cycles and runs, and what follows
+    circle = {"factory-iso-circle.mcap", "iso-circle.mcap", "factory-iso-circle-cycles.mcap"}
+    circle |= {"iso-circle-cycles.mcap", "run-factory-iso-circle.mcap", "run-iso-circle.mcap"}
+    assert _remade(built, "CIRCLE_SPEED=0.3") == (circle | after, {"factory-iso-circle", "iso-circle"})
     # the acceptance thresholds: the verdict and the report only
     assert _remade(built, "-W", str(ROBOT / "acceptance.yaml"))[0] == {"verdict.yaml", "report.md"}
 
@@ -265,6 +280,9 @@ def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(bu
         "iso-line-cycles.mcap",
         "run-poses.mcap",
         "run-iso-line.mcap",
+        "iso-circle.mcap",
+        "iso-circle-cycles.mcap",
+        "run-iso-circle.mcap",
     }
     after_cal |= {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml"}
     assert _remade(built, "-W", "build/calibration.yaml")[0] == after_cal

@@ -44,7 +44,7 @@ from rxcomm.model.catalogue import DEFAULT_POSES, CatalogueLimits, payload_param
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.limits import AccelerationLimit, LimitReport, PositionLimit, VelocityLimit, check_limits
 from rxcomm.model.robot import Robot
-from rxcomm.planning.cp import CpPlan, CpSettings, TcpAccelerationLimit, TcpSpeedLimit, active_segments
+from rxcomm.planning.cp import CpPlan, CpSettings, active_segments, tcp_limits
 from rxcomm.planning.cp_grid import toppra_grid
 from rxcomm.planning.iso9283 import (
     cube_from_rectangle,
@@ -132,10 +132,7 @@ def plan_cp_catalogue(
     t = np.arange(len(q)) * cycle
     tau = dynamics.smooth(q, qd, qdd)
     checks = _kinematic_checks(robot, catalogue)
-    if settings.tcp_speed_max_m_s is not None:
-        checks.append(TcpSpeedLimit(robot, settings.tcp_speed_max_m_s))
-    if settings.tcp_acceleration_max_m_s2 is not None:
-        checks.append(TcpAccelerationLimit(robot, settings.tcp_acceleration_max_m_s2))
+    checks += tcp_limits(robot, settings.tcp_speed_max_m_s, settings.tcp_acceleration_max_m_s2)
     report = check_limits(robot, t, q, qd, qdd, tau, limits=checks)
     timings["total_s"] = time.perf_counter() - t0
     return CpPlan(

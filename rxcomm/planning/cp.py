@@ -19,7 +19,7 @@
    τ_ff from the inverse dynamics with smoothed Coulomb friction (the same the NLP models).
 6. Every limit checked on the samples (`rxcomm.model.limits.check_limits` + TCP limits). Between grid nodes
    sampled values can exceed a limit by a fraction of a percent (toppra's interpolation, the NLP's
-   node-wise constraints); where a limit is above `target_ratio` (1 +
+   node- and midpoint-wise constraints); where a limit is above `target_ratio` (1 +
    `model.limits.SAMPLED_LIMIT_TOLERANCE` = 1.002, what `run` accepts) it is tightened locally, at the
    nodes of that interval, by its excess and the timing re-solved (at most `max_refinements` times).
    A plan still above 1.01 × a limit is refused (`InfeasibleError`).
@@ -51,6 +51,7 @@ from rxcomm.planning.path_profile import PathProfile
 from rxcomm.planning.paths import CartesianPath
 from rxcomm.planning.timing import (
     ACTIVE_THRESHOLD,
+    NlpProblem,
     NlpTiming,
     PlanDynamics,
     TimingSolver,
@@ -115,34 +116,47 @@ class CpSettings(BaseModel):
 
 
 @dataclass(frozen=True, eq=False)
-class TcpSpeedLimit:
+class TcpLimit:
+    """|a linear TCP quantity| against `bound`, per sample; subclasses name it and compute it from
+    Pinocchio's data after forward kinematics to the order they need."""
+
     robot: Robot
-    v_max: float
-    name: str = "tcp_speed"
+    bound: float
 
     def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
         m, d, fid = self.robot.model, self.robot.create_data(), self.robot.tcp_frame_id
         out = np.empty((len(q), 1))
         for i in range(len(q)):
-            pin.forwardKinematics(m, d, q[i], qd[i])
-            out[i, 0] = np.linalg.norm(pin.getFrameVelocity(m, d, fid, pin.LOCAL_WORLD_ALIGNED).linear)
-        return out / self.v_max
+            out[i, 0] = np.linalg.norm(self.linear(m, d, fid, q[i], qd[i], qdd[i]))
+        return out / self.bound
 
 
-@dataclass(frozen=True, eq=False)
-class TcpAccelerationLimit:
-    robot: Robot
-    a_max: float
-    name: str = "tcp_acceleration"
+class TcpSpeedLimit(TcpLimit):
+    name = "tcp_speed"
 
-    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
-        m, d, fid = self.robot.model, self.robot.create_data(), self.robot.tcp_frame_id
-        out = np.empty((len(q), 1))
-        for i in range(len(q)):
-            pin.forwardKinematics(m, d, q[i], qd[i], qdd[i])
-            acc = pin.getFrameClassicalAcceleration(m, d, fid, pin.LOCAL_WORLD_ALIGNED).linear
-            out[i, 0] = np.linalg.norm(acc)
-        return out / self.a_max
+    @staticmethod
+    def linear(m, d, fid, q, qd, qdd) -> np.ndarray:
+        pin.forwardKinematics(m, d, q, qd)
+        return pin.getFrameVelocity(m, d, fid, pin.LOCAL_WORLD_ALIGNED).linear
+
+
+class TcpAccelerationLimit(TcpLimit):
+    name = "tcp_acceleration"
+
+    @staticmethod
+    def linear(m, d, fid, q, qd, qdd) -> np.ndarray:
+        pin.forwardKinematics(m, d, q, qd, qdd)
+        return pin.getFrameClassicalAcceleration(m, d, fid, pin.LOCAL_WORLD_ALIGNED).linear
+
+
+def tcp_limits(robot: Robot, speed_m_s: float | None, acceleration_m_s2: float | None) -> list[TcpLimit]:
+    """The TCP limits set (None: off), as `check_limits` objects."""
+    out: list[TcpLimit] = []
+    if speed_m_s is not None:
+        out.append(TcpSpeedLimit(robot, speed_m_s))
+    if acceleration_m_s2 is not None:
+        out.append(TcpAccelerationLimit(robot, acceleration_m_s2))
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -277,11 +291,7 @@ def active_segments(plan_t, sigma, report: LimitReport, min_fraction: float = 0.
 
 def _limit_objects(robot: Robot, limits: PlanLimits) -> list:
     objs = robot_limits(robot, torque_rate=limits.tau_rate_max is not None)
-    if limits.tcp_speed_max is not None:
-        objs.append(TcpSpeedLimit(robot, limits.tcp_speed_max))
-    if limits.tcp_acc_max is not None:
-        objs.append(TcpAccelerationLimit(robot, limits.tcp_acc_max))
-    return objs
+    return objs + tcp_limits(robot, limits.tcp_speed_max, limits.tcp_acc_max)
 
 
 def plan_cp(
@@ -321,8 +331,8 @@ def plan_cp(
     solver: TimingSolver
     if settings.uses_nlp:
         solver = NlpTiming(
-            dynamics, jp, path, limits, topp.profile, settings.intervals, settings.k1, settings.k2,
-            settings.regrid_below, settings.target_ratio, timings,
+            NlpProblem(dynamics, jp, path, limits, settings.intervals), topp.profile, settings.k1,
+            settings.k2, settings.regrid_below, settings.target_ratio, timings,
         )  # fmt: skip
     else:
         solver = ToppraTiming(jp, path.name, grid, limits, dynamics, curvature, topp, timings)

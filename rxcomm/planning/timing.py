@@ -123,34 +123,38 @@ class NlpSetup:
     curvature: np.ndarray
 
 
-def nlp_setup(
-    dynamics: PlanDynamics,
-    jp: JointPath,
-    path: CartesianPath,
-    limits: PlanLimits,
-    warm: PathProfile,
-    intervals: int,
-    focus: list[tuple[float, float]] | None = None,
-) -> NlpSetup:
-    """The NLP grid fitted to a warm-start profile (its end accelerations; its switch points, or the
-    `focus` stretches given) and the path dynamics on it."""
-    g = warm.sigma
-    pd_w = path_coefficients(dynamics, jp, g)
-    # End accelerations: toppra's first/last interval, or the NLP's first/last interior node.
-    k0, k1 = (0, -2) if warm.kind == "constant" else (1, -2)
-    steps = [
-        jerk_step(pd_w, node, jp(g[node], 1), abs(warm.sdd[k]), limits.tau_rate_max, dynamics.eps)
-        for node, k in ((0, k0), (-1, k1))
-    ]
-    if focus is None:
-        focus = [(s, s) for s in switch_points(warm, jp, limits, pd_w)]
-    grid = nlp_grid(jp, warm, intervals, focus, *steps)
-    return NlpSetup(
-        grid,
-        path_coefficients(dynamics, jp, grid),
-        path_coefficient_derivatives(dynamics, jp, grid),
-        np.linalg.norm(path.position(grid, 2), axis=1),
-    )
+@dataclass(frozen=True, eq=False)
+class NlpProblem:
+    """What the path NLP times: the joint path `jp` of `path` under `limits`, with `dynamics`, on
+    grids of `intervals` intervals."""
+
+    dynamics: PlanDynamics
+    jp: JointPath
+    path: CartesianPath
+    limits: PlanLimits
+    intervals: int
+
+    def setup(self, warm: PathProfile, focus: list[tuple[float, float]] | None = None) -> NlpSetup:
+        """The NLP grid fitted to a warm-start profile (its end accelerations; its switch points, or the
+        `focus` stretches given) and the path dynamics on it."""
+        dynamics, jp, path, limits = self.dynamics, self.jp, self.path, self.limits
+        g = warm.sigma
+        pd_w = path_coefficients(dynamics, jp, g)
+        # End accelerations: toppra's first/last interval, or the NLP's first/last interior node.
+        k0, k1 = (0, -2) if warm.kind == "constant" else (1, -2)
+        steps = [
+            jerk_step(pd_w, node, jp(g[node], 1), abs(warm.sdd[k]), limits.tau_rate_max, dynamics.eps)
+            for node, k in ((0, k0), (-1, k1))
+        ]
+        if focus is None:
+            focus = [(s, s) for s in switch_points(warm, jp, limits, pd_w)]
+        grid = nlp_grid(jp, warm, self.intervals, focus, *steps)
+        return NlpSetup(
+            grid,
+            path_coefficients(dynamics, jp, grid),
+            path_coefficient_derivatives(dynamics, jp, grid),
+            np.linalg.norm(path.position(grid, 2), axis=1),
+        )
 
 
 def remap_factors(fac: np.ndarray, old: np.ndarray, new: np.ndarray) -> np.ndarray:
@@ -249,22 +253,17 @@ class NlpTiming:
 
     def __init__(
         self,
-        dynamics: PlanDynamics,
-        jp: JointPath,
-        path: CartesianPath,
-        limits: PlanLimits,
+        problem: NlpProblem,
         warm: PathProfile,
-        intervals: int,
         k1: float,
         k2: float,
         regrid_below: float,
         target_ratio: float,
         timings_s: dict[str, float],
     ) -> None:
-        self.dynamics, self.jp, self.path, self.limits = dynamics, jp, path, limits
-        self.intervals, self.k1, self.k2 = intervals, k1, k2
+        self.problem, self.k1, self.k2 = problem, k1, k2
         self.regrid_below, self.target_ratio, self.timings_s = regrid_below, target_ratio, timings_s
-        self.setup = nlp_setup(dynamics, jp, path, limits, warm, intervals)
+        self.setup = problem.setup(warm)
         self.grid = self.setup.grid
         self.warm = warm
         self.result: NlpResult | None = None
@@ -274,17 +273,17 @@ class NlpTiming:
 
     def solve(self, scale: dict[str, np.ndarray]) -> PathProfile:
         t0 = time.perf_counter()
-        s = self.setup
+        s, pb = self.setup, self.problem
         res = optimise_path(
-            self.jp.spline, s.grid, s.pd, s.dpd, self.limits, self.warm,
-            coulomb_eps_rad_s=self.dynamics.eps, k1=self.k1, k2=self.k2, curvature=s.curvature,
+            pb.jp.spline, s.grid, s.pd, s.dpd, pb.limits, self.warm,
+            coulomb_eps_rad_s=pb.dynamics.eps, k1=self.k1, k2=self.k2, curvature=s.curvature,
             scale=scale, duals=None if self.result is None else self.result.duals,
         )  # fmt: skip
         self.timings_s["nlp_s"] += time.perf_counter() - t0
         if not res.ok:
             raise InfeasibleError(
-                f"path {self.path.name!r}: the path NLP did not converge ({res.status}, {res.iterations} "
-                f"iterations) under {limits_text(self.limits)}"
+                f"path {pb.path.name!r}: the path NLP did not converge ({res.status}, {res.iterations} "
+                f"iterations) under {limits_text(pb.limits)}"
             )
         self.result, self.warm = res, res.profile
         return res.profile
@@ -297,11 +296,8 @@ class NlpTiming:
             return None
         t0 = time.perf_counter()
         # Second pass on a grid fitted to this solution: dense where no limit is active.
-        tighten_locally(report, sigma, self.grid, self.limits, scale, self.target_ratio)
-        new = nlp_setup(
-            self.dynamics, self.jp, self.path, self.limits, profile, self.intervals,
-            inactive_stretches(report, sigma, self.grid),
-        )  # fmt: skip
+        tighten_locally(report, sigma, self.grid, self.problem.limits, scale, self.target_ratio)
+        new = self.problem.setup(profile, inactive_stretches(report, sigma, self.grid))
         carried = {k: remap_factors(v, self.grid, new.grid) for k, v in scale.items()}
         self.setup, self.grid, self.regridded = new, new.grid, True
         self.timings_s["nlp_setup_s"] += time.perf_counter() - t0
