@@ -420,3 +420,13 @@ def test_calibration_moves_the_joint_path_to_the_calibrated_model(tmp_path, rx13
             p = d.oMf[robot.tcp_frame_id].translation
             errs.append(np.linalg.norm(p - path.position([traj.extra["sigma"][i]])[0]))
     assert max(err_cal) < 1e-6 < 1e-3 < max(err_nom)  # exact on the calibrated model, mm off nominally
+    # ... while its torques are the model run feeds forward and checks: the robot's own (nominal)
+    # kinematics with the prior (on the calibrated kinematics the M900's line was 0.997 × a torque-rate
+    # limit for the planner, 1.005 × in run's check)
+    from rxcomm.execution.plan import model_torque
+    from rxcomm.model.dynamics import prior_parameters
+
+    run_tau = model_torque(rx130l, prior_parameters(rx130l), traj.q, traj.qd, traj.qdd)
+    np.testing.assert_allclose(traj.tau_ff, run_tau, atol=1e-9)
+    on_calibrated = model_torque(calibrated, prior_parameters(calibrated), traj.q, traj.qd, traj.qdd)
+    assert np.abs(traj.tau_ff - on_calibrated).max() > 1e-3  # the two models do differ here

@@ -131,10 +131,13 @@ class PtpDynamics:
         robot: Robot,
         params: DynamicParameters | None = None,
         coulomb_eps_rad_s: float = PTP_COULOMB_EPS_RAD_S,
+        *,
+        kinematics: Robot | None = None,
     ) -> PtpDynamics:
         """From `rxcomm.model.symbolic` with `params` (default: the robot's priors): the NLP's model with
         Coulomb friction smoothed as tanh(q̇/ε), ε = `coulomb_eps_rad_s` (`ptp_ocp` module doc: why wider
-        than the output's), and the output's with `run`'s ε = `COULOMB_EPS_NLP_RAD_S`."""
+        than the output's), and the output's with `run`'s ε = `COULOMB_EPS_NLP_RAD_S`. The TCP
+        kinematics are those of `kinematics` (a calibrated robot) when given, else `robot`'s."""
         params = prior_parameters(robot) if params is None else params
         qd = ca.SX.sym("qd", robot.n)
 
@@ -146,7 +149,7 @@ class PtpDynamics:
         return cls(
             inverse_dynamics_function(robot, params, coulomb_eps_rad_s),
             coulomb(coulomb_eps_rad_s),
-            forward_kinematics_function(robot),
+            forward_kinematics_function(kinematics or robot),
             inverse_dynamics_function(robot, params, COULOMB_EPS_NLP_RAD_S),
             coulomb(COULOMB_EPS_NLP_RAD_S),
         )

@@ -250,6 +250,7 @@ def command(
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}
     catalogue = catalogue_limits(robot) if timing == "catalogue" else None  # the maker's: prior, nominal
     method, torque_rate, k2 = ("toppra", False, 0.0) if catalogue else (method, torque_rate, k2)
+    nominal = robot  # the torque model's robot: identify's and run's (`load_calibrated_robot` says why)
     if calibration is not None:
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
@@ -268,7 +269,7 @@ def command(
         {name: name.replace("_", "-") for name in CpSettings.model_fields},
     )
     inputs |= {"dynamics": Path(dynamics)} if dynamics is not None else {}
-    dyn = PlanDynamics.load(robot, dynamics, settings.coulomb_eps_rad_s)
+    dyn = PlanDynamics.load(nominal, dynamics, settings.coulomb_eps_rad_s)
     label = f"plan-cp: {spec.name or path.name} ({timing if catalogue else settings.method}, N = {intervals})"
     plan = _timed_plan(robot, cpath, dyn, settings, catalogue, label)
     run_settings = {

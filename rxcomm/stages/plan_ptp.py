@@ -34,10 +34,9 @@ from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.summary import motion_summary
 
 if TYPE_CHECKING:
-    from rxcomm.model.dynamics import DynamicParameters
     from rxcomm.model.robot import Robot
     from rxcomm.planning.ptp import PtpResult
-    from rxcomm.planning.ptp_problem import PtpLimits
+    from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits
 
 
 # --- inputs -----------------------------------------------------------------------------------------
@@ -148,7 +147,10 @@ GoalOption = Annotated[str | None, typer.Option(help="Goal at rest, as --start."
 GoalDegOption = Annotated[str | None, typer.Option(help="Goal at rest, as --start-deg.")]
 CalibrationOption = Annotated[
     Path | None,
-    typer.Option(help="calibration.yaml: IK of poses and the model use the calibrated robot."),
+    typer.Option(
+        help="calibration.yaml: IK of poses and the TCP box on the calibrated robot "
+        "(torques stay on the robot's own, as run computes them)."
+    ),
 ]
 EnergyWeightOption = Annotated[float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)².")]
 IntervalsOption = Annotated[
@@ -216,7 +218,7 @@ def command(
 ) -> dict[str, object]:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
     from rxcomm.model.robot import robot_files
-    from rxcomm.planning.ptp_problem import PtpDynamics, PtpOptions
+    from rxcomm.planning.ptp_problem import PtpOptions
 
     start, goal = state_text(start, start_deg, "start"), state_text(goal, goal_deg, "goal")
     t_all, output = time.perf_counter(), trajectory_output(output)
@@ -224,7 +226,7 @@ def command(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {"dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
     )
-    robot, params, inputs = _planning_model(robot_dir, calibration, dynamics)
+    robot, dyn, inputs = _planning_model(robot_dir, calibration, dynamics)
     options = settings_from_options(
         PtpOptions,
         dict(
@@ -242,7 +244,6 @@ def command(
     branch = Branch(shoulder=shoulder, elbow=elbow, wrist=wrist)
     q_start, start_kind = parse_state(robot, start, "start", branch)
     q_goal, goal_kind = parse_state(robot, goal, "goal", branch, near=q_start)
-    dyn = PtpDynamics.from_parameters(robot, params)
     settings = {
         "start": start,
         "goal": goal,
@@ -250,7 +251,7 @@ def command(
         "goal_kind": goal_kind,
         "branch": branch.model_dump(),
         "options": options.model_dump(mode="json"),
-        "dynamics_model": "identified" if params is not None else "prior",
+        "dynamics_model": "identified" if dynamics is not None else "prior",
         "calibrated": calibration is not None,
         "timing": timing,
     }
@@ -262,22 +263,25 @@ def command(
 
 def _planning_model(
     robot_dir: Path, calibration: Path | None, dynamics: Path | None
-) -> tuple[Robot, DynamicParameters | None, dict[str, Path]]:
-    """The robot (calibrated if given), the identified parameters (None: the prior) and the input files."""
+) -> tuple[Robot, PtpDynamics, dict[str, Path]]:
+    """The robot (calibrated if given), its PtP model and the input files. The torques are the
+    identified parameters' (the prior's without) on the nominal robot, identify's and run's
+    (`load_calibrated_robot` says why); the TCP kinematics are the calibrated robot's."""
     from rxcomm.calibration.loading import load_calibrated_robot
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.robot import load_robot
+    from rxcomm.planning.ptp_problem import PtpDynamics
 
-    robot = load_robot(robot_dir)
+    nominal = robot = load_robot(robot_dir)
     inputs: dict[str, Path] = {"urdf": robot.urdf_path, "drives": robot.drives_path}
     if calibration is not None:
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
     params = None
     if dynamics is not None:
-        params = load_dynamics(dynamics, robot)
+        params = load_dynamics(dynamics, nominal)
         inputs["dynamics"] = Path(dynamics)
-    return robot, params, inputs
+    return robot, PtpDynamics.from_parameters(nominal, params, kinematics=robot), inputs
 
 
 @dataclass(frozen=True)
