@@ -286,3 +286,16 @@ def test_a_closed_paths_rounding_step_between_dwells_is_no_cycle(rx130l):
     cycles = path_cycles(rx130l, log, spec, CampaignSettings())
     assert len(cycles) == 3
     assert all(len(c.position_m) == pytest.approx(one.t[-1] / 1e-3, abs=2) for c in cycles)
+
+
+def test_settle_drift_is_the_motion_across_the_measuring_window():
+    """A steady drift of d across the window reads 0.8·d (the means of its first and last fifth sit
+    at 10 % and 90 % of it); tracker noise averages out; a settled arm reads ~0."""
+    from rxcomm.acceptance.campaign import settle_drift_m
+
+    n = 500
+    drift = np.linspace(0.0, 0.3e-3, n)[:, None] * np.array([[0.6, 0.8, 0.0]])  # 0.3 mm along a unit vector
+    assert settle_drift_m(drift) == pytest.approx(0.3e-3 * (n - n // 5) / (n - 1), rel=1e-9)  # ≈ 0.8·d
+    noise = np.random.default_rng(0).normal(0.0, 50e-6, (n, 3))  # the cell's tracker σ, per axis
+    assert settle_drift_m(noise + 1.0) < 20e-6  # σ of the difference of two 100-sample means: 7 µm per axis
+    assert settle_drift_m(np.ones((n, 3))) == 0.0

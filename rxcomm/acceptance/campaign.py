@@ -2,7 +2,8 @@
 
 - A **pose-cycle log** (`rxcomm.planning.iso9283.pose_cycle_waypoints` run by `run`): the dwells are
   the setpoint runs with zero commanded velocity lasting ≥ `min_dwell_s`; the attained pose of a
-  dwell is the mean of the tracker samples over its last `measure_fraction` (the arm has settled);
+  dwell is the mean of the tracker samples over its last `measure_fraction` (the arm should have
+  settled there: `settle_drift_m`, how far it still moved, is in the AP_p/RP_l notes);
   a dwell belongs to the test pose P1–P5 its commanded TCP (nominal FK of q_demand) is within
   `match_m` of (other dwells, such as a start pose, are ignored).
 - A **path log** (one cycle of an ISO 9283 path, or n cycles with return moves and dwells between,
@@ -110,10 +111,21 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
 
 
+def settle_drift_m(position_m: np.ndarray) -> float:
+    """How far the arm still moved across a dwell's measuring window: the distance between the means
+    of its first and its last fifth of tracker samples (a steady drift of d reads 0.8·d; the means
+    keep the tracker's noise out). ISO 9283 measures a settled arm: a drift near the RP it reports
+    says the dwell is too short."""
+    p = np.asarray(position_m, float)
+    n = max(1, len(p) // 5)
+    return float(np.linalg.norm(p[-n:].mean(axis=0) - p[:n].mean(axis=0)))
+
+
 def attained_poses(
     robot: Robot, log: TrackedLog, points_m: Mapping[str, np.ndarray], s: CampaignSettings
-) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
-    """Per test pose: the attained positions [n, 3] and rotations [n, 3, 3] (or None) of its dwells."""
+) -> dict[str, tuple[np.ndarray, np.ndarray | None, np.ndarray]]:
+    """Per test pose: the attained positions [n, 3] and rotations [n, 3, 3] (or None) of its dwells,
+    and each dwell's `settle_drift_m` [n]."""
     dt = float(np.median(np.diff(log.t_joint)))
     still = np.all(np.abs(np.diff(log.q_demand, axis=0)) < 1e-12, axis=1)
     runs = [(a, b) for a, b in _runs(still) if (b - a) * dt >= s.min_dwell_s]
@@ -124,7 +136,7 @@ def attained_poses(
     cmd = _fk(robot, np.array([log.q_demand[a] for a, _ in runs]))
     names = list(points_m)
     pts = np.array([points_m[k] for k in names])
-    out: dict[str, tuple[list, list]] = {}
+    out: dict[str, tuple[list, list, list]] = {}
     for (a, b), c in zip(runs, cmd, strict=True):
         d = np.linalg.norm(pts - c, axis=1)
         i = int(np.argmin(d))
@@ -134,12 +146,14 @@ def attained_poses(
         sel = (log.t >= t1 - s.measure_fraction * (t1 - t0)) & (log.t <= t1)
         if not sel.any():
             continue
-        pos, rots = out.setdefault(names[i], ([], []))
+        pos, rots, drift = out.setdefault(names[i], ([], [], []))
         pos.append(log.position_m[sel].mean(axis=0))
+        drift.append(settle_drift_m(log.position_m[sel]))
         if log.rotation is not None:
             rots.append(Rotation.from_matrix(log.rotation[sel]).mean().as_matrix())
     return {
-        k: (np.array(p), np.array(r) if log.rotation is not None and r else None) for k, (p, r) in out.items()
+        k: (np.array(p), np.array(r) if log.rotation is not None and r else None, np.array(d))
+        for k, (p, r, d) in out.items()
     }
 
 
@@ -217,21 +231,23 @@ def pose_entries(
     s: CampaignSettings,
 ) -> list[Criterion]:
     """AP_p, AP_a/b/c, RP_l, RP_a/b/c at P1–P5 from pose-cycle logs ("not measured" without)."""
-    merged: dict[str, tuple[list, list]] = {}
+    merged: dict[str, tuple[list, list, list]] = {}
     names = ",".join(lg.name for lg in logs) or None
     for lg in logs:
-        for k, (p, r) in attained_poses(robot, lg, points_m, s).items():
-            mp, mr = merged.setdefault(k, ([], []))
+        for k, (p, r, d) in attained_poses(robot, lg, points_m, s).items():
+            mp, mr, md = merged.setdefault(k, ([], [], []))
             mp.extend(p)
             mr.extend([] if r is None else r)
+            md.extend(d)
     out: list[Criterion] = []
     for name in POSES:
         if name not in merged:
             why = "no pose-cycle log" if not logs else f"no dwell at {name} in the logs"
             out += [_criterion(k, name, None, None, None, names, why) for k in _POSE_KEYS]
             continue
-        p, r = merged[name]
+        p, r, drift = merged[name]
         rot = np.array(r) if len(r) == len(p) else None
+        settle = f"settling: the arm moved up to {1e3 * max(drift):.3g} mm across a measuring window"
         c = pose_criteria(np.array(p), points_m[name], rot, rot_cmd if rot is not None else None)
         few = "" if c.n >= 2 else "one cycle: no standard deviation"
         abc = [None] * 3 if c.AP_abc is None else list(c.AP_abc)
@@ -240,6 +256,7 @@ def pose_entries(
         vals |= {"RP_a": rabc[0], "RP_b": rabc[1], "RP_c": rabc[2]}
         for k in _POSE_KEYS:
             note = few if vals[k] is None and k.startswith("RP") else ""
+            note = note or (settle if k in ("AP_p", "RP_l") else "")
             if vals[k] is None and k[-1] in "abc" and rot is None:
                 note = "position-only tracker data"
             out.append(_criterion(k, name, vals[k], c.n, None, names, note))

@@ -75,7 +75,8 @@ def iso_value(threshold: Threshold, iso: Iso9283 | None) -> Measured:
         return Measured(None, f"{missing[0].target}: {missing[0].note or 'not measured'}")
     worst = max(measured, key=lambda c: abs(c.value))
     cycles = f", {worst.cycles} cycle{'s' if worst.cycles != 1 else ''}" if worst.cycles else ""
-    return Measured(abs(worst.value), f"worst of {len(rows)}: {worst.target}{cycles}")
+    said = f"; {worst.note}" if worst.note else ""  # e.g. how settled the arm was where it was worst
+    return Measured(abs(worst.value), f"worst of {len(rows)}: {worst.target}{cycles}{said}")
 
 
 def label(t: Threshold) -> str:
