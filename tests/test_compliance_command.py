@@ -210,3 +210,28 @@ def test_compliance_is_commanded_with_the_torque_model_the_fit_used(rx130l):
     ratio = (enc(q_link) - q_link)[0, 1:3] / (enc_prior(q_link) - q_link)[0, 1:3]
     assert ratio[1] == pytest.approx(1.1, rel=1e-3)  # J3 carries the 10 % heavier links' weight only
     assert abs(ratio[0] - 1.0) > 0.02  # J2: weight and balancer spring (not scaled)
+
+
+@pytest.mark.slow
+def test_time_optimal_circle_commanded_through_the_compliance_stays_within_what_run_accepts(rx130l):
+    """The path NLP's plan of the large ISO circle at 0.4 m/s (a time-optimal plan: limits at 1.00x)
+    with J2/J3 compensated: every joint limit, torque rate included, re-checked on the streamed
+    samples with run's model torque stays within run's tolerance, the links on the IK."""
+    from rxcomm.calibration.compensation import encoder_map
+    from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE, check_limits, robot_limits
+    from rxcomm.planning.cp import CpSettings, plan_cp
+    from rxcomm.planning.paths import build_path
+    from rxcomm.planning.timing import PlanDynamics
+    from rxcomm.schemas.path import PathSpec
+
+    path = build_path(PathSpec.model_validate(load_yaml(SAMPLES / "rx130l/paths/iso9283-circle-large.yaml")))
+    settings = CpSettings(tcp_speed_max_m_s=0.4)
+    dyn = PlanDynamics.from_parameters(rx130l, prior_parameters(rx130l), settings.coulomb_eps_rad_s)
+    plan = plan_cp(rx130l, path, dyn, settings, command=encoder_map(rx130l, C_J2_J3))
+    np.testing.assert_allclose(
+        plan.q - C_J2_J3 * holding_torques(rx130l, plan.q), plan.joint_path(plan.sigma), atol=1e-9
+    )
+    tau = dyn.smooth(plan.q, plan.qd, plan.qdd)
+    report = check_limits(rx130l, plan.t, plan.q, plan.qd, plan.qdd, tau, robot_limits(rx130l))
+    assert report.max_ratio <= 1 + SAMPLED_LIMIT_TOLERANCE
+    assert max(report.max_by_limit()[k] for k in ("acceleration", "torque_rate")) > 0.98  # time-optimal
