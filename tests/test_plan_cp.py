@@ -410,6 +410,7 @@ def test_calibration_moves_the_joint_path_to_the_calibrated_model(tmp_path, rx13
     plan_file(ISO_LINE, tmp_path, calibration=cal_file, method="toppra", torque_rate=False)
     traj, env = load_trajectory_mcap(tmp_path / "iso9283-line.mcap")
     assert env["settings"]["calibrated"] and "calibration" in env["inputs"]
+    assert env["settings"]["compliance_compensated_rad_per_nm"] is None  # rigid: nothing to compensate
     calibrated = ErrorModel.from_mapping(rx130l, errors).apply(rx130l)
     path = load_path(ISO_LINE)
     err_cal, err_nom = [], []

@@ -44,7 +44,8 @@ from rxcomm.model.catalogue import DEFAULT_POSES, CatalogueLimits, payload_param
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.limits import AccelerationLimit, LimitReport, PositionLimit, VelocityLimit, check_limits
 from rxcomm.model.robot import Robot
-from rxcomm.planning.cp import CpPlan, CpSettings, active_segments, tcp_limits
+from rxcomm.planning.commanded import Command, OnLink
+from rxcomm.planning.cp import CpPlan, CpSettings, active_segments, commanded_samples, tcp_limits
 from rxcomm.planning.cp_grid import toppra_grid
 from rxcomm.planning.iso9283 import (
     cube_from_rectangle,
@@ -92,9 +93,11 @@ def plan_cp_catalogue(
     dynamics: PlanDynamics,
     settings: CpSettings | None = None,
     progress: Callable[[str], None] | None = None,
+    command: Command | None = None,
 ) -> CpPlan:
     """Time `path` as a generic controller does (module docstring). `settings` give the grid
-    intervals and TCP limits; InfeasibleError from the IK or when toppra finds no profile."""
+    intervals and TCP limits; `command` maps the filtered link trajectory to the encoders' (joint
+    compliance, as `plan_cp`); InfeasibleError from the IK or when toppra finds no profile."""
     settings = settings or CpSettings(method="toppra", torque_rate=False)
     say = progress or (lambda _m: None)
     timings: dict[str, float] = {}
@@ -130,9 +133,11 @@ def plan_cp_catalogue(
     s = moving_average(s[:, None], n_filter, False)[:, 0]
     sd, sdd = (moving_average(x[:, None], n_filter, True)[:, 0] for x in (sd, sdd))
     t = np.arange(len(q)) * cycle
+    q, qd, qdd, link = commanded_samples(command, q, qd, qdd)
     tau = dynamics.smooth(q, qd, qdd)
     checks = _kinematic_checks(robot, catalogue)
-    checks += tcp_limits(robot, settings.tcp_speed_max_m_s, settings.tcp_acceleration_max_m_s2)
+    tcp = tcp_limits(robot, settings.tcp_speed_max_m_s, settings.tcp_acceleration_max_m_s2)
+    checks += tcp if link is None else [OnLink(lim, *link) for lim in tcp]
     report = check_limits(robot, t, q, qd, qdd, tau, limits=checks)
     timings["total_s"] = time.perf_counter() - t0
     return CpPlan(
@@ -155,6 +160,7 @@ def plan_cp_catalogue(
         refinements=0,
         settings=settings,
         active_segments=active_segments(t, s, report),
+        q_link=None if link is None else link[0],
     )
 
 
@@ -169,8 +175,9 @@ def filtered_path_deviation_m(robot: Robot, plan: CpPlan, path: CartesianPath, n
     ab2 = np.maximum(np.sum(ab**2, axis=1), 1e-30)
     data = robot.create_data()
     worst = 0.0
-    for i in np.unique(np.linspace(0, len(plan.q) - 1, n).astype(int)):
-        p = frame_placement(robot, data, plan.q[i], robot.tcp_frame_id).translation
+    q = plan.link_angles
+    for i in np.unique(np.linspace(0, len(q) - 1, n).astype(int)):
+        p = frame_placement(robot, data, q[i], robot.tcp_frame_id).translation
         u = np.clip(np.sum((p - a) * ab, axis=1) / ab2, 0.0, 1.0)
         worst = max(worst, float(np.min(np.linalg.norm(a + u[:, None] * ab - p, axis=1))))
     return worst

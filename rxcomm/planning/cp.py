@@ -17,7 +17,10 @@
    grid refined on exactly those stretches, warm-started with the first pass's multipliers.
 5. Sampling at the drive cycle, exactly (`PathProfile.sample`): q = q(σ), q̇ = q'σ̇, q̈ = q'σ̈ + q''σ̇²,
    τ_ff from the inverse dynamics with smoothed Coulomb friction (the same the NLP models).
-6. Every limit checked on the samples (`rxcomm.model.limits.check_limits` + TCP limits). Between grid nodes
+6. With a `command` (the calibrated joint compliance, `rxcomm.planning.commanded`) the samples become
+   what `run` streams: the encoder angles that put the links on the IK, q̇/q̈ by the chain rule, and
+   τ_ff on them; the joint limits are checked on that, the TCP limits on the link trajectory.
+7. Every limit checked on the samples (`rxcomm.model.limits.check_limits` + TCP limits). Between grid nodes
    sampled values can exceed a limit by a fraction of a percent (toppra's interpolation, the NLP's
    node- and midpoint-wise constraints); where a limit is above `target_ratio` (1 +
    `model.limits.SAMPLED_LIMIT_TOLERANCE` = 1.002, what `run` accepts) it is tightened locally, at the
@@ -43,6 +46,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from rxcomm.errors import InfeasibleError
 from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE, LimitReport, check_limits, robot_limits
 from rxcomm.model.robot import Robot
+from rxcomm.planning.commanded import Command, OnLink, commanded_trajectory
 from rxcomm.planning.cp_grid import toppra_grid
 from rxcomm.planning.path_dynamics import PathDynamics
 from rxcomm.planning.path_ik import JointPath, solve_path_ik
@@ -197,6 +201,12 @@ class CpPlan:
     refinements: int
     settings: CpSettings
     active_segments: list[ActiveSegment] = field(default_factory=list)
+    q_link: np.ndarray | None = None  # the links' angles where q is commanded through a compliance
+
+    @property
+    def link_angles(self) -> np.ndarray:
+        """The link angles of the samples (the IK along the path): q unless compensated."""
+        return self.q if self.q_link is None else self.q_link
 
     @property
     def duration_s(self) -> float:
@@ -289,9 +299,21 @@ def active_segments(plan_t, sigma, report: LimitReport, min_fraction: float = 0.
     return segs
 
 
-def _limit_objects(robot: Robot, limits: PlanLimits) -> list:
+def _limit_objects(robot: Robot, limits: PlanLimits, link: tuple | None = None) -> list:
+    """The joint limits, and the TCP limits (on the `link` trajectory (q, q̇, q̈) when given)."""
     objs = robot_limits(robot, torque_rate=limits.tau_rate_max is not None)
-    return objs + tcp_limits(robot, limits.tcp_speed_max, limits.tcp_acc_max)
+    tcp = tcp_limits(robot, limits.tcp_speed_max, limits.tcp_acc_max)
+    return objs + (tcp if link is None else [OnLink(lim, *link) for lim in tcp])
+
+
+def commanded_samples(
+    command: Command | None, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple | None]:
+    """The sampled trajectory `run` streams and the link trajectory for the TCP limits (None: the
+    same; without a `command` the samples pass unchanged)."""
+    if command is None:
+        return q, qd, qdd, None
+    return (*commanded_trajectory(command, q, qd, qdd), (q, qd, qdd))
 
 
 def plan_cp(
@@ -302,9 +324,11 @@ def plan_cp(
     branch: Branch | None = None,
     q_near: np.ndarray | None = None,
     progress: Callable[[str], None] | None = None,
+    command: Command | None = None,
 ) -> CpPlan:
-    """Plan `path` on `robot` (pass a calibrated robot to honour a calibration). Raises
-    InfeasibleError naming what fails (unreachable/singular σ, statics, uncontrollable, NLP)."""
+    """Plan `path` on `robot` (pass a calibrated robot to honour a calibration, and its joint
+    compliance as `command`: link → encoder angles). Raises InfeasibleError naming what fails
+    (unreachable/singular σ, statics, uncontrollable, NLP)."""
     settings = settings or CpSettings()
     say = progress or (lambda _m: None)
     timings: dict[str, float] = {}
@@ -348,8 +372,9 @@ def plan_cp(
         q = jp(s)
         qd = qs * sd[:, None]
         qdd = qs * sdd[:, None] + qss * (sd**2)[:, None]
+        q, qd, qdd, link = commanded_samples(command, q, qd, qdd)
         tau = dynamics.smooth(q, qd, qdd)
-        report = check_limits(robot, t, q, qd, qdd, tau, limits=_limit_objects(robot, limits))
+        report = check_limits(robot, t, q, qd, qdd, tau, limits=_limit_objects(robot, limits, link))
         timings["check_s"] = timings.get("check_s", 0.0) + time.perf_counter() - t4
         carried = solver.regrid(profile, report, s, scale)
         if carried is not None:
@@ -389,6 +414,7 @@ def plan_cp(
         refinements=refinements,
         settings=settings,
         active_segments=active_segments(t, s, report),
+        q_link=None if link is None else link[0],
     )
 
 

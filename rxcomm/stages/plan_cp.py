@@ -3,8 +3,10 @@
 Reads the robot, a path file (`rxcomm/Path`, `samples/ROBOT/paths/`), optionally identified dynamics
 and a calibration; plans with `rxcomm.planning.cp.plan_cp` and writes the trajectory `run` executes:
 ``NAME.mcap`` (q, q̇, q̈, τ_ff, σ, σ̇ at the drive cycle) with ``NAME.yaml`` beside it (architecture §9
-summary), and with ``--plot`` ``NAME.png`` (the paper's Figs. 7 and 8). ``--iso9283 DIR`` instead
-writes the ISO 9283 test-plane paths of the robot (and ``--cell`` workspace) to DIR.
+summary), and with ``--plot`` ``NAME.png`` (the paper's Figs. 7 and 8). With a ``--calibration`` that
+found joint compliance, q is what the encoders must read to hold the links on the calibrated IK
+(`rxcomm.calibration.compensation.compliance_command`, `rxcomm.planning.commanded`). ``--iso9283 DIR``
+instead writes the ISO 9283 test-plane paths of the robot (and ``--cell`` workspace) to DIR.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs, trajectory_output
 from rxcomm.io.validate import settings_from_options
-from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
+from rxcomm.io.yaml_io import dump_yaml, read_yaml_artefact, read_yaml_model
 from rxcomm.options import TRAJECTORY_OUTPUT, IdentifiedDynamics, RobotDir, TimeWeight, Timing, parse_numbers
 from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.trajectory import TrajectorySummary
@@ -163,7 +165,11 @@ PathOption = Annotated[
     Path | None, typer.Option("--path", help="Path file (kind rxcomm/Path), TCP in the base frame.")
 ]
 CalibrationOption = Annotated[
-    Path | None, typer.Option(help="calibration.yaml: IK along the path on the calibrated robot.")
+    Path | None,
+    typer.Option(
+        help="calibration.yaml: IK along the path on the calibrated robot, its joint compliance "
+        "compensated (the encoder angles that hold the links on it)."
+    ),
 ]
 EnergyWeightOption = Annotated[
     float, typer.Option(help="Weight of τᵀτ in ∫(k1 + k2·τᵀτ)dt, 1/(N·m)² (needs nlp).")
@@ -270,12 +276,14 @@ def command(
     )
     inputs |= {"dynamics": Path(dynamics)} if dynamics is not None else {}
     dyn = PlanDynamics.load(nominal, dynamics, settings.coulomb_eps_rad_s)
+    command, compliance = _compliance(nominal, calibration, dynamics)  # what run must stream
     label = f"plan-cp: {spec.name or path.name} ({timing if catalogue else settings.method}, N = {intervals})"
-    plan = _timed_plan(robot, cpath, dyn, settings, catalogue, label)
+    plan = _timed_plan(robot, cpath, dyn, settings, catalogue, label, command)
     run_settings = {
         **settings.model_dump(mode="json"),
         "dynamics_model": "identified" if dynamics is not None else "prior",
         "calibrated": calibration is not None,
+        "compliance_compensated_rad_per_nm": compliance,
         "branch": plan.joint_path.labels,
         "timing": timing,
     }
@@ -329,8 +337,22 @@ def _given_or(option: float | None, default: float | None) -> float | None:
     return option if option is not None else default
 
 
-def _timed_plan(robot, cpath, dyn, settings, catalogue, label: str) -> CpPlan:
-    """The optimal plan, or with catalogue limits the generic controller's (`--timing catalogue`)."""
+def _compliance(nominal: Robot, calibration: Path | None, dynamics: Path | None):
+    """With a calibration that found joint compliance: the map link → encoder angles the plan
+    commands (the fit's torque model on the nominal robot) and the compliances; else (None, None)."""
+    from rxcomm.calibration.compensation import compliance_command
+    from rxcomm.model.base_parameters import load_dynamics
+    from rxcomm.schemas.calibration import Calibration
+
+    if calibration is None:
+        return None, None
+    params = None if dynamics is None else load_dynamics(dynamics, nominal)
+    return compliance_command(nominal, read_yaml_artefact(calibration, Calibration), params)
+
+
+def _timed_plan(robot, cpath, dyn, settings, catalogue, label: str, command=None) -> CpPlan:
+    """The optimal plan, or with catalogue limits the generic controller's (`--timing catalogue`),
+    commanded through `command` (the joint compliance) when given."""
     from rxcomm.planning.catalogue_timing import plan_cp_catalogue
     from rxcomm.planning.cp import plan_cp
 
@@ -340,5 +362,5 @@ def _timed_plan(robot, cpath, dyn, settings, catalogue, label: str) -> CpPlan:
             status.update(f"plan-cp: {m}")
 
         if catalogue is None:
-            return plan_cp(robot, cpath, dyn, settings, progress=say)
-        return plan_cp_catalogue(robot, cpath, catalogue, dyn, settings, progress=say)
+            return plan_cp(robot, cpath, dyn, settings, progress=say, command=command)
+        return plan_cp_catalogue(robot, cpath, catalogue, dyn, settings, progress=say, command=command)

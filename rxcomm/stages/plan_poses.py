@@ -94,13 +94,8 @@ def command(
 def _commanded(nominal, calibration: Path | None, params):
     """With a calibration that found joint compliance: the encoder angles that hold each link at its
     IK pose (`calibration.compliance`), and the compliances used; else none."""
-    from rxcomm.calibration.compensation import compliance_torque_params, encoder_angles, joint_compliance
+    from rxcomm.calibration.compensation import compliance_command
 
     if calibration is None:
         return None, None
-    art = read_yaml_artefact(calibration, Calibration)
-    c = joint_compliance(nominal, art)
-    if not c.any():
-        return None, None
-    torque_params = compliance_torque_params(art, params)
-    return (lambda q: encoder_angles(nominal, q, c, torque_params)), c.tolist()
+    return compliance_command(nominal, read_yaml_artefact(calibration, Calibration), params)
