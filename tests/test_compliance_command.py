@@ -12,6 +12,8 @@ from rxcomm.calibration.compliance import holding_torques
 from rxcomm.io.yaml_io import load_yaml
 from rxcomm.model.dynamics import prior_parameters
 
+from .artefacts import synthetic_calibration
+
 SAMPLES = Path(__file__).resolve().parent.parent / "samples"
 ISO_LINE = SAMPLES / "rx130l/paths/iso9283-line.yaml"
 
@@ -124,36 +126,8 @@ ERRORS = {"joint_2.tx": 0.003, "joint_3.ry": 0.004}  # a calibration's geometric
 
 def _calibration(robot, summary: dict):
     """A calibration whose chosen model found C_J2_J3 (with `summary` entries, e.g. its torque model)."""
-    from rxcomm.schemas.calibration import (
-        Calibration,
-        ComplianceEstimate,
-        ModelSelection,
-        ParameterEstimate,
-        TrackerNoise,
-    )
-    from rxcomm.schemas.cell import Placement
-
-    return Calibration(
-        **Calibration.envelope({}, {}, dict.fromkeys(Calibration.REQUIRED_SUMMARY_KEYS, 0.0) | summary),
-        robot=robot.name,
-        joint_names=list(robot.joint_names),
-        measurement="pose",
-        tracker_to_base=Placement(),
-        tracker_to_base_source="cell",
-        parameters=[ParameterEstimate(name=k, value=v, std=None, estimated=True) for k, v in ERRORS.items()],
-        dropped=[],
-        frames_only_parameters=[],
-        error_tables=[],
-        fit_poses=[],
-        heldout_poses=[],
-        outlier_poses=[],
-        tracker_noise=TrackerNoise(position_sigma_m=5e-5, orientation_sigma_rad=1e-4, source="cell"),
-        model_selection=ModelSelection(folds=5, rule="given", chosen="full+compliance", candidates=[]),
-        compliance=[
-            ComplianceEstimate(joint=j, compliance_rad_per_nm=c, std=c / 20, stiffness_nm_per_rad=1 / c)
-            for j, c in (("joint_2", C_J2_J3[1]), ("joint_3", C_J2_J3[2]))
-        ],
-    )
+    compliance = {"joint_2": C_J2_J3[1], "joint_3": C_J2_J3[2]}
+    return synthetic_calibration(robot, ERRORS, compliance=compliance, summary=summary)
 
 
 def test_plan_cp_stage_compensates_the_calibrated_compliance(tmp_path, rx130l):

@@ -33,6 +33,8 @@ from rxcomm.planning.topp import PlanLimits, ToppraPath, time_optimal
 from rxcomm.schemas.path import PathSpec
 from rxcomm.stages import plan_cp as stage
 
+from .artefacts import synthetic_calibration
+
 SAMPLES = Path(__file__).resolve().parent.parent / "samples"
 SINGULAR = SAMPLES / "rx130l/paths/line-near-singularity.yaml"
 ISO_LINE = SAMPLES / "rx130l/paths/iso9283-line.yaml"
@@ -384,28 +386,9 @@ def test_calibration_moves_the_joint_path_to_the_calibrated_model(tmp_path, rx13
 
     from rxcomm.io.yaml_io import write_yaml_artefact
     from rxcomm.model.geometric_errors import ErrorModel
-    from rxcomm.schemas.calibration import Calibration, ModelSelection, ParameterEstimate, TrackerNoise
-    from rxcomm.schemas.cell import Placement
 
     errors = {"joint_2.tx": 0.003, "joint_3.ry": 0.004, "tool.tz": -0.002}
-    summary = dict.fromkeys(Calibration.REQUIRED_SUMMARY_KEYS, 0.0)
-    cal = Calibration(
-        **Calibration.envelope({}, {}, summary),
-        robot=rx130l.name,
-        joint_names=list(rx130l.joint_names),
-        measurement="pose",
-        tracker_to_base=Placement(),
-        tracker_to_base_source="cell",
-        parameters=[ParameterEstimate(name=k, value=v, std=None, estimated=True) for k, v in errors.items()],
-        dropped=[],
-        frames_only_parameters=[],
-        error_tables=[],
-        fit_poses=[],
-        heldout_poses=[],
-        outlier_poses=[],
-        tracker_noise=TrackerNoise(position_sigma_m=5e-5, orientation_sigma_rad=1e-4, source="cell"),
-        model_selection=ModelSelection(folds=5, rule="given: full", chosen="full", candidates=[]),
-    )
+    cal = synthetic_calibration(rx130l, errors)
     cal_file = write_yaml_artefact(tmp_path / "calibration.yaml", cal)
     plan_file(ISO_LINE, tmp_path, calibration=cal_file, method="toppra", torque_rate=False)
     traj, env = load_trajectory_mcap(tmp_path / "iso9283-line.mcap")

@@ -40,12 +40,11 @@ from rxcomm.planning.ptp_problem import PTP_COULOMB_EPS_RAD_S, NodeGuess, PtpDyn
 from rxcomm.planning.ptp_shooting import ShootingOcp, forward_dynamics_function
 from rxcomm.planning.timing import PlanDynamics
 from rxcomm.planning.warm_start import feasible_profile, ruckig_profile, scaled_profile
-from rxcomm.schemas.calibration import Calibration, ModelSelection, ParameterEstimate, TrackerNoise
-from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.truth import CellTruth
 
+from .artefacts import synthetic_calibration
 from .conftest import SAMPLES
 
 RUNNER = CliRunner()
@@ -381,19 +380,7 @@ def test_pose_ik_honours_the_calibration(tmp_path, rx130l):
     """A TCP pose is reached by the calibrated robot (mm-level errors), not the nominal one."""
     names = geometric_parameter_names(rx130l)
     values = {"joint_2.tx": 0.003, "joint_3.tz": -0.002, "joint_2.rz": 0.004, "tool.tz": 0.001}
-    params = [
-        ParameterEstimate(name=n, value=values.get(n, 0.0), std=None, estimated=n in values) for n in names
-    ]
-    cal = Calibration(
-        **Calibration.envelope(
-            {}, {}, dict.fromkeys(Calibration.REQUIRED_SUMMARY_KEYS, 0.0) | {"n_identifiable": 30}
-        ),
-        robot=rx130l.name, joint_names=list(rx130l.joint_names), measurement="pose",
-        tracker_to_base=Placement(), tracker_to_base_source="cell", parameters=params, dropped=[],
-        frames_only_parameters=[], error_tables=[], fit_poses=[], heldout_poses=[], outlier_poses=[],
-        tracker_noise=TrackerNoise(position_sigma_m=5e-5, orientation_sigma_rad=1e-4, source="cell"),
-        model_selection=ModelSelection(folds=5, rule="given: full", chosen="full", candidates=[]),
-    )  # fmt: skip
+    cal = synthetic_calibration(rx130l, values, names=names, summary={"n_identifiable": 30})
     cal_file = write_yaml_artefact(tmp_path / "calibration.yaml", cal)
     robot = load_calibrated_robot(rx130l, cal_file)
     pose = _line_pose(LINE_START_M)
