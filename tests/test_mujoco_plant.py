@@ -139,3 +139,55 @@ def test_mujoco_cell_follows_like_the_own_cell():
             assert np.abs(cell.plant.q - held).max() < 1e-5
             assert "torque offset" in " ".join(cell.plant_notes)
     assert np.all(np.abs(peaks["mujoco"] - peaks["own"]) <= 0.2 * peaks["own"])
+
+
+def test_cell_sim_on_mujoco_serves_and_says_what_is_not_faithful():
+    """`cell-sim --plant mujoco`: the gateway answers on the MuJoCo plant, the tracker reads its site,
+    and the start-up facts list what has no faithful MuJoCo form."""
+    import threading
+
+    from rxcomm.gateway.client import GatewayClient
+    from rxcomm.stages import cell_sim
+
+    q_visible = (-0.4, 0.2, 1.2, 0.0, 0.8, 0.0)
+    facts: list[dict] = []
+    ready, stop = threading.Event(), threading.Event()
+    kwargs = {"port": 0, "q0": ",".join(map(str, q_visible)), "plant": "mujoco", "stop": stop}
+    t = threading.Thread(
+        target=lambda: cell_sim.run(TRUTHS[0], on_ready=lambda f: (facts.append(f), ready.set()), **kwargs),
+        daemon=True,
+    )
+    t.start()
+    try:
+        assert ready.wait(30)
+        port = int(facts[0]["address"].rsplit(":", 1)[1])
+        with GatewayClient("127.0.0.1", port, timeout_s=2.0).connect() as c:
+            np.testing.assert_allclose(c.positions_rad(), q_visible, atol=1e-6)
+            assert c.read_tracker() is not None
+    finally:
+        stop.set()
+        t.join(20)
+    assert facts[0]["plant"] == "mujoco"
+    notes = " ".join(facts[0]["plant_notes"])
+    assert "torque offset" in notes and "compliance" in notes and "friction" in notes
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["cell-sim", "--truth", TRUTHS[0], "--port", "0", "--plant", "bullet"], "unknown plant"),
+        (
+            ["run", "configs.yaml", "--robot", "samples/rx130l", "-o", "x.yaml"]
+            + ["--gateway", "127.0.0.1:1502", "--plant", "mujoco"],
+            "--plant",
+        ),
+    ],
+)
+def test_bad_plant_options_exit_2(args, needle):
+    from typer.testing import CliRunner
+
+    from rxcomm.cli import app
+
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 2, r.output
+    assert needle in r.output

@@ -171,6 +171,9 @@ def build_mujoco_model(
     _set_placement(site, placement_to_se3(tcp.xyz_m, tcp.rpy_rad) * pin.exp6(err.twist("tool")))
     notes = ["torque offset τ_0: no MuJoCo element, a constant generalised force on each motor hinge"]
     notes.append("brakes: a joint-equality lock at the braked angle (own plant: friction + 2·peak torque)")
+    notes.append(
+        "Coulomb friction: MuJoCo's soft constraint slides at F_c, sticks with a slow creep (own: exact)"
+    )
     _drives(spec, robot, params, h, notes)
     if robot.drives.spring is not None and params.spring is not None:
         _spring(spec, robot, params, bodies)

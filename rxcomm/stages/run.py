@@ -73,7 +73,12 @@ def check_joint_names(cfg: Configs, path: Path, robot: Robot) -> Configs:
 # --- the cell -------------------------------------------------------------------------------------
 @contextlib.contextmanager
 def connect(
-    gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool
+    gateway: str | None,
+    allow_remote: bool,
+    truth: Path | None,
+    robot_dir: Path,
+    realtime: bool,
+    plant: str = "own",
 ) -> Iterator[tuple[GatewayClient, Any]]:
     """A connected client and the embedded cell's server (None: a gateway); stops an embedded cell on exit."""
     from rxcomm.execution.session import REQUEST_TIMEOUT_S, VIRTUAL_CELL_REQUEST_TIMEOUT_S
@@ -92,10 +97,14 @@ def connect(
             raise InputError(
                 "no truth file for the embedded simulated cell (pass --truth or --gateway)", file=truth
             )
-        server = start_embedded_cell(truth, port=0, realtime=realtime)
+        server = start_embedded_cell(truth, port=0, realtime=realtime, plant=plant)
         host, port = server.host, server.port
         pacing = "realtime" if realtime else "virtual time"
-        console.err.print(f"embedded simulated cell on {host}:{port} ({pacing}, truth {truth})")
+        console.err.print(
+            f"embedded simulated cell on {host}:{port} ({pacing}, truth {truth}, plant {plant})"
+        )
+        for note in server.core.backend.plant_notes:  # what the plant cannot model faithfully
+            console.err.print(f"  plant {plant}: {note}")
     else:
         host, port = parse_gateway_address(gateway, allow_remote)
     try:
@@ -189,6 +198,7 @@ def execute(
     plot: bool = False,
     compare: Path | None = None,
     show_progress: bool = True,
+    plant: str = "own",
 ) -> dict[str, Any]:
     """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
     from rxcomm.execution.campaign import CampaignSettings
@@ -196,6 +206,8 @@ def execute(
     from rxcomm.io.mcap_io import read_mcap_envelope
     from rxcomm.model.robot import load_robot, robot_files
 
+    if gateway is not None and plant != "own":
+        raise InputError("--plant chooses the embedded cell's physics: not with --gateway", field="plant")
     plan, output = Path(plan), Path(output)
     kind = plan_kind(plan)
     # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
@@ -232,7 +244,7 @@ def execute(
     update, stop_bar = _progress() if show_progress else (None, lambda: None)
     job = _Job(
         plan, output, robot, params, model_name, inputs,
-        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime), update,
+        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant), update,
     )  # fmt: skip
     try:
         if cfg is None:
@@ -435,6 +447,12 @@ _Approach = Annotated[
 ]
 _AllowRemote = Annotated[bool, typer.Option(help="Allow a non-loopback --gateway (a real cell).")]
 _Realtime = Annotated[bool, typer.Option(help="Embedded cell: wall-clock pacing (demos).")]
+_Plant = Annotated[
+    str,
+    typer.Option(
+        help="Embedded cell's physics: own (rxcomm's plant) or mujoco (MuJoCo's, docs/architecture.md §6)."
+    ),
+]
 _InterpolationRatio = Annotated[
     int | None,
     typer.Option(help="Drive cycles per setpoint (1-64). Default: chosen from the measured round trip."),
@@ -472,6 +490,7 @@ def command(
     fault_reset: _FaultReset = False,
     plot: _Plot = False,
     compare: _Compare = None,
+    plant: _Plant = "own",
 ) -> None:
     """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque, record,
     report lag errors. Exit 2 bad input, 4 communication fault, 5 safety stop or a plan outside the
@@ -492,4 +511,5 @@ def command(
         fault_reset=fault_reset,
         plot=plot,
         compare=compare,
+        plant=plant,
     )
