@@ -1,10 +1,11 @@
 """The MuJoCo plant behind the gateway: the simulated cell with MuJoCo's physics (architecture §6).
 
-`MujocoCell` is the simulated cell (`rxcomm.cell.sim.SimulatedCell`: the same CiA 402 drives and
-their loops tuned on the nominal robot, encoder quantisation, torque noise, tracker noise, view cone
-and latency, time modes) with its plant and its tracker's geometry swapped: the robot moves in the
-MuJoCo model of `rxcomm.cell.mujoco_model` (MuJoCo's URDF parser, its integrator `implicitfast`, its
-friction constraints, tendons and hinges), and the tracker reads the TCP site of that model.
+`rxcomm.cell.sim.MujocoCell` is the simulated cell (`SimulatedCell`: the same CiA 402 drives and
+their loops tuned on the nominal robot, encoder quantisation, torque noise, tracker noise, view
+cone and latency, time modes) with its plant and its tracker's geometry swapped: the robot moves in
+the MuJoCo model of `rxcomm.cell.mujoco_model` (MuJoCo's URDF parser, its integrator
+`implicitfast`, its friction constraints, tendons and hinges), and the tracker reads the model's
+TCP site.
 
 `MujocoPlant` has the own plant's interface (`q`, `step(τ, braked)`, `tracker_state`): `q` are the
 motor hinges' angles (what the encoders read), `tracker_state` the whole MuJoCo position vector
@@ -21,7 +22,6 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.cell.mujoco_model import MujocoPlantModel, build_mujoco_model
-from rxcomm.cell.sim import SimulatedCell
 from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.cell.truth import SimTruth
 from rxcomm.schemas.cell import TrackerSpec
@@ -131,18 +131,3 @@ class MujocoSiteTracker(SimulatedTracker):
         for i, state in enumerate(np.asarray(qs, dtype=float)):
             pos[i], rot[i] = self._site(state)
         return pos, rot
-
-
-class MujocoCell(SimulatedCell):
-    """The simulated cell on the MuJoCo plant (`CellBackend`); see the module docstring."""
-
-    plant_name = "mujoco"
-
-    def _make_plant(self, q0: np.ndarray) -> MujocoPlant:  # type: ignore[override]
-        plant = MujocoPlant(self.truth, q0, substeps=self.settings.substeps)
-        self.plant_notes = plant.built.notes
-        return plant
-
-    def _make_tracker(self, rng: np.random.Generator, visibility: TrackerSpec | None) -> SimulatedTracker:
-        built = self.plant.built  # type: ignore[union-attr]
-        return MujocoSiteTracker(built, self.truth, self.truth.truth, rng, visibility=visibility)

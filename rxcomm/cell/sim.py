@@ -193,13 +193,31 @@ def simulated_cell(
     return cell_class(plant)(load_truth(truth_path, cell_path), s)
 
 
+class MujocoCell(SimulatedCell):
+    """The simulated cell on the MuJoCo plant (`rxcomm.cell.mujoco_plant`, imported only here): the same
+    drives, noise and tracker, MuJoCo's physics, the tracker reading the model's TCP site."""
+
+    plant_name = "mujoco"
+
+    def _make_plant(self, q0: np.ndarray):  # type: ignore[override]
+        from rxcomm.cell.mujoco_plant import MujocoPlant
+
+        plant = MujocoPlant(self.truth, q0, substeps=self.settings.substeps)
+        self.plant_notes = plant.built.notes
+        return plant
+
+    def _make_tracker(self, rng: np.random.Generator, visibility: TrackerSpec | None) -> SimulatedTracker:
+        from rxcomm.cell.mujoco_plant import MujocoSiteTracker
+
+        built = self.plant.built  # type: ignore[union-attr]
+        return MujocoSiteTracker(built, self.truth, self.truth.truth, rng, visibility=visibility)
+
+
 def cell_class(plant: str) -> type[SimulatedCell]:
     """The simulated cell on `plant`: "own" (`rxcomm.cell.plant`) or "mujoco" (`rxcomm.cell.mujoco_plant`)."""
     if plant == "own":
         return SimulatedCell
     if plant == "mujoco":
-        from rxcomm.cell.mujoco_plant import MujocoCell  # MuJoCo only when asked for
-
         return MujocoCell
     raise InputError(f"unknown plant {plant!r}: one of {list(PLANTS)}", field="--plant")
 

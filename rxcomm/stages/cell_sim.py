@@ -19,7 +19,7 @@ import typer
 
 from rxcomm import console
 from rxcomm.errors import InputError
-from rxcomm.options import parse_numbers, radians_text
+from rxcomm.options import Plant, parse_numbers, radians_text
 
 if TYPE_CHECKING:  # the cell (pinocchio, the plant) is imported where used: `--help` stays fast
     from rxcomm.cell.server import CellServer
@@ -60,10 +60,7 @@ def command(
         bool,
         typer.Option(help="Allow listening on a non-loopback address (anyone there can move the robot)."),
     ] = False,
-    plant: Annotated[
-        str,
-        typer.Option(help="The physics: own (rxcomm's plant) or mujoco (MuJoCo's, docs/architecture.md §6)."),
-    ] = "own",
+    plant: Plant = "own",
 ) -> None:
     """Serve the simulated robot cell (drives, true dynamics, tracker) as a Modbus TCP drive gateway."""
     q0 = console.checked(radians_text, q0, q0_deg, "start")

@@ -22,7 +22,7 @@ from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.options import RobotDir
+from rxcomm.options import Plant, RobotDir, embedded_plant
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -73,12 +73,7 @@ def check_joint_names(cfg: Configs, path: Path, robot: Robot) -> Configs:
 # --- the cell -------------------------------------------------------------------------------------
 @contextlib.contextmanager
 def connect(
-    gateway: str | None,
-    allow_remote: bool,
-    truth: Path | None,
-    robot_dir: Path,
-    realtime: bool,
-    plant: str = "own",
+    gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool, plant: str
 ) -> Iterator[tuple[GatewayClient, Any]]:
     """A connected client and the embedded cell's server (None: a gateway); stops an embedded cell on exit."""
     from rxcomm.execution.session import REQUEST_TIMEOUT_S, VIRTUAL_CELL_REQUEST_TIMEOUT_S
@@ -100,11 +95,8 @@ def connect(
         server = start_embedded_cell(truth, port=0, realtime=realtime, plant=plant)
         host, port = server.host, server.port
         pacing = "realtime" if realtime else "virtual time"
-        console.err.print(
-            f"embedded simulated cell on {host}:{port} ({pacing}, truth {truth}, plant {plant})"
-        )
-        for note in server.core.backend.plant_notes:  # what the plant cannot model faithfully
-            console.err.print(f"  plant {plant}: {note}")
+        notes = "".join(f"\n  not faithful: {n}" for n in server.core.backend.plant_notes)
+        console.err.print(f"embedded simulated cell on {host}:{port} ({pacing}, {truth}, {plant}){notes}")
     else:
         host, port = parse_gateway_address(gateway, allow_remote)
     try:
@@ -206,8 +198,6 @@ def execute(
     from rxcomm.io.mcap_io import read_mcap_envelope
     from rxcomm.model.robot import load_robot, robot_files
 
-    if gateway is not None and plant != "own":
-        raise InputError("--plant chooses the embedded cell's physics: not with --gateway", field="plant")
     plan, output = Path(plan), Path(output)
     kind = plan_kind(plan)
     # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
@@ -447,12 +437,6 @@ _Approach = Annotated[
 ]
 _AllowRemote = Annotated[bool, typer.Option(help="Allow a non-loopback --gateway (a real cell).")]
 _Realtime = Annotated[bool, typer.Option(help="Embedded cell: wall-clock pacing (demos).")]
-_Plant = Annotated[
-    str,
-    typer.Option(
-        help="Embedded cell's physics: own (rxcomm's plant) or mujoco (MuJoCo's, docs/architecture.md §6)."
-    ),
-]
 _InterpolationRatio = Annotated[
     int | None,
     typer.Option(help="Drive cycles per setpoint (1-64). Default: chosen from the measured round trip."),
@@ -490,7 +474,7 @@ def command(
     fault_reset: _FaultReset = False,
     plot: _Plot = False,
     compare: _Compare = None,
-    plant: _Plant = "own",
+    plant: Plant = "own",
 ) -> None:
     """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque, record,
     report lag errors. Exit 2 bad input, 4 communication fault, 5 safety stop or a plan outside the
@@ -511,5 +495,5 @@ def command(
         fault_reset=fault_reset,
         plot=plot,
         compare=compare,
-        plant=plant,
+        plant=console.checked(embedded_plant, plant, gateway),
     )
