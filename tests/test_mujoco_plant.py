@@ -13,6 +13,7 @@ from dataclasses import replace
 import mujoco
 import numpy as np
 import pytest
+import yaml
 
 from rxcomm.cell.mujoco_model import build_mujoco_model
 from rxcomm.cell.mujoco_plant import MujocoPlant, MujocoSiteTracker
@@ -191,3 +192,43 @@ def test_bad_plant_options_exit_2(args, needle):
     r = CliRunner().invoke(app, args)
     assert r.exit_code == 2, r.output
     assert needle in r.output
+
+
+@pytest.fixture(scope="module")
+def true_dynamics_rx(tmp_path_factory, rx130l):
+    """dynamics.yaml holding the cell's TRUE parameters (scoring only, as tests/test_run_sim.py)."""
+    from rxcomm.io.yaml_io import write_yaml_artefact
+    from rxcomm.model.base_parameters import base_parameters, dynamics_artefact_fields
+    from rxcomm.schemas.dynamics import Dynamics
+
+    true = load_truth(TRUTHS[0]).params
+    bset = base_parameters(rx130l)
+    fields = dynamics_artefact_fields(rx130l, bset, bset.project(true), full=true, full_method="truth (test)")
+    summary = {"n_base_params": bset.n_base, "validation_nrmse": [0.0] * 6, "validation_rms_nm": [0.0] * 6}
+    art = Dynamics(**Dynamics.envelope({}, {}, {**summary, "seconds": 0.0}), **fields)
+    return write_yaml_artefact(tmp_path_factory.mktemp("dyn") / "true-dynamics.yaml", art)
+
+
+@pytest.mark.slow
+def test_feedforward_cuts_the_lag_on_mujoco_too(tmp_path, rx130l, true_dynamics_rx):
+    """`run --plant mujoco`: the same plan, the same drives, MuJoCo's physics; the true model's
+    feed-forward cuts the joint lag ≥ 3× as on our plant, and the run says what is not faithful."""
+    from typer.testing import CliRunner
+
+    from rxcomm.cli import app
+
+    from .test_run import save_plan
+    from .test_run_sim import FAST, HOME, cosine_plan
+
+    plan = save_plan(tmp_path / "fast.mcap", cosine_plan(HOME, FAST, 1.1))
+    common = ["--robot", "samples/rx130l", "--dynamics", str(true_dynamics_rx), "--interpolation-ratio", "1"]
+    common += ["--plant", "mujoco"]
+    runs = {}
+    for name, extra in (("off", ["--no-feedforward"]), ("on", [])):
+        r = CliRunner().invoke(app, ["run", str(plan), *common, *extra, "-o", str(tmp_path / f"{name}.mcap")])
+        assert r.exit_code == 0, r.output
+        assert "mujoco" in r.output and "not faithful: torque offset" in r.output
+        runs[name] = yaml.safe_load((tmp_path / f"{name}.yaml").read_text())["summary"]
+    lag_on, lag_off = np.array(runs["on"]["max_lag_rad"]), np.array(runs["off"]["max_lag_rad"])
+    assert np.all(lag_off[:3] >= 3.0 * lag_on[:3]), (lag_off, lag_on)
+    assert runs["off"]["max_tcp_error_m"] >= 3.0 * runs["on"]["max_tcp_error_m"]
