@@ -50,6 +50,9 @@ def rows(quick: bool) -> list[Row]:
         Row("cell", "MuJoCo cell cycle (drives + plant + tracker), swinging", "s", mj_cell, target="< 400 µs",
             peer_name="own cell", peer=own_cell),
     ]  # fmt: skip
-    for r in bench_streaming(10.0 if quick else 60.0, backend="mujoco"):
-        out.append(Row(**r))
+    # the same realtime stream on both plants: the MuJoCo one's figures with our plant's as the peer
+    duration = 10.0 if quick else 60.0
+    own = bench_streaming(duration, backend="sim")
+    for r, peer in zip(bench_streaming(duration, backend="mujoco"), own, strict=True):
+        out.append(Row(**r, peer_name="own plant", peer=peer["ours"]))
     return out
