@@ -10,7 +10,6 @@ written.
 
 from __future__ import annotations
 
-import shutil
 import tempfile
 from pathlib import Path
 from typing import Annotated
@@ -31,7 +30,7 @@ def command(
 
 def run(model: Path, output: Path) -> dict[str, object]:
     """The stage as a function: returns what it wrote and what it assumed."""
-    from rxcomm.io.files import atomic_write_text
+    from rxcomm.io.files import atomic_write_bytes, atomic_write_text
     from rxcomm.io.yaml_io import dump_yaml
     from rxcomm.model.mjcf_import import import_model
     from rxcomm.model.robot import load_robot
@@ -57,7 +56,7 @@ def run(model: Path, output: Path) -> dict[str, object]:
         robot = load_robot(tmp)  # what we write must load as a robot, or nothing is written
         for name, text in files.items():
             atomic_write_text(output / name, text)
-        shutil.copyfile(model, output / source_name)
+        atomic_write_bytes(output / source_name, model.read_bytes())
     out = console.out
     out.print(f"robot {imported.name}: {robot.n} joints {list(robot.joint_names)} → {output}")
     for note in imported.notes:
