@@ -137,3 +137,36 @@ def test_truth_for_the_imported_robot_runs_on_both_plants(imported):
         for _ in range(1000):  # enabled and holding: the drives (tuned on the imported robot) hold it
             fb = cell.cycle(np.array(q0), np.zeros(6), np.ones(6, bool))
         assert np.all(np.abs(fb.following_error_rad) < 0.1 * cell.following_error_limit_rad), plant
+
+
+def test_the_kept_mjcf_is_the_mujoco_plants_source(imported):
+    """The plant parses the kept MJCF (not the URDF written from it): with the truth's errors its TCP
+    site is rxcomm's FK of the imported robot to < 1 µm, without errors mj_inverse is rxcomm's inverse
+    dynamics of the truth to 1e-6."""
+    from rxcomm.cell.mujoco_model import build_mujoco_model
+    from rxcomm.cell.truth import load_truth
+    from rxcomm.model.geometric_errors import ErrorModel
+
+    truth_path = imported / "truth-kept.yaml"
+    r = CliRunner().invoke(app, ["truth", "--robot", str(imported), "--seed", "9", "-o", str(truth_path)])
+    assert r.exit_code == 0, r.output
+    truth = load_truth(truth_path)
+    built = build_mujoco_model(truth, compliance=False)
+    assert built.notes[0] == "model source: handmade_arm.mujoco.xml (MuJoCo's parser)"
+    errors = ErrorModel.from_mapping(truth.robot, truth.truth.geometry.error_parameters)
+    m, d = built.model, mujoco.MjData(built.model)
+    q, qd, qdd = random_states(truth.robot, 40, seed=2)
+    for qi in q:
+        d.qpos[built.motor_qpos] = qi
+        mujoco.mj_kinematics(m, d)
+        p, rot = tcp_pose(truth.robot, qi, errors)
+        assert np.linalg.norm(d.site_xpos[built.tcp_site] - p) < 1e-6
+        assert np.abs(d.site_xmat[built.tcp_site].reshape(3, 3) - rot).max() < 1e-9
+    nominal = build_mujoco_model(truth, errors=False, compliance=False)
+    m, d = nominal.model, mujoco.MjData(nominal.model)
+    tau_rx = RobotDynamics(truth.robot, truth.params).inverse_dynamics(q, qd, qdd)
+    for i in range(len(q)):
+        d.qpos[nominal.motor_qpos], d.qvel[nominal.motor_dof], d.qacc[nominal.motor_dof] = q[i], qd[i], qdd[i]
+        mujoco.mj_inverse(m, d)
+        tau = d.qfrc_inverse[nominal.motor_dof] + np.array(truth.params.offset_nm)
+        assert np.abs(tau - tau_rx[i]).max() <= 1e-6 * np.abs(tau_rx).max()

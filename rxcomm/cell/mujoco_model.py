@@ -1,8 +1,10 @@
 """The MuJoCo model of a truth file: the robot's URDF read by MuJoCo's own parser, the truth put on it.
 
-A second, independent plant (architecture §6, "The MuJoCo plant"): nothing here goes through rxcomm's
-kinematics or dynamics. MuJoCo parses the URDF (`mujoco.MjSpec.from_file`, static links kept as
-bodies) and this module edits the spec:
+A second, independent plant (architecture §6.1): nothing here goes through rxcomm's kinematics or
+dynamics. MuJoCo parses the robot's model — the MJCF `import-robot` kept beside it (NAME.mujoco.xml)
+if there is one, else the URDF — (`mujoco.MjSpec.from_file`, static links kept as bodies, actuators
+dropped) and this module edits the spec; a hinge's frame is its body frame moved to the joint
+anchor (zero for a URDF):
 
 - geometric errors (truth `geometry.error_parameters`): each joint's body placement in its parent
   becomes placement·exp6(δ_j) — the two rotations off the axis tilt the joint axis, the one about it
@@ -40,6 +42,7 @@ No faithful MuJoCo form (the plant says so at start-up, `MujocoPlantModel.notes`
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -85,6 +88,40 @@ def _se3(body) -> pin.SE3:
     return pin.SE3(rot.reshape(3, 3), np.array(body.pos, dtype=float))
 
 
+def _shift(a: np.ndarray) -> pin.SE3:
+    return pin.SE3(np.eye(3), np.asarray(a, dtype=float))
+
+
+MJCF_SOURCE_SUFFIX = ".mujoco.xml"
+
+
+def model_source(robot_dir: Path, urdf: Path) -> Path:
+    """The file MuJoCo parses: the MJCF `import-robot` kept beside the robot (NAME.mujoco.xml), else
+    the URDF."""
+    kept = sorted(Path(robot_dir).glob(f"*{MJCF_SOURCE_SUFFIX}"))
+    return kept[0] if kept else Path(urdf)
+
+
+def _load_spec(source: Path) -> mujoco.MjSpec:
+    """MuJoCo's spec of `source`, static links kept, its actuators dropped (the drives act here),
+    every body's placement the compiled one as a quaternion (an MJCF's Euler angles, axis-angles or
+    degrees resolved by MuJoCo's compiler)."""
+    try:
+        spec = mujoco.MjSpec.from_file(str(source))
+        spec.compiler.fusestatic = False
+        spec.compiler.discardvisual = True
+        for actuator in list(spec.actuators):
+            spec.delete(actuator)
+        compiled = spec.compile()
+    except ValueError as e:
+        raise InputError(f"MuJoCo cannot load it: {e}", file=source) from e
+    for i, body in enumerate(spec.bodies):  # the spec's body order is the compiled model's
+        if i > 0:
+            body.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+            body.pos, body.quat = compiled.body_pos[i].copy(), compiled.body_quat[i].copy()
+    return spec
+
+
 def _set_placement(element, m: pin.SE3) -> None:
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(m.rotation).reshape(-1))
@@ -92,7 +129,7 @@ def _set_placement(element, m: pin.SE3) -> None:
     element.quat = quat
 
 
-def _inertial(body, pi: np.ndarray) -> None:
+def _inertial(body, pi: np.ndarray, anchor: np.ndarray) -> None:
     """Pinocchio's (m, m·c, I about the frame origin: xx xy yy xz yz zz) as MuJoCo's mass, ipos and
     full inertia about the centre of mass (xx yy zz xy xz yz)."""
     m, mc = float(pi[0]), np.asarray(pi[1:4], dtype=float)
@@ -102,8 +139,9 @@ def _inertial(body, pi: np.ndarray) -> None:
     i_c = i_o - m * (float(c @ c) * np.eye(3) - np.outer(c, c))
     body.explicitinertial = True
     body.mass = m
-    body.ipos = c
+    body.ipos = c + anchor  # the truth's link frame sits at the joint anchor
     body.iquat = [1.0, 0.0, 0.0, 0.0]
+    body.inertia = [0.0, 0.0, 0.0]  # a source MJCF's diaginertia: the full one below replaces it
     body.fullinertia = [i_c[0, 0], i_c[1, 1], i_c[2, 2], i_c[0, 1], i_c[0, 2], i_c[1, 2]]
 
 
@@ -136,9 +174,8 @@ def build_mujoco_model(
     nominal kinematics; `compliance=False` the joints rigid (both for the checks against rxcomm's
     own dynamics). `q0_rad` is where the compliance damping is sized (default all zero)."""
     robot, params = truth.robot, truth.params
-    spec = mujoco.MjSpec.from_file(str(robot.urdf_path))
-    spec.compiler.fusestatic = False
-    spec.compiler.discardvisual = True
+    source = model_source(robot.drives_path.parent, robot.urdf_path)
+    spec = _load_spec(source)
     h = robot.drives.cycle_s if timestep_s is None else timestep_s
     spec.option.timestep = h
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
@@ -153,30 +190,33 @@ def build_mujoco_model(
             b.explicitinertial = True
             b.mass, b.ipos, b.fullinertia = 0.0, [0.0, 0.0, 0.0], [float("nan")] * 6
             b.inertia = [0.0, 0.0, 0.0]
-    for body, pi in zip(bodies, params.inertial, strict=True):
-        _inertial(body, pi)
+    anchors = [np.array(spec.joint(n).pos, dtype=float) for n in names]
+    for body, pi, a in zip(bodies, params.inertial, anchors, strict=True):
+        _inertial(body, pi, a)
     g = truth.truth.geometry
     err = ErrorModel.from_mapping(
         robot, g.error_parameters if errors else {}, field="geometry.error_parameters"
     )
     if errors:
         _set_placement(root, pin.exp6(err.twist("base")) * _se3(root))
-        for body, name in zip(bodies, names, strict=True):
-            _set_placement(body, _se3(body) * pin.exp6(err.twist(name)))
+        for body, name, a in zip(bodies, names, anchors, strict=True):  # exp6 at the joint frame
+            _set_placement(body, _se3(body) * _shift(a) * pin.exp6(err.twist(name)) * _shift(-a))
     tcp = robot.drives.tcp
     flange = spec.body(tcp.parent_frame)
     if flange is None:
         raise InputError(f"no body {tcp.parent_frame!r} in MuJoCo's model", field="tcp.parent_frame")
     site = flange.add_site(name=TCP_SITE)
-    _set_placement(site, placement_to_se3(tcp.xyz_m, tcp.rpy_rad) * pin.exp6(err.twist("tool")))
-    notes = ["torque offset τ_0: no MuJoCo element, a constant generalised force on each motor hinge"]
+    at = _shift(anchors[bodies.index(flange)]) if flange in bodies else pin.SE3.Identity()
+    _set_placement(site, at * placement_to_se3(tcp.xyz_m, tcp.rpy_rad) * pin.exp6(err.twist("tool")))
+    notes = [f"model source: {source.name} (MuJoCo's parser)"] if source != robot.urdf_path else []
+    notes += ["torque offset τ_0: no MuJoCo element, a constant generalised force on each motor hinge"]
     notes.append("brakes: a joint-equality lock at the braked angle (own plant: friction + 2·peak torque)")
     notes.append(
         "Coulomb friction: MuJoCo's soft constraint slides at F_c, sticks with a slow creep (own: exact)"
     )
     _drives(spec, robot, params, h, notes)
     if robot.drives.spring is not None and params.spring is not None:
-        _spring(spec, robot, params, bodies)
+        _spring(spec, robot, params, bodies, anchors)
     stiff = dict(g.joint_stiffness_nm_per_rad) if compliance else {}
     for name, k in stiff.items():
         if name not in names or not k > 0:
@@ -236,6 +276,7 @@ def _drives(spec, robot, params, h: float, notes: list[str]) -> None:
         joint.armature = float(armature[j])
         joint.frictionloss = float(fc[j])
         joint.damping = _coef(fv[j])
+        joint.stiffness = _coef(0.0)  # a source MJCF's own joint springs are not the truth's
         joint.solref_friction = solref
         joint.solimp_friction = list(FRICTION_SOLIMP)
         joint.limited = mujoco.mjtLimited.mjLIMITED_FALSE  # the drives keep the limits, as on our plant
@@ -259,7 +300,7 @@ def _perpendicular(axis: np.ndarray) -> np.ndarray:
     return u / np.linalg.norm(u)
 
 
-def _spring(spec, robot, params, bodies) -> None:
+def _spring(spec, robot, params, bodies, anchors) -> None:
     """The balancer as a spatial tendon between its pivots (module docstring)."""
     s = robot.drives.spring
     k = robot.spring_joint_index
@@ -268,8 +309,8 @@ def _spring(spec, robot, params, bodies) -> None:
     axis = np.array(joint.axis, dtype=float)
     axis /= np.linalg.norm(axis)
     u = _perpendicular(axis)
-    moving = pin.AngleAxis(s.angle_offset_rad, axis).matrix() @ (s.moving_pivot_m * u)
-    placement = _se3(child)  # the child's frame in its parent (errors included)
+    moving = anchors[k] + pin.AngleAxis(s.angle_offset_rad, axis).matrix() @ (s.moving_pivot_m * u)
+    placement = _se3(child) * _shift(anchors[k])  # the joint frame in the parent (errors included)
     fixed = placement.act(s.fixed_pivot_m * u)
     child.parent.add_site(name="spring_fixed_pivot", pos=fixed.tolist())
     child.add_site(name="spring_moving_pivot", pos=moving.tolist())
