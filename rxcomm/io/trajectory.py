@@ -147,6 +147,12 @@ def load_trajectory_mcap(path: str | Path) -> tuple[Trajectory, dict[str, Any]]:
 
     Raises InputError naming the file and field if it is not an rxcomm trajectory.
     """
+    traj, env, _ = load_trajectory_named(path)
+    return traj, env
+
+
+def load_trajectory_named(path: str | Path) -> tuple[Trajectory, dict[str, Any], list[str] | None]:
+    """:func:`load_trajectory_mcap` and the joint names the file carries (None: a file without)."""
     path = Path(path)
     contents = read_mcap(path)
     env = contents.envelope
@@ -163,4 +169,5 @@ def load_trajectory_mcap(path: str | Path) -> tuple[Trajectory, dict[str, Any]]:
         traj = Trajectory(td.t, td["q"], td["qd"], td["qdd"], td["tau_ff"], extra)
     except InvalidTrajectory as e:
         raise InputError(e.reason, file=path, field=f"{TOPIC}.{e.field}") from e
-    return traj, env
+    names = td.constants.get("joint_names")
+    return traj, env, (list(names) if isinstance(names, list) else None)
