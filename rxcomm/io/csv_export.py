@@ -69,10 +69,13 @@ def read_csv_table(path: str | Path) -> tuple[list[str], dict[str, np.ndarray]]:
     for i, r in enumerate(body):
         if len(r) != len(header):
             raise InputError(f"row {i + 1} has {len(r)} cells, the header {len(header)}", file=path)
-    try:
-        values = np.array([[float(x) if x else np.nan for x in r] for r in body], dtype=float)
-    except ValueError as e:
-        raise InputError(f"not a number: {e}", file=path) from e
+    values = np.full((len(body), len(header)), np.nan)
+    for i, r in enumerate(body):
+        for j, x in enumerate(r):
+            try:
+                values[i, j] = float(x) if x else np.nan
+            except ValueError:
+                raise InputError(f"row {i + 1}: {x!r} is not a number", file=path, field=header[j]) from None
     values = values.reshape(len(body), len(header))
     return comments, {name: values[:, j] for j, name in enumerate(header)}
 
@@ -111,10 +114,10 @@ def csv_joint_names(header: Sequence[str]) -> list[str]:
     return [c[2:-4] for c in header if c.startswith("q_") and c.endswith("_rad") and len(c) > 6]
 
 
-def read_trajectory_csv_named(path: str | Path) -> tuple[Trajectory, list[str]]:
-    """(trajectory, joint names) of a trajectory CSV (:func:`write_trajectory_csv`'s columns, in any
-    order; the pre-joint-name ``q1_rad`` header too). InputError names the row or column that is wrong;
-    rows count from 1 at the first data row."""
+def read_trajectory_csv_named(path: str | Path) -> tuple[Trajectory, list[str] | None]:
+    """(trajectory, joint names; None for the old ``q1_rad`` header) of a trajectory CSV
+    (:func:`write_trajectory_csv`'s columns, in any order). InputError names the row or column that is
+    wrong; rows count from 1 at the first data row."""
     path = Path(path)
     _, cols = read_csv_table(path)
     names = csv_joint_names(list(cols))
@@ -140,9 +143,10 @@ def read_trajectory_csv_named(path: str | Path) -> tuple[Trajectory, list[str]]:
         if bad.any():
             raise InputError(f"row {int(np.argmax(bad)) + 1}: {f} is empty or not finite", file=path, field=f)
     try:
-        return Trajectory(cols["t_s"], arrays["q"], arrays["qd"], arrays["qdd"], arrays["tau_ff"]), names
+        traj = Trajectory(cols["t_s"], arrays["q"], arrays["qd"], arrays["qdd"], arrays["tau_ff"])
     except ValueError as e:
         raise InputError(str(e).replace("sample", "row"), file=path) from e
+    return traj, (None if expected == _legacy_header(len(names)) else names)
 
 
 def read_trajectory_csv(path: str | Path) -> Trajectory:

@@ -38,13 +38,20 @@ if TYPE_CHECKING:
 
 # --- inputs ---------------------------------------------------------------------------------------
 def plan_kind(plan: Path) -> str:
-    """'trajectory' for NAME.mcap, 'poses' for a YAML pose list."""
+    """'trajectory' for NAME.mcap, a trajectory CSV or a ROS 2 JointTrajectory YAML; 'poses' for a
+    YAML pose list."""
+    from rxcomm.io.plan_files import is_trajectory_yaml
+
     suffix = plan.suffix.lower()
-    if suffix == ".mcap":
+    if suffix in (".mcap", ".csv"):
         return "trajectory"
     if suffix in (".yaml", ".yml"):
-        return "poses"
-    raise InputError("PLAN must be a trajectory NAME.mcap or a pose list NAME.yaml", file=plan)
+        return "trajectory" if is_trajectory_yaml(plan) else "poses"
+    raise InputError(
+        "PLAN must be a trajectory (NAME.mcap, a trajectory CSV, a ROS 2 JointTrajectory YAML) or a pose "
+        "list NAME.yaml",
+        file=plan,
+    )
 
 
 def load_model(robot: Robot, dynamics: Path | None) -> tuple[DynamicParameters, str]:
@@ -200,7 +207,7 @@ def execute(
     kind = plan_kind(plan)
     # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
     cfg = load_poses(plan) if kind == "poses" else None
-    if kind == "trajectory":
+    if kind == "trajectory" and plan.suffix.lower() == ".mcap":
         check_kind(read_mcap_envelope(plan), TrajectorySummary, file=plan, prefix="envelope")
     want = ".mcap" if kind == "trajectory" else ".yaml"
     if output.suffix != want:
@@ -266,18 +273,26 @@ def _trajectory(
     from rxcomm.execution.log import RunLogWriter
     from rxcomm.execution.plan import prepare_plan
     from rxcomm.execution.trajectory_run import execute_trajectory
-    from rxcomm.io.trajectory import load_trajectory_mcap
+    from rxcomm.io.plan_files import load_plan_file
 
     robot, params = job.robot, job.params
-    traj, _ = load_trajectory_mcap(job.plan)
+    plan = load_plan_file(job.plan)
+    if plan.joint_names is not None and plan.joint_names != list(robot.joint_names):
+        raise InputError(
+            f"plan is for joints {plan.joint_names}, the robot has {list(robot.joint_names)}",
+            file=job.plan,
+            field="joint_names",
+        )
     cycle_s = robot.drives.cycle_s
     prepared = prepare_plan(
         robot,
-        traj,
+        plan.trajectory,
         params,
         cycle_s,
         feedforward=settings.feedforward,
         limit_tolerance=settings.limit_tolerance,
+        what=f"plan {job.plan.name}",
+        sample_label=plan.label,
     )
     with job.connect() as (client, server):
         embedded = server is not None
