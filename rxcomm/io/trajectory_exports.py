@@ -132,3 +132,29 @@ def export_run_log_bag(
         bag.poses("/tracker/tcp_pose", stamps_ns(origin, tr.t), "tracker", tr.position_m, tr.quaternion_wxyz)
     bag.finish(out)
     return {"topics": bag.counts, "re-read": _bag_check(out, "/joint_states", names, stamps, j.q_actual)}
+
+
+def export_run_log_csv(source: str | Path, out: str | Path) -> dict[str, Any]:
+    """A run log's /run/joints as CSV (`rxcomm.io.csv_export`); re-read with Python's csv module,
+    every column against its field (an empty cell is a value not measured, NaN in the log)."""
+    from rxcomm.io.csv_export import export_run_log_csv as write
+    from rxcomm.io.run_log import read_run_log
+
+    source, out = Path(source), Path(out)
+    write(source, out)
+    j = read_run_log(source).joints
+    from rxcomm.schemas.run_log import JOINT_FIELDS
+
+    cols = [j.fields[k] for k in JOINT_FIELDS if k in j.fields]  # the CSV's column order
+    ref = [j.t] + [c[:, None] if c.ndim == 1 else c for c in cols]
+    ref_table = np.column_stack(ref)
+    with out.open(newline="") as f:
+        rows = list(csv.reader(line for line in f if not line.startswith("#")))
+    body = np.array([[float(x) if x else np.nan for x in r] for r in rows[1:]])
+    if body.shape != ref_table.shape:
+        raise InputError(f"re-read {body.shape}, the log has {ref_table.shape}", file=out)
+    both = np.isfinite(body) & np.isfinite(ref_table)
+    if not np.array_equal(np.isfinite(body), np.isfinite(ref_table)):
+        raise InputError("re-read: a cell empty in one and not the other", file=out)
+    d = _max_diff(body[:, 1:][both[:, 1:]], ref_table[:, 1:][both[:, 1:]])
+    return {"re-read": _reread("python csv", d, _max_diff(body[:, 0], j.t), "bit-exact (17 digits)")}

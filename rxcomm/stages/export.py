@@ -40,7 +40,7 @@ EXPORTERS: dict[str, dict[str, tuple[str, str, str]]] = {
         "ros2-bag": ("ROS 2 bag (MCAP, CDR)", ".ros2.mcap", f"{_TRAJ}:export_trajectory_bag"),
     },
     "rxcomm/RunLog": {
-        "csv": ("run log CSV", ".csv", "rxcomm.io.csv_export:export_run_log_csv"),
+        "csv": ("run log CSV", ".csv", f"{_TRAJ}:export_run_log_csv"),
         "ros2-bag": ("ROS 2 bag (MCAP, CDR)", ".ros2.mcap", f"{_CAL}:export_run_log_bag"),
     },
     "rxcomm/Calibration": {
