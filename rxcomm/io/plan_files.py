@@ -8,6 +8,7 @@ first data row, YAML ``points[i]``, MCAP ``sample i``), for a refusal to point a
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,9 +40,33 @@ def is_trajectory_yaml(path: Path) -> bool:
     return is_ros2_trajectory(load_yaml(path))
 
 
-def load_plan_file(path: str | Path) -> PlanFile:
-    """The plan of ``path`` by its suffix (.mcap, .csv, .yaml/.yml); InputError names what is wrong."""
-    path = Path(path)
+def plan_kind(plan: Path) -> str:
+    """`run`'s PLAN: 'trajectory' for NAME.mcap, a trajectory CSV or a JointTrajectory YAML; 'poses'
+    for a YAML pose list."""
+    suffix = plan.suffix.lower()
+    if suffix in (".mcap", ".csv"):
+        return "trajectory"
+    if suffix in (".yaml", ".yml"):
+        return "trajectory" if is_trajectory_yaml(plan) else "poses"
+    raise InputError(
+        "PLAN must be a trajectory (.mcap, .csv, JointTrajectory .yaml) or a pose list", file=plan
+    )
+
+
+def load_plan_file(path: str | Path, joint_names: Sequence[str] | None = None) -> PlanFile:
+    """The plan of ``path`` by its suffix (.mcap, .csv, .yaml/.yml); InputError names what is wrong,
+    also joints other than ``joint_names`` (the robot's) where the file names its joints."""
+    plan = _load(Path(path))
+    if joint_names is not None and plan.joint_names is not None and plan.joint_names != list(joint_names):
+        raise InputError(
+            f"plan is for joints {plan.joint_names}, the robot has {list(joint_names)}",
+            file=path,
+            field="joint_names",
+        )
+    return plan
+
+
+def _load(path: Path) -> PlanFile:
     suffix = ".yaml" if path.suffix.lower() == ".yml" else path.suffix.lower()
     if suffix == ".mcap":
         from rxcomm.io.trajectory import load_trajectory_named

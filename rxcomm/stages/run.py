@@ -20,6 +20,7 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.io.files import check_outputs
+from rxcomm.io.plan_files import plan_kind
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.options import RobotDir
@@ -37,23 +38,6 @@ if TYPE_CHECKING:
 
 
 # --- inputs ---------------------------------------------------------------------------------------
-def plan_kind(plan: Path) -> str:
-    """'trajectory' for NAME.mcap, a trajectory CSV or a ROS 2 JointTrajectory YAML; 'poses' for a
-    YAML pose list."""
-    from rxcomm.io.plan_files import is_trajectory_yaml
-
-    suffix = plan.suffix.lower()
-    if suffix in (".mcap", ".csv"):
-        return "trajectory"
-    if suffix in (".yaml", ".yml"):
-        return "trajectory" if is_trajectory_yaml(plan) else "poses"
-    raise InputError(
-        "PLAN must be a trajectory (NAME.mcap, a trajectory CSV, a ROS 2 JointTrajectory YAML) or a pose "
-        "list NAME.yaml",
-        file=plan,
-    )
-
-
 def load_model(robot: Robot, dynamics: Path | None) -> tuple[DynamicParameters, str]:
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.dynamics import prior_parameters
@@ -276,13 +260,7 @@ def _trajectory(
     from rxcomm.io.plan_files import load_plan_file
 
     robot, params = job.robot, job.params
-    plan = load_plan_file(job.plan)
-    if plan.joint_names is not None and plan.joint_names != list(robot.joint_names):
-        raise InputError(
-            f"plan is for joints {plan.joint_names}, the robot has {list(robot.joint_names)}",
-            file=job.plan,
-            field="joint_names",
-        )
+    plan = load_plan_file(job.plan, robot.joint_names)
     cycle_s = robot.drives.cycle_s
     prepared = prepare_plan(
         robot,
