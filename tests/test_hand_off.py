@@ -231,3 +231,39 @@ def test_run_log_bag_decodes_message_by_message_with_the_log_s_names_and_stamps(
     assert np.array_equal(np.array([list(m.effort) for m in demand]), log.joints.tau_ff)
     (tf,) = [m for topic, _, m in msgs if topic == "/tf_static"]
     assert tf.transforms[0].header.frame_id == "base_link" and tf.transforms[0].child_frame_id == "tracker"
+
+
+def test_a_plan_carries_its_3d_view_for_foxglove(tmp_path, rx130l):
+    import json
+
+    from mcap.reader import make_reader
+
+    from rxcomm.execution.plan_views import PLAN_TCP_TOPIC, PLAN_TF_TOPIC, plan_views
+    from rxcomm.io.trajectory import load_trajectory_mcap
+    from rxcomm.model.kinematics import tcp_pose
+
+    _, traj = _named_plan(tmp_path / "bare.mcap", rx130l)
+    env = TrajectorySummary.envelope({}, {}, {"duration_s": 0.4, "solve_seconds": 0.0, "max_limit_ratio": 0.5,
+                                             "active_fraction": 0.0, "q_start": traj.q[0].tolist(),
+                                             "q_goal": traj.q[-1].tolist()})  # fmt: skip
+    path = tmp_path / "plan.mcap"
+    save_trajectory_mcap(path, traj, env, rx130l.joint_names, plan_views(rx130l))
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        schemas = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+        tf = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=[PLAN_TF_TOPIC])]
+        tcp = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=[PLAN_TCP_TOPIC])]
+        urdf = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/robot_description"])]
+    assert (
+        schemas[PLAN_TF_TOPIC] == "foxglove.FrameTransforms"
+        and schemas[PLAN_TCP_TOPIC] == "foxglove.PoseInFrame"
+    )
+    assert len(tf) == len(tcp) == 21  # 0.4 s at 50 Hz, and the last sample
+    assert {t["child_frame_id"] for t in tf[0]["transforms"]} >= {"link_1", "link_6", "tcp"}
+    assert "<robot" in urdf[0]["data"]
+    p, _ = tcp_pose(rx130l, traj.q[-1])
+    last = tcp[-1]["pose"]["position"]
+    assert np.allclose([last["x"], last["y"], last["z"]], p, atol=1e-12)  # the planned TCP, where FK puts it
+    back, _ = load_trajectory_mcap(path)  # the trajectory's readers skip the view channels
+    assert np.array_equal(back.q, traj.q) and set(back.extra) == set()
