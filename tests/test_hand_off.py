@@ -267,3 +267,78 @@ def test_a_plan_carries_its_3d_view_for_foxglove(tmp_path, rx130l):
     assert np.allclose([last["x"], last["y"], last["z"]], p, atol=1e-12)  # the planned TCP, where FK puts it
     back, _ = load_trajectory_mcap(path)  # the trajectory's readers skip the view channels
     assert np.array_equal(back.q, traj.q) and set(back.extra) == set()
+
+
+# A UR5e's joint origins as ur_description chains them (every axis z): a robot whose joints match the UR
+# driver's gets its calibration in the driver's kinematics.yaml layout too.
+UR5E = {
+    "shoulder_pan_joint": ("0 0 0.1625", "0 0 0"),
+    "shoulder_lift_joint": ("0 0 0", "1.5707963267948966 0 0"),
+    "elbow_joint": ("-0.425 0 0", "0 0 0"),
+    "wrist_1_joint": ("-0.3922 0 0.1333", "0 0 0"),
+    "wrist_2_joint": ("0 -0.0997 0", "1.5707963267948966 0 0"),
+    "wrist_3_joint": ("0 0.0996 0", "1.5707963267948966 3.141592653589793 3.141592653589793"),
+}
+
+
+def _ur_robot(tmp_path):
+    """The RX130L sample with its joints renamed and re-chained as a UR5e's (links and drives kept)."""
+    import re
+
+    from rxcomm.model.robot import load_robot
+
+    d = tmp_path / "ur"
+    d.mkdir()
+    urdf = (ROBOT_DIR / "rx130l.urdf").read_text()
+    drives = (ROBOT_DIR / "drives.yaml").read_text()
+    for k, (name, (xyz, rpy)) in enumerate(UR5E.items(), start=1):
+        i = urdf.index(f'<joint name="joint_{k}"')
+        j = urdf.index("</joint>", i)
+        body = re.sub(r"<origin [^>]*/>", f'<origin xyz="{xyz}" rpy="{rpy}"/>', urdf[i:j])
+        body = re.sub(r"<axis [^>]*/>", '<axis xyz="0 0 1"/>', body).replace(f"joint_{k}", name)
+        urdf = urdf[:i] + body + urdf[j:]
+        drives = drives.replace(f"name: joint_{k},", f"name: {name},").replace(
+            f"joint: joint_{k},", f"joint: {name},"
+        )
+    (d / "rx130l.urdf").write_text(urdf)
+    (d / "drives.yaml").write_text(drives)
+    return d, load_robot(d)
+
+
+def test_a_ur_arm_s_calibration_is_also_in_the_ur_driver_s_kinematics_yaml_layout(tmp_path):
+    from rxcomm.calibration.controller_files import UR_JOINTS, write_controller_file
+    from rxcomm.calibration.parity import origin
+
+    robot_dir, ur = _ur_robot(tmp_path)
+    errors = {
+        "shoulder_lift_joint.rx": 3e-4,
+        "elbow_joint.tx": 5e-4,
+        "base.tz": 1e-3,
+        "wrist_2_joint.rz": 1e-3,
+    }
+    model = ErrorModel.from_mapping(ur, errors)
+    parity = write_controller_file("joint-origins", ur, model, tmp_path / "k.yaml")
+    assert parity.holds
+    doc = yaml.safe_load((tmp_path / "k.yaml").read_text())
+    kin = doc["kinematics"]
+    assert list(kin) == [key for _, key in UR_JOINTS] + ["hash"] and kin["hash"].startswith("calib_")
+    # the driver's chain: per joint origin(x y z, roll pitch yaw) then Rz(q), then the TCP
+    qs = parity_poses(ur)
+    t = np.broadcast_to(np.eye(4), (len(qs), 4, 4)).copy()
+    from rxcomm.calibration.parity import axis_rotation
+
+    for i, (_, key) in enumerate(UR_JOINTS):
+        row = kin[key]
+        t = t @ origin([row["x"], row["y"], row["z"]], [row["roll"], row["pitch"], row["yaw"]])
+        t = t @ axis_rotation([0, 0, 1], qs[:, i])
+    t = t @ origin(doc["tool"]["xyz_m"], doc["tool"]["rpy_rad"])
+    assert compare("ur", ur, model.apply(ur), qs, t).max_position_m <= HOLD_M
+    # the RX130L's joints are not a UR arm's: no such block
+    write_controller_file("joint-origins", load_rx(), ErrorModel.zeros(load_rx()), tmp_path / "rx.yaml")
+    assert "kinematics" not in yaml.safe_load((tmp_path / "rx.yaml").read_text())
+
+
+def load_rx():
+    from rxcomm.model.robot import load_robot
+
+    return load_robot(ROBOT_DIR)
