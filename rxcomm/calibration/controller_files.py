@@ -144,7 +144,7 @@ def _mdh(beta: bool) -> Callable[[Robot, Robot, ErrorModel, np.ndarray, str], tu
         doc: dict[str, Any] = {
             "robot": robot.name,
             "form": "mdh-hayati" if beta else "mdh",
-            "convention": CONVENTION + "; base and tool: " + RPY,
+            "convention": CONVENTION,
             "parity": parity.as_dict(),
         }
         if not parity.holds:
