@@ -102,7 +102,7 @@ def read_ros2_trajectory(path: str | Path) -> tuple[Trajectory, list[str]]:
     fields); velocities/accelerations/effort may be empty (zeros). InputError names point and field."""
     path = Path(path)
     try:
-        doc = yaml.load(path.read_text(), Loader=yaml.CSafeLoader)
+        doc = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
     except (OSError, yaml.YAMLError) as e:
         raise InputError(f"cannot read as YAML: {e}", file=path) from e
     if not is_ros2_trajectory(doc):

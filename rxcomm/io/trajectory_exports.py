@@ -63,11 +63,11 @@ def export_trajectory_csv(source: str | Path, out: str | Path) -> dict[str, Any]
 
 
 def export_trajectory_ros2(source: str | Path, out: str | Path) -> dict[str, Any]:
-    """A trajectory MCAP as a JointTrajectory YAML; re-read with PyYAML (times to ±0.5 ns)."""
+    """A trajectory MCAP as a JointTrajectory YAML; re-read by PyYAML's libyaml parser (times ±0.5 ns)."""
     source, out = Path(source), Path(out)
     traj, _, names, comments = _source(source)
     write_ros2_trajectory(out, traj, names, comments)
-    doc = yaml.safe_load(out.read_text())
+    doc = yaml.load(out.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
     pts = doc["points"]
     if doc["joint_names"] != names or len(pts) != traj.n:
         raise InputError(f"re-read {len(pts)} points for joints {doc['joint_names']}", file=out)
@@ -77,7 +77,7 @@ def export_trajectory_ros2(source: str | Path, out: str | Path) -> dict[str, Any
     d = max(_max_diff(back[k], getattr(traj, f)) for k, f in zip(keys, FIELDS, strict=True))
     dt = _max_diff(t, traj.t - traj.t[0])
     precision = f"values bit-exact (17 digits); time_from_start integer ns (±{TIME_PRECISION_S * 1e9:g} ns)"
-    return {"re-read": _reread("PyYAML", d, dt, precision)}
+    return {"re-read": _reread("PyYAML (libyaml)", d, dt, precision)}
 
 
 def _bag_check(
