@@ -342,3 +342,26 @@ def load_rx():
     from rxcomm.model.robot import load_robot
 
     return load_robot(ROBOT_DIR)
+
+
+def test_the_report_lists_the_exports_with_their_parity(exports, tmp_path):
+    import shutil
+
+    out, _, _ = exports
+    build = tmp_path / "build"
+    build.mkdir()
+    r = runner.invoke(app, ["report", str(build)])
+    assert r.exit_code == 0, r.output
+    assert "| controller exports in this build | not measured |" in (build / "report.md").read_text()
+    shutil.copytree(out, build / "exports")
+    (build / "report.md").unlink()
+    r = runner.invoke(app, ["report", str(build)])
+    assert r.exit_code == 0, r.output
+    md = (build / "report.md").read_text()
+    rows = yaml.safe_load((out / "parity.yaml").read_text())["exports"]
+    assert "## Controller exports (exports/)" in md and f"| files written | {len(rows)} |" in md
+    for name in ("calibration.urdf", "calibration.mdh-hayati.yaml", "calibration.joint-origins.yaml"):
+        assert f"| exports/{name} |" in md
+    mdh = next(r for r in rows if r["format"] == "mdh")["parity"]["max_position_m"]
+    assert f"| plain MDH residual | {mdh * 1e3:.3g} mm |" in md
+    assert "no: mdh cannot hold this calibration" in md
