@@ -365,3 +365,54 @@ def test_the_report_lists_the_exports_with_their_parity(exports, tmp_path):
     mdh = next(r for r in rows if r["format"] == "mdh")["parity"]["max_position_m"]
     assert f"| plain MDH residual | {mdh * 1e3:.3g} mm |" in md
     assert "no: mdh cannot hold this calibration" in md
+
+
+def test_a_joint_trajectory_written_elsewhere_is_read_and_a_point_beyond_a_limit_refused(tmp_path, rx130l):
+    names = list(rx130l.joint_names)
+    q0 = [float(v) for v in Q0]
+    far = list(q0)
+    far[2] = float(rx130l.q_max[2]) + 0.2  # joint_3 past its upper limit
+    empty = {"velocities": [], "accelerations": [], "effort": []}  # as another tool writes it
+    times = ((0, 0), (1, 500_000_000), (3, 0))
+    doc = {
+        "joint_names": names,
+        "points": [
+            {"positions": p, **empty, "time_from_start": {"sec": s, "nanosec": ns}}
+            for p, (s, ns) in zip((q0, far, q0), times, strict=True)
+        ],
+    }
+    path = tmp_path / "elsewhere.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    traj, got = read_ros2_trajectory(path)
+    assert got == names and np.array_equal(traj.t, [0.0, 1.5, 3.0]) and not traj.qd.any()
+    r = runner.invoke(
+        app,
+        [
+            "run",
+            str(path),
+            "--robot",
+            str(ROBOT_DIR),
+            "--gateway",
+            "127.0.0.1:9",
+            "-o",
+            str(tmp_path / "l.mcap"),
+        ],
+    )
+    assert r.exit_code == 5, r.output  # refused before the gateway (a contact would exit 4)
+    assert "points[1]" in r.output and "joint_3" in r.output and "position" in r.output
+    doc["joint_names"] = names[::-1]
+    path.write_text(yaml.safe_dump(doc))
+    r = runner.invoke(
+        app,
+        [
+            "run",
+            str(path),
+            "--robot",
+            str(ROBOT_DIR),
+            "--gateway",
+            "127.0.0.1:9",
+            "-o",
+            str(tmp_path / "l.mcap"),
+        ],
+    )
+    assert r.exit_code == 2 and "joint_names" in r.output, r.output
