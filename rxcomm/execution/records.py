@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rxcomm.errors import GatewayError, RxcommError
+from rxcomm.execution.guards import raise_if_terminated
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.record_sink import RecordSink
 from rxcomm.gateway import registers as R
@@ -168,6 +169,7 @@ class _Recorder:
         self._next_emit = self.t0 + (sink.period_s if sink is not None else 0.0)
 
     def __call__(self, reply: BlockReply) -> None:
+        raise_if_terminated()  # a SIGTERM between two transactions: stop as Ctrl-C does
         tr = reply.trace
         if tr.count:
             self.chunks.append((tr.first, tr.position_rad, tr.torque_nm))

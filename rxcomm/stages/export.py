@@ -77,8 +77,13 @@ def execute(artefact: Path, output: Path | None = None) -> Path:
             file=artefact,
             field="kind",
         )
+    from rxcomm.io.files import check_outputs
+
     what, suffix, _ = EXPORTERS[kind]
-    out = exporter(kind)(source, output or default_output(source, suffix))
+    target = Path(output) if output is not None else default_output(source, suffix)
+    # NAME.mcap stands for its summary NAME.yaml too: neither may be the export
+    check_outputs({"output": target}, {"artefact": artefact, "source": source})
+    out = exporter(kind)(source, target)
     console.out.print(f"{what} → {out}")
     return out
 
