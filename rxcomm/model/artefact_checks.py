@@ -5,10 +5,10 @@
   match) is refused (InputError, exit 2) naming what differs. A stage's ``--other-robot`` accepts it
   with a warning naming the difference.
 - **Physically consistent dynamics**: a model whose mass matrix M(q) is not positive definite at some
-  configuration within the joint limits (64 seeded samples), or with a negative link mass, rotor
-  inertia or friction coefficient, makes feed-forward torques and limit checks meaningless: refused,
-  or accepted with ``--allow-inconsistent`` and a warning. Slightly inconsistent links
-  (`identify`'s pseudo-inertia report) whose M(q) stays positive definite pass: the consumers need
+  configuration within the joint limits (64 seeded samples) makes feed-forward torques and limit
+  checks meaningless: refused, or accepted with ``--allow-inconsistent`` and a warning. Slightly
+  inconsistent links (`identify`'s pseudo-inertia report; the default identification's full vector
+  can hold a negative wrist link mass) whose M(q) stays positive definite pass: the consumers need
   M(q) ≻ 0, not a realisable link-by-link split.
 
 The options set a policy for the stage's duration (:func:`accepting`), so the loaders deep in the
@@ -95,32 +95,40 @@ def check_same_robot(robot: Robot, inputs: Mapping[str, str], file: str | Path) 
     )
 
 
+def mass_matrix_by_rnea(dyn, q: np.ndarray) -> np.ndarray:
+    """M(q) column by column from inverse dynamics at rest (τ(q, 0, e_j) − τ(q, 0, 0)): linear in the
+    parameters, as the feed-forward is. (CRBA builds each link's inertia about its centre of mass and
+    returns garbage, eigenvalues of 1e28, for a full vector with a negative link mass whose base
+    parameters are fine.)"""
+    n = q.shape[-1]
+    rest = np.zeros(n)
+    tau0 = dyn.inverse_dynamics(q, rest, rest)
+    cols = [dyn.inverse_dynamics(q, rest, np.eye(n)[j]) - tau0 for j in range(n)]
+    m = np.stack(cols, axis=-1)
+    return 0.5 * (m + np.swapaxes(m, -1, -2))
+
+
 def physical_problems(robot: Robot, params, n_samples: int = CONSISTENCY_SAMPLES, seed: int = 0) -> list[str]:
-    """Why ``params`` (DynamicParameters) cannot be a physical robot's, worst first; [] if none seen."""
+    """Why ``params`` (DynamicParameters) cannot drive a physical robot: a mass matrix M(q) that is not
+    positive definite somewhere within the joint limits (``n_samples`` seeded configurations); [] if
+    none seen. The split into links is not judged: identified base parameters fix M(q), not each
+    link's mass (`identify` reports that split's consistency)."""
     from rxcomm.model.dynamics import RobotDynamics, random_states
 
-    out: list[str] = []
     names = robot.joint_names
-    for what, values in (
-        ("link mass", params.inertial[:, 0]),
-        ("rotor inertia", params.rotor_inertia_kgm2),
-        ("Coulomb friction", params.coulomb_nm),
-        ("viscous friction", params.viscous_nm_s_per_rad),
-    ):
-        for i in np.flatnonzero(np.asarray(values) < 0):
-            out.append(f"{what} of {names[i]} is {float(values[i]):.4g} < 0")
     q, _, _ = random_states(robot, n_samples, seed)
-    eig = np.linalg.eigvalsh(RobotDynamics(robot, params).mass_matrix(q))
+    dyn = RobotDynamics(robot, params)
+    mats = np.stack([mass_matrix_by_rnea(dyn, qi) for qi in q])
+    eig = np.linalg.eigvalsh(mats)
     k = int(np.argmin(eig[:, 0]))
-    if eig[k, 0] <= 0.0:
-        diag = np.diagonal(RobotDynamics(robot, params).mass_matrix(q[k]))
-        worst = int(np.argmin(diag))
-        out.insert(
-            0,
-            f"the mass matrix M(q) is not positive definite (least eigenvalue {eig[k, 0]:.4g}, "
-            f"M[{names[worst]}] = {diag[worst]:.4g} kg·m² at q = {np.round(q[k], 3).tolist()} rad)",
-        )
-    return out
+    if eig[k, 0] > 0.0:
+        return []
+    diag = np.diagonal(mats[k])
+    worst = int(np.argmin(diag))
+    return [
+        f"the mass matrix M(q) is not positive definite (least eigenvalue {eig[k, 0]:.4g}, "
+        f"M[{names[worst]}] = {diag[worst]:.4g} kg·m² at q = {np.round(q[k], 3).tolist()} rad)"
+    ]
 
 
 def check_consistent(robot: Robot, params, file: str | Path) -> None:
