@@ -682,3 +682,66 @@ def test_robot_info_prints_the_figures_then_exit_3_for_a_payload_too_heavy(tmp_p
     assert res.exit_code == 3, res.output
     assert "degrees of freedom" in res.output and "gravity alone needs" in res.output
     assert res.output.index("degrees of freedom") < res.output.index("error:")
+
+
+# ---- 16: a stop names what held the master ------------------------------------------------------------
+
+
+def test_stall_watch_tells_a_descheduled_master_from_its_own_work(monkeypatch):
+    """Clocks driven by the test (a loaded machine makes real CPU shares unpredictable): a pause off
+    the CPU, one on it, one in the garbage collector."""
+    from rxcomm.execution import stalls
+
+    clock = {"wall": 0.0, "cpu": 0.0}
+
+    class FakeTime:
+        @staticmethod
+        def perf_counter():
+            return clock["wall"]
+
+        @staticmethod
+        def process_time():
+            return clock["cpu"]
+
+    monkeypatch.setattr(stalls, "time", FakeTime)
+    for cpu_s, gc_s, cause in (
+        (0.05, 0.0, "the master was not scheduled (a loaded machine)"),
+        (1.1, 0.0, "the master's own work or another thread holding the GIL"),
+        (1.2, 0.9, "the garbage collector"),
+    ):
+        with stalls.StallWatch() as w:
+            w.reply()
+            clock["wall"] += 0.2
+            w.reply()
+            w._gc("start", {})
+            clock["wall"] += gc_s
+            w._gc("stop", {})
+            clock["wall"] += 1.3 - gc_s
+            clock["cpu"] += cpu_s
+            w.reply()
+        assert w.longest_s == pytest.approx(1.3) and w.longest_at_s == pytest.approx(0.2)
+        assert w.describe().endswith(cause), w.describe()
+        assert f"was 1.30 s 0.20 s into the stream ({cpu_s / 1.3:.0%} of it" in w.describe()
+
+
+@pytest.mark.slow
+def test_a_watchdog_stop_names_the_masters_pause(tmp_path, cell, monkeypatch):  # noqa: F811
+    """The master hangs 0.8 s (off the CPU) mid-stream: the watchdog stop says how long and why."""
+    from rxcomm.execution import session as ses
+
+    plan = save_plan(tmp_path / "plan.mcap", cosine_plan(Q0, DQ, 3.0))
+    stalled = {"done": False}
+    real = ses._Recorder.__call__
+
+    def stalling(self, reply):
+        real(self, reply)
+        if not stalled["done"] and reply.trace is not None and reply.trace.count > 0:
+            stalled["done"] = True
+            time.sleep(0.8)
+
+    monkeypatch.setattr(ses._Recorder, "__call__", stalling)
+    with pytest.raises(GatewayError) as e:
+        run_stage.execute(plan, ROBOT_DIR, tmp_path / "log.mcap", gateway=gw(cell), show_progress=False)
+    msg = str(e.value)
+    assert "heartbeat (0x8130)" in msg and "the master's longest pause between gateway replies was 0.8" in msg
+    assert "the master was not scheduled" in msg

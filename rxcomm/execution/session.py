@@ -38,6 +38,7 @@ from rxcomm.execution.records import (
     StreamLog,
     _Recorder,
 )
+from rxcomm.execution.stalls import StallWatch
 from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import GatewayClient
@@ -224,18 +225,21 @@ class Session:
         error: RxcommError | None = None
         writer_failed = False
         busy = 0
+        rec.stalls = StallWatch()
         try:
-            res = stream(
-                self.client,
-                sub.q,
-                sub.tau_ff,
-                high_level=self.high_level(),
-                on_reply=rec,
-                keep_trace=False,  # the recorder has it (and drops it once a sink took it)
-            )
+            with rec.stalls:
+                res = stream(
+                    self.client,
+                    sub.q,
+                    sub.tau_ff,
+                    high_level=self.high_level(),
+                    on_reply=rec,
+                    keep_trace=False,  # the recorder has it (and drops it once a sink took it)
+                )
             busy = res.busy_replies
         except (GatewayError, SafetyStop) as e:
-            error = self._explain(e)
+            rec.stalls.reply()  # the pause before the stop counts too
+            error = self._explain(e, rec.stalls)
         except KeyboardInterrupt as e:  # stream() sent the quick stop already
             error = SafetyStop(f"{interrupt_reason(e)}: quick stop sent")
         except OSError as e:  # the run log's writer failed (a full disk): stop the motion, keep the log
@@ -331,8 +335,9 @@ class Session:
         except GatewayError:
             return None
 
-    def _explain(self, error: RxcommError) -> RxcommError:
-        """The stop as the cell saw it: which axes faulted with which code, communication or safety."""
+    def _explain(self, error: RxcommError, stalls: StallWatch | None = None) -> RxcommError:
+        """The stop as the cell saw it: which axes faulted with which code, communication or safety;
+        an underrun or a watchdog stop also says what held the master (``StallWatch``)."""
         if isinstance(error, GatewayError) and not self.client_open:
             # stream() reads the status after a refused block; if that fails too, the first error is the cause
             cause = error.__context__ if isinstance(error.__context__, GatewayError) else error
@@ -349,6 +354,8 @@ class Session:
         what = _cause_name(st.stop_cause) + ("" if not code else f", {_code_name(code)}")
         where = ", ".join(f"{n} {_code_name(c)}" for n, c in faulted)
         text = f"{what} at t = {t_s:.3f} s" + (f" ({where})" if where else "")
+        if stalls is not None and (code in COMMUNICATION_ERRORS or st.stop_cause == StopCause.UNDERRUN):
+            text += f"; {stalls.describe()}"
         if code in COMMUNICATION_ERRORS:
             return GatewayError(f"stream stopped by the gateway: {text}")
         if Status(st.status) & STOP_BITS or faulted:
