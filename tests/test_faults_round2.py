@@ -745,3 +745,5 @@ def test_a_watchdog_stop_names_the_masters_pause(tmp_path, cell, monkeypatch):  
     msg = str(e.value)
     assert "heartbeat (0x8130)" in msg and "the master's longest pause between gateway replies was 0.8" in msg
     assert "the master was not scheduled" in msg
+    # case 14: the watchdog faulted every drive; the message says so instead of "drives disabled"
+    assert "drives in fault, not disabled (joint_1 0x8130" in msg

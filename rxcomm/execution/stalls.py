@@ -27,6 +27,7 @@ class StallWatch:
         self.gc_longest_s = 0.0
         self.gc_total_s = 0.0
         self._gc_start = 0.0
+        self.last_s = self.last_cpu_s = 0.0  # the pause that ended at the latest reply (or the stop)
 
     def __enter__(self) -> StallWatch:
         gc.callbacks.append(self._gc)
@@ -49,6 +50,7 @@ class StallWatch:
         """A gateway reply (or the error that ended the stream) arrived."""
         now, cpu = time.perf_counter(), time.process_time()
         gap = now - self._last
+        self.last_s, self.last_cpu_s = gap, cpu - self._last_cpu
         if gap > self.longest_s:
             self.longest_s, self.longest_at_s = gap, self._last - self.t0
             self.longest_cpu_s = cpu - self._last_cpu
@@ -65,8 +67,12 @@ class StallWatch:
             cause = "the master was not scheduled (a loaded machine)"
         else:
             cause = "the master's own work or another thread holding the GIL"
+        last = ""
+        if self.last_s < self.longest_s:
+            last_share = self.last_cpu_s / self.last_s if self.last_s > 0 else 0.0
+            last = f"; the pause just before the stop {self.last_s:.2f} s ({last_share:.0%} on its CPU)"
         return (
             f"the master's longest pause between gateway replies was {self.longest_s:.2f} s "
             f"{self.longest_at_s:.2f} s into the stream ({share:.0%} of it on this process's CPU, "
-            f"longest GC pause {self.gc_longest_s:.3f} s): {cause}"
+            f"longest GC pause {self.gc_longest_s:.3f} s): {cause}{last}"
         )
