@@ -9,6 +9,8 @@ Layout of a file written here (the format is ``rxcomm.io.mcap_format``; the read
 - log times and stamps in epoch ns: ``time_origin_ns`` (default: when the writer opened) + sample time;
 - beside each all-numeric channel, a column channel (``/columns/TOPIC``) of protobuf blocks in chunks
   of their own, which readers load without parsing the per-sample JSON;
+- or, for a channel added with ``add_row_channel`` (the run log's), one fixed-layout protobuf message
+  per sample instead of both (``mcap_rows``): the one copy Foxglove plots and readers view as arrays;
 - the envelope as a metadata record ``rxcomm/envelope`` written right after the header (so a killed
   writer's file still says what it is) and, if the summary changed meanwhile, again at ``finish()``
   (the reader keeps the last one);
