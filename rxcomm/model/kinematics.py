@@ -37,7 +37,7 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.errors import InfeasibleError, InputError
-from rxcomm.model.ik import solve_ik
+from rxcomm.model.ik import scratch_data, solve_ik
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.path import Branch
 
@@ -193,7 +193,7 @@ def inverse_kinematics(
     Returns an `IkResult`; failure is a status, not an exception (see the module docstring).
     """
     r = _robot_with(robot, errors)
-    model, data = r.model, r.create_data()
+    model, data = r.model, scratch_data(r)
     fid = r.tcp_frame_id if frame_id is None else frame_id
     target = _as_se3(target_pose)
     q = np.minimum(np.maximum(np.asarray(q_seed, dtype=float), r.q_min), r.q_max)  # np.clip: 10 µs
