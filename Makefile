@@ -30,9 +30,11 @@ lint: $(STAMP)
 test: lint
 	$(VENV)/bin/pytest -q -p no:cacheprovider; rc=$$?; [ $$rc -eq 5 ] && rc=0; exit $$rc
 
-# Unit tests only, for the edit-run loop.
+# The unit tier, for the edit-run loop: no test marked slow or by what it needs (a process, make, a
+# socket, wall-clock streaming; pyproject.toml's markers, held true by tests/conftest.py).
+FAST := not slow and not process and not make and not socket and not realtime
 test-fast: $(STAMP)
-	$(VENV)/bin/pytest -q -m "not slow" -p no:cacheprovider
+	$(VENV)/bin/pytest -q -m "$(FAST)" -p no:cacheprovider
 
 schemas: $(STAMP)
 	$(PY) -m rxcomm.schemas.generate

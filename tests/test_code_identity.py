@@ -44,6 +44,7 @@ def test_a_source_edit_changes_the_identity_and_a_touch_does_not(tmp_path):
     assert ci.code_identity.__wrapped__(a) != ident
 
 
+@pytest.mark.process
 def test_this_checkout_names_its_git_revision():
     if not (ROOT / ".git").exists() or shutil.which("git") is None:
         pytest.skip("not run from a git checkout")
@@ -61,6 +62,16 @@ def test_the_envelope_carries_it_and_an_older_artefact_without_it_still_reads():
     old |= dict(topic="/t", n_samples=1, fields=["q"])
     del old["code_identity"]
     assert TrajectorySummary.model_validate(old).code_identity is None
+
+
+def test_version_prints_the_code_identity():
+    from typer.testing import CliRunner
+
+    from rxcomm.cli import app
+
+    res = CliRunner().invoke(app, ["--version"])
+    assert res.exit_code == 0 and res.output == f"rxcomm {ci.code_identity()}\n"
+    assert " sources " in res.output
 
 
 def test_commands_are_their_stage_modules():

@@ -332,6 +332,7 @@ _KILLED_WRITER = textwrap.dedent(
 )
 
 
+@pytest.mark.process
 def test_kill_minus_9_and_recover(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     part = tmp_path / "run-log.mcap.part"
     proc = subprocess.Popen(

@@ -17,7 +17,10 @@ import pytest
 
 from .conftest import ROOT
 
-pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="GNU make not installed")
+pytestmark = [
+    pytest.mark.make,
+    pytest.mark.skipif(shutil.which("make") is None, reason="GNU make not installed"),
+]
 
 ROBOT = Path("samples/rx130l")
 
