@@ -9,8 +9,9 @@ Every artefact envelope carries it (``code_identity``) and ``rxcomm --version`` 
 
 The Makefile asks ``python -m rxcomm.code_identity --make`` for one hash a command: the hash of the
 sources that command imports (its stage module, ``rxcomm.cli`` and everything they import, found in
-the source text, lazily imported modules included), so editing a module rebuilds the rules whose
-command imports it and nothing else. Standard library only: make runs it with the system Python.
+the source text: lazily imported modules included, and the ``"rxcomm.a.b:name"`` strings of modules
+imported by name with importlib), so editing a module rebuilds the rules whose command imports it and
+nothing else. Standard library only: make runs it with the system Python.
 """
 
 from __future__ import annotations
@@ -90,6 +91,8 @@ def _module_file(name: str, root: Path) -> Path | None:
 
 _FROM = re.compile(r"^[ \t]*from[ \t]+(\.*[\w.]*)[ \t]+import[ \t]+(\([^)]*\)|[^\n]*)", re.M)
 _IMPORT = re.compile(r"^[ \t]*import[ \t]+([^\n]*)", re.M)
+# "rxcomm.a.b:name": a module imported by name at run time (importlib; stages.export's exporters)
+_BY_NAME = re.compile(r"[\"'](rxcomm(?:\.\w+)+):\w+[\"']")
 
 
 def _names(text: str) -> list[str]:
@@ -108,6 +111,7 @@ def _imported(path: Path, root: Path) -> frozenset[str]:
     names: set[str] = set()
     for m in _IMPORT.finditer(text):
         names |= set(_names(m.group(1)))
+    names |= set(_BY_NAME.findall(text))
     for m in _FROM.finditer(text):
         spec = m.group(1)
         level = len(spec) - len(spec.lstrip("."))

@@ -98,7 +98,7 @@ def test_a_command_hash_covers_what_it_imports_and_only_that(tmp_path):
 def test_relative_and_parenthesised_imports_are_read(tmp_path):
     pkg = tmp_path / "rxcomm"
     (pkg / "sub").mkdir(parents=True)
-    for f in ("__init__.py", "sub/__init__.py", "sub/b.py", "sub/c.py", "d.py", "e.py"):
+    for f in ("__init__.py", "sub/__init__.py", "sub/b.py", "sub/c.py", "d.py", "e.py", "f.py"):
         (pkg / f).write_text("")
     (pkg / "sub/a.py").write_text(
         textwrap.dedent(
@@ -112,12 +112,24 @@ def test_relative_and_parenthesised_imports_are_read(tmp_path):
                 from rxcomm import (
                     e,  # a comment
                 )
+
+
+            EXPORTERS = {"kind": "rxcomm.f:export"}  # imported by name (importlib)
             """
         )
     )
     files = ci.import_closure(["rxcomm.sub.a"], pkg)
     got = {p.relative_to(pkg).as_posix() for p in files}
-    assert got == {"__init__.py", "sub/__init__.py", "sub/a.py", "sub/b.py", "sub/c.py", "d.py", "e.py"}
+    assert got == {
+        "__init__.py",
+        "sub/__init__.py",
+        "sub/a.py",
+        "sub/b.py",
+        "sub/c.py",
+        "d.py",
+        "e.py",
+        "f.py",
+    }
 
 
 @pytest.mark.process
