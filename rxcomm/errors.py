@@ -43,18 +43,6 @@ class InfeasibleError(LocatedError):
     exit_code = 3
 
 
-class GatewayError(RxcommError):
-    """Communication with the drive gateway failed (connection, protocol, timeout)."""
-
-    exit_code = 4
-
-
-class SafetyStop(RxcommError):
-    """Motion was stopped for safety (fault, following error, watchdog, e-stop, user abort)."""
-
-    exit_code = 5
-
-
 # ---- how a solver says how it ended ----------------------------------------------------------------
 
 
@@ -93,3 +81,15 @@ class SolveOutcome:
             return cls(SolveStatus.SOLVED)
         status = SolveStatus.INFEASIBLE if return_status in _IPOPT_INFEASIBLE else SolveStatus.NOT_CONVERGED
         return cls(status, f"IPOPT {return_status} after {iterations} iterations")
+
+
+class GatewayError(RxcommError):
+    """Communication with the drive gateway failed (connection, protocol, timeout)."""
+
+    exit_code = 4
+
+
+class SafetyStop(RxcommError):
+    """Motion was stopped for safety (fault, following error, watchdog, e-stop, user abort)."""
+
+    exit_code = 5
