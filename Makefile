@@ -317,6 +317,17 @@ $(B)/verdict.yaml: $(ACCEPTANCE) $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.m
 		$(B)/run-ptp.mcap $(B)/iso9283-factory.yaml $(B)/iso9283.yaml $(call params,accept,$(ACCEPT_ARGS))
 	$(RX) accept $(ACCEPT_ARGS) -o $@
 
+# The controller hand-off (issue 31): the calibration as URDF, joint-origin table, MDH and Hayati-MDH, the
+# commissioned plans and the feed-forward run as CSV, ROS 2 JointTrajectory YAML and ROS 2 bag, each read
+# back by an independent reader; exports/parity.yaml holds every file's parity figure (the report lists it).
+# (`+`: the directory is made under `make -t` / `-n` too, so a touched build has the file it vouches for.)
+EXPORT_ARGS = --robot $(ROBOT) --calibration $(B)/calibration.yaml --format all
+EXPORTED    := $(B)/calibration.yaml $(B)/cp.mcap $(B)/ptp.mcap $(B)/run-ff.mcap
+$(B)/exports/parity.yaml: $(EXPORTED) $(ROBOT_FILES) $(call params,exports,$(EXPORT_ARGS))
+	+@mkdir -p $(@D)
+	rm -f $(@D)/*
+	$(RX) export $(EXPORTED) $(EXPORT_ARGS) -o $(@D)
+
 # The artefacts `report` reads (rxcomm/stages/report.py): the stages', every run log of the chain (with
 # their PNGs) and the verdict; it reads no robot file and has no options. It writes report.html beside.
 $(B)/report.md: $(B)/configs.yaml $(B)/calibration-prior.yaml $(B)/calibration.yaml $(B)/excitation.yaml $(B)/dynamics.yaml \
@@ -324,7 +335,7 @@ $(B)/report.md: $(B)/configs.yaml $(B)/calibration-prior.yaml $(B)/calibration.y
 		$(B)/excite-log.mcap $(B)/validation-log.mcap $(B)/run-factory-cp.mcap \
 		$(B)/run-factory-ptp.mcap $(B)/run-factory-poses.mcap $(B)/run-poses.mcap \
 		$(B)/run-factory-iso-line.mcap $(B)/run-iso-line.mcap $(B)/run-factory-iso-circle.mcap \
-		$(B)/run-iso-circle.mcap $(B)/verdict.yaml
+		$(B)/run-iso-circle.mcap $(B)/verdict.yaml $(B)/exports/parity.yaml
 	$(RX) report $(B) -o $@
 
 # The command each rule runs, by its code stamp (above; tests/test_make.py checks each recipe's command).

@@ -108,8 +108,8 @@ STAGES: dict[str, Stage] = {
     ),
     "export": Stage(
         "export",
-        "Export an artefact for another tool, by its kind",
-        "rxcomm export build/cp.mcap -o cp.csv",
+        "Export artefacts for other tools, by kind and --format, each with its parity figure",
+        "rxcomm export build/cp.mcap --format ros2-trajectory",
     ),
     "accept": Stage(
         "accept",

@@ -8,7 +8,7 @@ stamped in epoch time from the plan's creation) with ``NAME.yaml`` beside it
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -110,9 +110,11 @@ def save_trajectory_mcap(
     traj: Trajectory,
     envelope: Mapping[str, Any] | Artefact,
     joint_names: Sequence[str] | None = None,
+    views: Callable[[McapWriter, Trajectory], None] | None = None,
 ) -> TrajectorySummary:
     """Write ``traj`` to ``NAME.mcap`` and its summary to ``NAME.yaml``; return the summary.
-    ``joint_names`` go into every message (a channel constant) so Foxglove shows which joint is which.
+    ``joint_names`` go into every message (a channel constant) so Foxglove shows which joint is which;
+    ``views`` (e.g. `rxcomm.execution.plan_views.plan_views`) writes Foxglove's 3D channels beside.
 
     ``envelope`` comes from ``TrajectorySummary.envelope(inputs, settings, summary)`` and must carry
     the summary keys architecture §9 requires. Order: finished ``NAME.mcap.part`` -> hash -> ``NAME.yaml``
@@ -138,6 +140,8 @@ def save_trajectory_mcap(
             fields = {k: field_for(c) for k, c in columns.items()}
             w.add_channel(TOPIC, SCHEMA_TITLE, fields, constants={"joint_names": list(joint_names)})
         w.write_arrays(TOPIC, traj.t, columns, schema_title=SCHEMA_TITLE)
+        if views is not None:
+            views(w, traj)
         w.finish(before_rename=write_yaml)
     return summary[0]
 
@@ -147,8 +151,14 @@ def load_trajectory_mcap(path: str | Path) -> tuple[Trajectory, dict[str, Any]]:
 
     Raises InputError naming the file and field if it is not an rxcomm trajectory.
     """
+    traj, env, _ = load_trajectory_named(path)
+    return traj, env
+
+
+def load_trajectory_named(path: str | Path) -> tuple[Trajectory, dict[str, Any], list[str] | None]:
+    """:func:`load_trajectory_mcap` and the joint names the file carries (None: a file without)."""
     path = Path(path)
-    contents = read_mcap(path)
+    contents = read_mcap(path, topics=[TOPIC])  # the samples, not a plan's 3D view channels
     env = contents.envelope
     check_kind(env, TrajectorySummary, file=path, prefix="envelope")
     validate_model(Artefact, env, file=path, prefix="envelope")
@@ -163,4 +173,5 @@ def load_trajectory_mcap(path: str | Path) -> tuple[Trajectory, dict[str, Any]]:
         traj = Trajectory(td.t, td["q"], td["qd"], td["qdd"], td["tau_ff"], extra)
     except InvalidTrajectory as e:
         raise InputError(e.reason, file=path, field=f"{TOPIC}.{e.field}") from e
-    return traj, env
+    names = td.constants.get("joint_names")
+    return traj, env, (list(names) if isinstance(names, list) else None)

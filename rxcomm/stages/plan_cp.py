@@ -304,6 +304,7 @@ def _write(
     robot, plan, cpath, catalogue, inputs, settings, output: Path, t_all: float, plot: bool, name: str
 ):
     """The trajectory MCAP + YAML (and with `plot` the PNG); returns the summary."""
+    from rxcomm.execution.plan_views import plan_views
     from rxcomm.io.trajectory import save_trajectory_mcap
     from rxcomm.planning.catalogue_timing import filtered_path_deviation_m
 
@@ -314,7 +315,7 @@ def _write(
     summary["seconds"] = time.perf_counter() - t_all
     env = TrajectorySummary.envelope(inputs, settings, summary)
     output.parent.mkdir(parents=True, exist_ok=True)
-    save_trajectory_mcap(output, trajectory_of(plan), env, robot.joint_names)
+    save_trajectory_mcap(output, trajectory_of(plan), env, robot.joint_names, plan_views(robot))
     console.summary_table(f"plan-cp → {output}", summary)
     _print_active(plan)
     if plot:

@@ -29,6 +29,7 @@ from rxcomm.reporting.document import (
     VerdictRow,
     missing_section,
 )
+from rxcomm.reporting.exports import exports_section
 from rxcomm.reporting.identification import dynamics_section, excitation_section
 from rxcomm.reporting.runs import (
     execution_section,
@@ -150,6 +151,8 @@ def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Re
         f"{Path(n).stem}.png" for n in runs if n != "run-ff.yaml" and (build / n).with_suffix(".png").exists()
     ]
     sections.append(runs_section(runs, run_images))
+    parity = build / "exports" / "parity.yaml"
+    sections.append(exports_section(load_yaml(parity) if parity.is_file() else None))
     keys = {"calibration": "calibration.yaml", "dynamics": "dynamics.yaml", "excitation": "excitation.yaml"}
     keys |= {"cp": "cp.yaml", "ptp": "ptp.yaml", "run-ff": "run-ff.yaml", "run-noff": "run-noff.yaml"}
     summaries = {k: (a.get(name) or {}).get("summary") for k, name in keys.items()}

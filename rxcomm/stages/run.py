@@ -20,6 +20,7 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.io.files import check_outputs
+from rxcomm.io.plan_files import plan_kind
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.options import RobotDir
@@ -37,16 +38,6 @@ if TYPE_CHECKING:
 
 
 # --- inputs ---------------------------------------------------------------------------------------
-def plan_kind(plan: Path) -> str:
-    """'trajectory' for NAME.mcap, 'poses' for a YAML pose list."""
-    suffix = plan.suffix.lower()
-    if suffix == ".mcap":
-        return "trajectory"
-    if suffix in (".yaml", ".yml"):
-        return "poses"
-    raise InputError("PLAN must be a trajectory NAME.mcap or a pose list NAME.yaml", file=plan)
-
-
 def load_model(robot: Robot, dynamics: Path | None) -> tuple[DynamicParameters, str]:
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.dynamics import prior_parameters
@@ -200,7 +191,7 @@ def execute(
     kind = plan_kind(plan)
     # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
     cfg = load_poses(plan) if kind == "poses" else None
-    if kind == "trajectory":
+    if kind == "trajectory" and plan.suffix.lower() == ".mcap":
         check_kind(read_mcap_envelope(plan), TrajectorySummary, file=plan, prefix="envelope")
     want = ".mcap" if kind == "trajectory" else ".yaml"
     if output.suffix != want:
@@ -266,18 +257,20 @@ def _trajectory(
     from rxcomm.execution.log import RunLogWriter
     from rxcomm.execution.plan import prepare_plan
     from rxcomm.execution.trajectory_run import execute_trajectory
-    from rxcomm.io.trajectory import load_trajectory_mcap
+    from rxcomm.io.plan_files import load_plan_file
 
     robot, params = job.robot, job.params
-    traj, _ = load_trajectory_mcap(job.plan)
+    plan = load_plan_file(job.plan, robot.joint_names)
     cycle_s = robot.drives.cycle_s
     prepared = prepare_plan(
         robot,
-        traj,
+        plan.trajectory,
         params,
         cycle_s,
         feedforward=settings.feedforward,
         limit_tolerance=settings.limit_tolerance,
+        what=f"plan {job.plan.name}",
+        sample_label=plan.label,
     )
     with job.connect() as (client, server):
         embedded = server is not None
