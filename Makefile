@@ -356,6 +356,7 @@ $(B)/calib-meas.yaml $(B)/excite-log.mcap $(B)/validation-log.mcap $(B)/run-noff
 	$(B)/run-iso-line.mcap: $(code_run)
 $(B)/iso9283-factory.yaml $(B)/iso9283.yaml: $(code_iso9283)
 $(B)/verdict.yaml: $(code_accept)
+$(B)/exports/parity.yaml: $(code_export)
 $(B)/report.md: $(code_report)
 
 # The main job: the report plus the chain's products it does not read.

@@ -329,7 +329,7 @@ def test_a_robot_without_the_singular_line_runs_its_iso_line_and_a_missing_path_
 
 # The commands the chain runs.
 CHAIN_COMMANDS = {"robot-info", "select-configs", "run", "calibrate", "excite", "identify", "plan-cp"}
-CHAIN_COMMANDS |= {"plan-ptp", "plan-poses", "plan-cycles", "iso9283", "accept", "report"}
+CHAIN_COMMANDS |= {"plan-ptp", "plan-poses", "plan-cycles", "iso9283", "accept", "export", "report"}
 
 
 def _edit(path: Path) -> None:
