@@ -363,6 +363,19 @@ $(B)/report.md: $(code_report)
 commission: $(B)/robot-info.txt $(B)/report.md
 	@echo "commissioning report: $(B)/report.md"
 
+# One `make commission` per build directory at a time: a make that builds the chain (not -n/-t/-q)
+# takes $(B)/.make.lock (flock) while it parses, held by a watcher until that make exits, so a second
+# one on the same directory stops at once naming the lock instead of racing the first for its outputs.
+ifneq ($(filter commission,$(MAKECMDGOALS)),)
+ifeq ($(findstring n,$(firstword -$(MAKEFLAGS)))$(findstring t,$(firstword -$(MAKEFLAGS)))$(findstring q,$(firstword -$(MAKEFLAGS))),)
+BUILD_LOCK := $(shell mkdir -p $(B) && sh -c 'exec 9>"$$1"; flock -n 9 || { echo busy; exit 0; }; echo held; \
+	( while kill -0 "$$0" 2>/dev/null; do sleep 0.2; done ) >/dev/null 2>&1 </dev/null &' $$PPID $(B)/.make.lock)
+ifeq ($(BUILD_LOCK),busy)
+$(error another make commission is building $(B) (it holds the lock $(B)/.make.lock); wait for it or use another BUILD=)
+endif
+endif
+endif
+
 # CI: the same rules, reduced (fewer poses and candidates, fewer excitation starts), in its own dir.
 commission-ci:
 	$(MAKE) commission BUILD=build-ci N_POSES=16 \

@@ -21,6 +21,21 @@ IdentifiedDynamics = Annotated[
     Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
 ]
 TimeWeight = Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")]
+# plan-cp, plan-ptp, run: artefacts that claim another robot or an impossible one (issue 27).
+OtherRobot = Annotated[
+    bool,
+    typer.Option(
+        help="Accept a calibration or dynamics made for other robot files (their URDF / drives.yaml "
+        "sha256 in its envelope differ), with a warning naming the difference."
+    ),
+]
+AllowInconsistent = Annotated[
+    bool,
+    typer.Option(
+        help="Accept physically inconsistent dynamics (M(q) not positive definite, a negative mass, "
+        "rotor inertia or friction), with a warning."
+    ),
+]
 # plan-poses, plan-cycles: a plan derived from catalogue timing.
 PLAN_OUTPUT = typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")
 PlanDynamics = Annotated[

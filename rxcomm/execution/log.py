@@ -353,11 +353,14 @@ class Recovery:
 
 
 def recovered_path(part: str | Path) -> Path:
-    """``run.mcap.part`` -> ``run.recovered.mcap``: never the completed log's name, so neither make nor
-    a later stage mistakes a cut-off log for a complete run."""
+    """``run.mcap.part`` -> ``run.recovered.mcap`` (a moved-aside ``run.mcap.part.2`` ->
+    ``run.2.recovered.mcap``): never the completed log's name, so neither make nor a later stage
+    mistakes a cut-off log for a complete run."""
     part = Path(part)
-    name = part.name.removesuffix(".part")
-    stem = name.removesuffix(".mcap")
+    name, _, n = part.name.rpartition(".part.")
+    if not (name and n.isdigit()):
+        name, n = part.name.removesuffix(".part"), ""
+    stem = name.removesuffix(".mcap") + (f".{n}" if n else "")
     return part.with_name(f"{stem}.recovered.mcap")
 
 

@@ -55,6 +55,7 @@ class TopicData:
     t: np.ndarray
     fields: dict[str, np.ndarray]
     constants: dict[str, Any] = field(default_factory=dict)
+    backwards_at_s: float | None = None  # the first log time that went backwards in file order (re-sorted)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.fields[name]
@@ -218,7 +219,8 @@ def _messages_topic(
     if ch.message_encoding != "json":
         raise InputError(f"message encoding {ch.message_encoding!r} is not json", file=path, field=ch.topic)
     log_ns = np.fromiter((m.log_time for m in msgs), dtype=np.int64, count=len(msgs))
-    if np.any(np.diff(log_ns) < 0):  # file order is write order; present in time order
+    back = _backwards_at(log_ns, origin)
+    if back is not None:  # file order is write order; present in time order
         order = np.argsort(log_ns, kind="stable")
         msgs = [msgs[i] for i in order]
         log_ns = log_ns[order]
@@ -236,7 +238,13 @@ def _messages_topic(
     numbers = _number_fields(schema)
     fields = {k: _column([d.get(k) for d in decoded], path, f"{ch.topic}.{k}", k in numbers) for k in names}
     t = (log_ns - origin) / NS
-    return TopicData(ch.topic, schema.name if schema else "", t, fields, constants)
+    return TopicData(ch.topic, schema.name if schema else "", t, fields, constants, back)
+
+
+def _backwards_at(log_ns: np.ndarray, origin: int) -> float | None:
+    """The first log time (s from the origin) smaller than the one before it, None if in order."""
+    back = np.flatnonzero(np.diff(log_ns) < 0)
+    return float((log_ns[back[0] + 1] - origin) / NS) if back.size else None
 
 
 def _block_topic(
@@ -250,11 +258,12 @@ def _block_topic(
     log_ns = np.concatenate([d[0] for d in decoded]) if decoded else np.zeros(0, dtype=np.int64)
     names = list(decoded[0][1]) if decoded else []
     fields = {k: np.concatenate([d[1][k] for d in decoded]).astype(_native(decoded[0][1][k])) for k in names}
-    if np.any(np.diff(log_ns) < 0):
+    back = _backwards_at(log_ns, origin)
+    if back is not None:
         order = np.argsort(log_ns, kind="stable")
         log_ns, fields = log_ns[order], {k: v[order] for k, v in fields.items()}
     t = (log_ns - origin) / NS
-    return TopicData(ch.topic, schema.name if schema else "", t, fields, _constants(ch, path))
+    return TopicData(ch.topic, schema.name if schema else "", t, fields, _constants(ch, path), back)
 
 
 def _native(a: np.ndarray) -> np.dtype:

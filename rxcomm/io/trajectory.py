@@ -19,7 +19,7 @@ import numpy as np
 from rxcomm.errors import InputError
 from rxcomm.io.mcap_io import McapWriter, field_for, read_mcap
 from rxcomm.io.validate import check_kind, validate_model
-from rxcomm.io.yaml_io import mcap_summary, summary_yaml_path, write_mcap_summary
+from rxcomm.io.yaml_io import check_mcap_summary, mcap_summary, summary_yaml_path, write_mcap_summary
 from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -158,6 +158,7 @@ def load_trajectory_mcap(path: str | Path) -> tuple[Trajectory, dict[str, Any]]:
 def load_trajectory_named(path: str | Path) -> tuple[Trajectory, dict[str, Any], list[str] | None]:
     """:func:`load_trajectory_mcap` and the joint names the file carries (None: a file without)."""
     path = Path(path)
+    check_mcap_summary(path)
     contents = read_mcap(path, topics=[TOPIC])  # the samples, not a plan's 3D view channels
     env = contents.envelope
     check_kind(env, TrajectorySummary, file=path, prefix="envelope")
@@ -169,9 +170,34 @@ def load_trajectory_named(path: str | Path) -> tuple[Trajectory, dict[str, Any],
         if name not in td.fields:
             raise InputError("field missing", file=path, field=f"{TOPIC}.{name}")
     extra = {k: v for k, v in td.fields.items() if k not in CORE_FIELDS}
+    if td.backwards_at_s is not None:
+        raise InputError(
+            f"log time goes backwards at t = {td.backwards_at_s:.6f} s: the samples are out of order",
+            file=path,
+            field=f"{TOPIC}.log_time",
+        )
+    check_sample_period(td.t, path)
     try:
         traj = Trajectory(td.t, td["q"], td["qd"], td["qdd"], td["tau_ff"], extra)
     except InvalidTrajectory as e:
         raise InputError(e.reason, file=path, field=f"{TOPIC}.{e.field}") from e
     names = td.constants.get("joint_names")
     return traj, env, (list(names) if isinstance(names, list) else None)
+
+
+def check_sample_period(t: np.ndarray, path: Path) -> None:
+    """Every planner samples its trajectory at one period (the drive cycle): refuse a hole or a
+    repeated sample (InputError naming the time) instead of interpolating across it."""
+    if t.size < 3:
+        return
+    dt = np.diff(t)
+    period = float(np.median(dt))
+    bad = np.flatnonzero(np.abs(dt - period) > max(1e-6, 1e-3 * period))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(
+            f"log time steps from {t[k]:.6f} s to {t[k + 1]:.6f} s ({dt[k]:.6g} s) where the trajectory "
+            f"is sampled every {period:.6g} s: a hole or a repeated sample",
+            file=path,
+            field=f"{TOPIC}.log_time",
+        )

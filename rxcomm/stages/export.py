@@ -165,7 +165,10 @@ def execute(
         raise InputError("a calibration exports on its robot: pass --robot", field="robot")
     files = {f"output {i}": out for i, (*_, out) in enumerate(jobs)}
     table = table_dir / PARITY_TABLE if table_dir else None
-    check_outputs({**files, "parity": table}, {f"artefact {i}": a for i, a in enumerate(artefacts)})
+    sources = {f"source {i}": source for i, (_, source, *_) in enumerate(jobs)}  # a YAML's MCAP too
+    check_outputs(
+        {**files, "parity": table}, {**{f"artefact {i}": a for i, a in enumerate(artefacts)}, **sources}
+    )
     ctx = {"robot_dir": robot_dir, "calibration": calibration}
     rows = []
     for kind, source, _, f, out in jobs:

@@ -22,7 +22,9 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.options import (
     POSE_PREFIX,
     TRAJECTORY_OUTPUT,
+    AllowInconsistent,
     IdentifiedDynamics,
+    OtherRobot,
     RobotDir,
     TimeWeight,
     Timing,
@@ -215,11 +217,15 @@ def command(
     fallback: FallbackOption = False,
     plot: PlotOption = False,
     timing: TimingOption = "optimal",
+    other_robot: OtherRobot = False,
+    allow_inconsistent: AllowInconsistent = False,
 ) -> dict[str, object]:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
+    from rxcomm.model.artefact_checks import accept_artefacts
     from rxcomm.model.robot import robot_files
     from rxcomm.planning.ptp_problem import PtpOptions
 
+    accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     start, goal = state_text(start, start_deg, "start"), state_text(goal, goal_deg, "goal")
     t_all, output = time.perf_counter(), trajectory_output(output)
     check_outputs(
