@@ -7,7 +7,11 @@ PY     := $(VENV)/bin/python
 RX     := $(VENV)/bin/rxcomm
 ROBOT  ?= samples/rx130l
 CELL   ?= $(ROBOT)/cell.yaml
-BUILD  ?= build
+# The embedded cell's physics: own (rxcomm.cell.plant) or mujoco (rxcomm.cell.mujoco_plant); each
+# plant builds into its own directory so the two can be compared on the same plans.
+PLANT  ?= own
+plant_suffix = $(if $(filter-out own,$(PLANT)),-$(PLANT))
+BUILD  ?= build$(plant_suffix)
 STAMP  := $(VENV)/.installed
 
 .PHONY: setup test test-fast lint bench commission commission-ci clean schemas
@@ -100,7 +104,7 @@ $(foreach c,$(COMMANDS),$(eval code_$(c) := $(call params,code-$(c),$(patsubst $
 # Reads a trajectory summary's joint state for plan-ptp (the CP plan's end states).
 QOF        = $$($(PY) -c "import yaml; s = yaml.safe_load(open('$(1)'))['summary']; \
 	print(','.join(repr(v) for v in s['$(2)']))")
-RUN_SIM   := --robot $(ROBOT) --truth $(TRUTH) --approach --interpolation-ratio 1
+RUN_SIM   := --robot $(ROBOT) --truth $(TRUTH) --plant $(PLANT) --approach --interpolation-ratio 1
 
 $(B)/robot-info.txt: $(STAMP) $(ROBOT_FILES) $(call params,robot-info,$(ROBOT)) | $(B)
 	$(RX) robot-info --robot $(ROBOT) > $@.part && mv $@.part $@ && cat $@
@@ -112,7 +116,7 @@ $(B)/configs.yaml: $(STAMP) $(ROBOT_FILES) $(CELL) $(call params,select-configs,
 	$(RX) select-configs $(SELECT_ARGS) -o $@
 
 # The measurement campaign: point-to-point moves need no path accuracy, so a coarse setpoint ratio.
-MEAS_ARGS = --robot $(ROBOT) --truth $(TRUTH) --speed-fraction 0.5 --interpolation-ratio 8
+MEAS_ARGS = --robot $(ROBOT) --truth $(TRUTH) --plant $(PLANT) --speed-fraction 0.5 --interpolation-ratio 8
 $(B)/calib-meas.yaml: $(B)/configs.yaml $(SIM_FILES) $(call params,measure,$(MEAS_ARGS))
 	$(RX) run $< $(MEAS_ARGS) -o $@
 
@@ -277,7 +281,7 @@ $(B)/run-iso-circle.mcap: $(B)/iso-circle-cycles.mcap $(B)/dynamics.yaml $(SIM_F
 		$(call params,run-iso-circle,$(PTPRUN_ARGS))
 	$(RX) run $< $(PTPRUN_ARGS) -o $@
 
-POSE_RUN = --robot $(ROBOT) --truth $(TRUTH) --approach --interpolation-ratio 8
+POSE_RUN = --robot $(ROBOT) --truth $(TRUTH) --plant $(PLANT) --approach --interpolation-ratio 8
 $(B)/run-factory-poses.mcap: $(B)/factory-poses.mcap $(SIM_FILES) \
 		$(call params,run-factory-poses,$(POSE_RUN) --no-feedforward)
 	$(RX) run $< $(POSE_RUN) --no-feedforward -o $@
@@ -377,9 +381,10 @@ endif
 endif
 
 # CI: the same rules, reduced (fewer poses and candidates, fewer excitation starts), in its own dir.
+CI_BUILD ?= build-ci$(plant_suffix)
 commission-ci:
-	$(MAKE) commission BUILD=build-ci N_POSES=16 \
+	$(MAKE) commission BUILD=$(CI_BUILD) N_POSES=16 \
 		SELECT_OPTS="--max-candidates 1500 --restarts 2 --validation-poses 16" EXCITE_OPTS="--starts 2"
 
 clean:
-	rm -rf $(BUILD) build-ci
+	rm -rf $(BUILD) build-ci build-ci-mujoco build-mujoco

@@ -134,6 +134,16 @@ STAGES: dict[str, Stage] = {
         "rxcomm plan-cycles build/iso-line.mcap --robot samples/rx130l --cycles 10 "
         "-o build/iso-line-cycles.mcap",
     ),
+    "import-robot": Stage(
+        "import_robot",
+        "Write a robot directory (URDF + drives.yaml, the model kept beside) from a MuJoCo model.",
+        "rxcomm import-robot arm.xml -o robots/arm",
+    ),
+    "truth": Stage(
+        "truth",
+        "Draw a plausible hidden truth for any robot (errors, dynamics, noise) for the simulated cell.",
+        "rxcomm truth --robot robots/arm --seed 1 -o robots/arm/truth.yaml",
+    ),
     "import-tracker": Stage(
         "import_tracker",
         "Put a real tracker's CSV export on a run log's time axis and write the log with its /run/tracker",

@@ -12,6 +12,15 @@ from rxcomm.errors import InputError
 
 # The robot every stage works on: one option, one name, one help text (docs/cli.md).
 RobotDir = Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")]
+Plant = Annotated[str, typer.Option(help="The simulated cell's physics: own or mujoco (architecture §6).")]
+
+
+def embedded_plant(plant: str, gateway: str | None) -> str:
+    """`--plant` is the embedded cell's: refused beside `--gateway` (a real cell has its own physics)."""
+    if gateway is not None and plant != "own":
+        raise InputError("--plant chooses the embedded cell's physics: not with --gateway", field="--plant")
+    return plant
+
 
 # Options that mean the same in several stages, with one help text.
 # plan-cp, plan-ptp: the optimal plan, or a generic controller's from the catalogue limits.

@@ -23,7 +23,7 @@ from rxcomm.io.files import check_outputs
 from rxcomm.io.plan_files import plan_kind
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.options import AllowInconsistent, OtherRobot, RobotDir
+from rxcomm.options import AllowInconsistent, OtherRobot, Plant, RobotDir, embedded_plant
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -71,7 +71,7 @@ def check_joint_names(cfg: Configs, path: Path, robot: Robot) -> Configs:
 # --- the cell -------------------------------------------------------------------------------------
 @contextlib.contextmanager
 def connect(
-    gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool
+    gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool, plant: str
 ) -> Iterator[tuple[GatewayClient, Any]]:
     """A connected client and the embedded cell's server (None: a gateway); stops an embedded cell on exit."""
     from rxcomm.execution.session import REQUEST_TIMEOUT_S, VIRTUAL_CELL_REQUEST_TIMEOUT_S
@@ -90,10 +90,11 @@ def connect(
             raise InputError(
                 "no truth file for the embedded simulated cell (pass --truth or --gateway)", file=truth
             )
-        server = start_embedded_cell(truth, port=0, realtime=realtime)
+        server = start_embedded_cell(truth, port=0, realtime=realtime, plant=plant)
         host, port = server.host, server.port
         pacing = "realtime" if realtime else "virtual time"
-        console.err.print(f"embedded simulated cell on {host}:{port} ({pacing}, truth {truth})")
+        notes = "".join(f"\n  not faithful: {n}" for n in server.core.backend.plant_notes)
+        console.err.print(f"embedded simulated cell on {host}:{port} ({pacing}, {truth}, {plant}){notes}")
     else:
         host, port = parse_gateway_address(gateway, allow_remote)
     try:
@@ -176,6 +177,7 @@ def execute(
     plot: bool = False,
     compare: Path | None = None,
     show_progress: bool = True,
+    plant: str = "own",
 ) -> dict[str, Any]:
     """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
     from rxcomm.execution.campaign import CampaignSettings
@@ -217,7 +219,7 @@ def execute(
     restore_sigterm = sigterm_as_interrupt()
     job = _Job(
         plan, output, robot, params, model_name, inputs,
-        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime), update,
+        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant), update,
     )  # fmt: skip
     try:
         if cfg is None:
@@ -465,6 +467,7 @@ def command(
     compare: _Compare = None,
     other_robot: OtherRobot = False,
     allow_inconsistent: AllowInconsistent = False,
+    plant: Plant = "own",
 ) -> None:
     """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque, record,
     report lag errors. Exit 2 bad input, 4 communication fault, 5 safety stop or a plan outside the
@@ -488,4 +491,5 @@ def command(
         fault_reset=fault_reset,
         plot=plot,
         compare=compare,
+        plant=console.checked(embedded_plant, plant, gateway),
     )
