@@ -34,9 +34,11 @@ lint: $(STAMP)
 test: lint
 	$(VENV)/bin/pytest -q -p no:cacheprovider; rc=$$?; [ $$rc -eq 5 ] && rc=0; exit $$rc
 
-# Unit tests only, for the edit-run loop.
+# The unit tier, for the edit-run loop: no test marked slow or by what it needs (a process, make, a
+# socket, wall-clock streaming; pyproject.toml's markers, held true by tests/conftest.py).
+FAST := not slow and not process and not make and not socket and not realtime
 test-fast: $(STAMP)
-	$(VENV)/bin/pytest -q -m "not slow" -p no:cacheprovider
+	$(VENV)/bin/pytest -q -m "$(FAST)" -p no:cacheprovider
 
 schemas: $(STAMP)
 	$(PY) -m rxcomm.schemas.generate
@@ -88,6 +90,16 @@ $(B)/.params/$(1): $(if $(call same,$(2),$(file <$(B)/.params/$(1))),,FORCE)
 endef
 .PHONY: FORCE
 FORCE:
+
+# Code identity (rxcomm/code_identity.py): one stamp a command, $(B)/.params/code-COMMAND, holding the
+# hash of the rxcomm sources that command imports (its stage module, rxcomm.cli, all they import),
+# remade as the option stamps are. Each rule lists its command's stamp (below the chain), so an edited
+# module rebuilds the rules whose command imports it and what depends on them; the artefacts' envelopes
+# name the code (`code_identity`). The system Python reads the source text (stdlib, ~0.2 s a make).
+CODE_IDS := $(shell $(PYTHON) -m rxcomm.code_identity --make)
+COMMANDS := $(foreach c,$(CODE_IDS),$(firstword $(subst =, ,$(c))))
+$(foreach c,$(COMMANDS),$(eval code_$(c) := $(call params,code-$(c),$(patsubst $(c)=%,%,$(filter \
+	$(c)=%,$(CODE_IDS))))))
 
 # Reads a trajectory summary's joint state for plan-ptp (the CP plan's end states).
 QOF        = $$($(PY) -c "import yaml; s = yaml.safe_load(open('$(1)'))['summary']; \
@@ -329,6 +341,27 @@ $(B)/report.md: $(B)/configs.yaml $(B)/calibration-prior.yaml $(B)/calibration.y
 		$(B)/run-factory-iso-line.mcap $(B)/run-iso-line.mcap $(B)/run-factory-iso-circle.mcap \
 		$(B)/run-iso-circle.mcap $(B)/verdict.yaml $(B)/exports/parity.yaml
 	$(RX) report $(B) -o $@
+
+# The command each rule runs, by its code stamp (above; tests/test_make.py checks each recipe's command).
+$(B)/robot-info.txt: $(code_robot-info)
+$(B)/configs.yaml: $(code_select-configs)
+$(B)/calibration-prior.yaml $(B)/calibration.yaml: $(code_calibrate)
+$(B)/excitation.yaml: $(code_excite)
+$(B)/dynamics.yaml: $(code_identify)
+$(B)/validation-plan.mcap $(B)/cp.mcap $(B)/factory-cp.mcap $(B)/factory-iso-line.mcap $(B)/iso-line.mcap \
+	$(B)/factory-iso-circle.mcap $(B)/iso-circle.mcap: $(code_plan-cp)
+$(B)/ptp.mcap $(B)/factory-ptp.mcap: $(code_plan-ptp)
+$(B)/factory-poses.mcap $(B)/poses.mcap: $(code_plan-poses)
+$(B)/factory-iso-line-cycles.mcap $(B)/iso-line-cycles.mcap $(B)/factory-iso-circle-cycles.mcap \
+	$(B)/iso-circle-cycles.mcap: $(code_plan-cycles)
+$(B)/calib-meas.yaml $(B)/excite-log.mcap $(B)/validation-log.mcap $(B)/run-noff.mcap $(B)/run-ff.mcap \
+	$(B)/run-ptp.mcap $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.mcap $(B)/run-factory-iso-circle.mcap \
+	$(B)/run-iso-circle.mcap $(B)/run-factory-poses.mcap $(B)/run-poses.mcap $(B)/run-factory-iso-line.mcap \
+	$(B)/run-iso-line.mcap: $(code_run)
+$(B)/iso9283-factory.yaml $(B)/iso9283.yaml: $(code_iso9283)
+$(B)/verdict.yaml: $(code_accept)
+$(B)/exports/parity.yaml: $(code_export)
+$(B)/report.md: $(code_report)
 
 # The main job: the report plus the chain's products it does not read.
 commission: $(B)/robot-info.txt $(B)/report.md

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.table import Row, median_seconds
-from rxcomm.acceptance.campaign import CampaignSettings, TrackedLog, path_entries, pose_entries
+from rxcomm.acceptance.campaign import EvaluationSettings, TrackedLog, path_entries, pose_entries
 from rxcomm.io.yaml_io import read_yaml_model
 from rxcomm.model.kinematics import frame_placement
 from rxcomm.model.robot import load_robot
@@ -64,7 +64,7 @@ def campaign(n_pose_cycles: int, n_path_cycles: int):
 
 def rows(quick: bool) -> list[Row]:
     robot, cube, specs, poses, paths = campaign(30, 10)
-    s = CampaignSettings(match_m=10.0)  # the synthetic joint motion is not the path: every move is a cycle
+    s = EvaluationSettings(match_m=10.0)  # the synthetic joint motion is not the path: every move is a cycle
     rot_cmd = rpy_matrix(cube.rpy_rad)
 
     def every_criterion() -> None:

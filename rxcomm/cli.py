@@ -19,8 +19,6 @@ from typing import Annotated
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from rxcomm import __version__
-
 
 @dataclass(frozen=True)
 class Stage:
@@ -239,7 +237,9 @@ app = typer.Typer(
 
 def _version(value: bool) -> None:
     if value:
-        typer.echo(f"rxcomm {__version__}")
+        from rxcomm.code_identity import code_identity
+
+        typer.echo(f"rxcomm {code_identity()}")
         raise typer.Exit()
 
 

@@ -6,6 +6,8 @@ communication fault, 5 safety stop.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 
 
@@ -39,6 +41,46 @@ class InfeasibleError(LocatedError):
     """
 
     exit_code = 3
+
+
+# ---- how a solver says how it ended ----------------------------------------------------------------
+
+
+class SolveStatus(StrEnum):
+    """How a numerical solve ended: the one convention of the solvers' results (their ``outcome``)."""
+
+    SOLVED = "solved"
+    INFEASIBLE = "infeasible"  # no solution exists under the limits (uncontrollable path, infeasible NLP)
+    NOT_CONVERGED = "not_converged"  # the budget (iterations, wall time) ran out, or the solver stalled
+
+
+# IPOPT's return_status values that mean the problem itself has no solution.
+_IPOPT_INFEASIBLE = {"Infeasible_Problem_Detected", "Converged_To_Local_Infeasibility"}
+
+
+@dataclass(frozen=True)
+class SolveOutcome:
+    """A solver's status and, unless solved, a message saying why (for the error it becomes, exit 3)."""
+
+    status: SolveStatus
+    message: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.status is SolveStatus.SOLVED
+
+    def raise_if_failed(self, what: str) -> None:
+        """Raise ``InfeasibleError("WHAT: MESSAGE")`` unless solved."""
+        if not self.ok:
+            raise InfeasibleError(f"{what}: {self.message or self.status.value}")
+
+    @classmethod
+    def from_ipopt(cls, return_status: str, success: bool, iterations: int) -> SolveOutcome:
+        """From IPOPT's ``return_status`` and ``success`` (CasADi's solver stats)."""
+        if success:
+            return cls(SolveStatus.SOLVED)
+        status = SolveStatus.INFEASIBLE if return_status in _IPOPT_INFEASIBLE else SolveStatus.NOT_CONVERGED
+        return cls(status, f"IPOPT {return_status} after {iterations} iterations")
 
 
 class GatewayError(RxcommError):

@@ -1,12 +1,85 @@
+"""Shared fixtures, and the tiers' guard.
+
+Tiers (pyproject.toml's markers): a test that starts a process is marked `process` (`make` if it runs
+make), one that serves or connects a socket `socket`, one whose figures need wall-clock streaming on a
+quiet machine `realtime`, a long one (end to end on the simulated cell, a full solve) `slow`.
+`make test-fast` runs the unmarked rest, the unit tier. The guard below holds the markers true: an
+unmarked test that starts a process or opens a socket fails at once, saying which marker it needs
+(`slow` tests may do anything).
+"""
+
+import os
+import socket
+import subprocess
 from pathlib import Path
 
 import pytest
 
+from rxcomm.code_identity import code_identity
 from rxcomm.model.robot import load_robot
 
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = ROOT / "samples"
 ROBOT_DIRS = [SAMPLES / "rx130l", SAMPLES / "m900"]
+
+# What each marker allows the guard to let through.
+ALLOWS = {
+    "slow": {"process", "socket"},
+    "make": {"process"},
+    "process": {"process"},
+    "socket": {"socket"},
+    "realtime": {"socket"},
+}
+EVERYTHING = {"process", "socket"}
+
+code_identity()  # once, before any guard: the envelope of every artefact asks git for it
+
+# What the test being set up or run may do. The guard is installed once for the session and asks this,
+# so a module- or session-scoped fixture (a served cell) is held to the test that first needs it;
+# outside a test's setup and call (collection, teardown) everything is allowed.
+_allowed: set[str] = set(EVERYTHING)
+
+
+def _guarded(original, what: str, need: str):
+    def guarded(*args, **kwargs):
+        if need not in _allowed:
+            raise RuntimeError(f"this test {what}: mark it @pytest.mark.{need} (tests/conftest.py, tiers)")
+        return original(*args, **kwargs)
+
+    return guarded
+
+
+def pytest_configure(config):
+    subprocess.Popen._execute_child = _guarded(subprocess.Popen._execute_child, "starts a process", "process")
+    os.fork = _guarded(os.fork, "forks a process", "process")
+    os.posix_spawn = _guarded(os.posix_spawn, "spawns a process", "process")
+    for name in ("bind", "connect", "connect_ex"):
+        original = getattr(socket.socket, name)
+        setattr(socket.socket, name, _guarded(original, f"opens a socket ({name})", "socket"))
+
+
+def _allow(item) -> None:
+    global _allowed
+    _allowed = set().union(*(ALLOWS.get(m.name, set()) for m in item.iter_markers()))
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_setup(item):
+    _allow(item)
+    yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item):
+    _allow(item)
+    yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_teardown(item):
+    global _allowed
+    _allowed = set(EVERYTHING)  # stopping what a marked test's fixture started
+    yield
 
 
 @pytest.fixture(scope="session")

@@ -28,7 +28,7 @@ from rxcomm.model.kinematics import tcp_placement
 from rxcomm.schemas.measurements import MeasuredPose, Measurements
 
 from .conftest import SAMPLES
-from .test_run import Q0, cosine_plan, save_plan, write_configs
+from .runs import Q0, cosine_plan, save_plan, write_configs
 
 ROBOT = SAMPLES / "rx130l"
 LINE = ROBOT / "paths" / "iso9283-line.yaml"

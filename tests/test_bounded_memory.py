@@ -22,7 +22,7 @@ from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.model.dynamics import prior_parameters
 
-from .test_run import CYCLE, DQ, Q0, cosine_plan
+from .runs import CYCLE, DQ, Q0, cosine_plan
 
 MOTION_FIELDS = (
     "max_lag_rad",
@@ -61,6 +61,7 @@ def _assert_same(a, b):
             )
 
 
+@pytest.mark.slow  # 1.1 s CPU (make test-fast: the unit tier within 60 s)
 def test_running_motion_figures_equal_the_array_computation(rx130l, tmp_path):
     """MotionStats fed in uneven chunks (a chunk boundary next to lost records too) gives the summary
     that run_summary computes from all the records at once, to rounding."""
@@ -175,6 +176,7 @@ def _stream_peak_bytes(rx130l, port: int, duration_s: float, sink: bool) -> tupl
     return peak, result
 
 
+@pytest.mark.slow  # a soak: a cell process streaming to the master for seconds
 def test_master_memory_is_bounded_with_a_record_sink(rx130l):
     """Streaming 4 × longer into a sink does not raise the master's peak memory (the records leave
     every 0.5 s), while a stream that keeps every record grows by at least what those records take."""
@@ -194,6 +196,7 @@ def test_master_memory_is_bounded_with_a_record_sink(rx130l):
     assert long - short < 0.3 * records_bytes, (short, long, records_bytes)
 
 
+@pytest.mark.slow  # a soak of the log writer
 def test_log_writer_memory_is_bounded(rx130l, tmp_path):
     """The writer keeps no record it wrote: 4 × more rows, the same memory (tcp errors, records and
     encoder angles beyond ``keep_encoder_s`` are not kept)."""

@@ -232,6 +232,7 @@ def rx_meas():
     return robot, t2b, ms, tracker
 
 
+@pytest.mark.slow  # 1.0 s CPU (make test-fast: the unit tier within 60 s)
 def test_stage_load_calibration_and_ik_honour_it(tmp_path, rx_meas):
     robot, t2b, ms, tracker = rx_meas
     meas = tmp_path / "meas.yaml"
@@ -317,6 +318,7 @@ def _with_baseline(ms, extra):
     )
 
 
+@pytest.mark.slow  # 1.4 s CPU (make test-fast: the unit tier within 60 s)
 def test_baseline_poses_are_fitted_apart_and_judged_on_the_same_heldout_poses(tmp_path, rx_meas):
     robot, t2b, ms, tracker = rx_meas
     plain = calibrate(robot, ms, tracker_to_base=t2b)
@@ -387,6 +389,7 @@ def _csv(tmp_path, ms, scale_p=1.0, scale_q=1.0, nan_row=None):
     return path
 
 
+@pytest.mark.slow  # 3.5 s CPU (make test-fast: the unit tier within 60 s)
 def test_bad_inputs_are_input_errors(tmp_path, rx_meas):
     robot, t2b, ms, _ = rx_meas
     with pytest.raises(InputError, match=r"NaN.*poses \[3\]"):

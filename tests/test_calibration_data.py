@@ -50,6 +50,7 @@ def tool_off(robot):
     return t2b, tracker, _measure(tracker, qs, ["fit"] * 40 + ["validation"] * 20)
 
 
+@pytest.mark.slow  # 2.9 s CPU (make test-fast: the unit tier within 60 s)
 def test_frames_from_the_data_need_no_guess(robot, tool_off):
     """Tool 10 cm off, base guessed 180° (yaw) and 10 cm away, or rough (10 cm / 10°), or no guess:
     the same calibration as with the exact base, pose and position-only alike."""
@@ -144,6 +145,7 @@ def test_worse_than_nominal_exits_3(tmp_path, robot):
     assert "worse than the nominal" in r.output and not out.exists()
 
 
+@pytest.mark.slow  # 0.8 s CPU (make test-fast: the unit tier within 60 s)
 def test_tracker_sigma_option_and_estimated_noise(tmp_path, robot, tool_off):
     """--tracker-sigma without a cell file is used and recorded; without it the noise is estimated
     from the residuals (variance components), recorded and printed — never null."""
@@ -177,6 +179,7 @@ def test_tracker_sigma_option_and_estimated_noise(tmp_path, robot, tool_off):
     assert r.exit_code == 2 and "tracker-sigma" in r.output
 
 
+@pytest.mark.slow  # 1.6 s CPU (make test-fast: the unit tier within 60 s)
 def test_camera_noise_few_poses_model_chosen_by_the_data(robot):
     """Camera-like noise (1 mm / 5 mrad), 17 fit poses, 6 held out, 5 seeded splits: the full
     30-parameter model overfits; the chosen model's held-out rms is no worse than frames-only (mean

@@ -29,6 +29,7 @@ def test_without_a_compiler_the_functions_come_back_and_a_warning_says_why(monke
 
 
 @pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None, reason="no C compiler")
+@pytest.mark.process  # the C compiler
 def test_compiled_function_matches_and_is_reused_from_the_cache(monkeypatch, tmp_path):
     monkeypatch.setenv("RXCOMM_CACHE_DIR", str(tmp_path))
     monkeypatch.delenv("RXCOMM_NO_COMPILE", raising=False)

@@ -143,6 +143,7 @@ def test_heavier_payload_slows_the_catalogue_and_too_heavy_is_refused(m900):
 # --- the factory's timing from the catalogue limits -----------------------------------------------
 
 
+@pytest.mark.slow  # 0.8 s CPU (make test-fast: the unit tier within 60 s)
 def test_factory_cp_timing_honours_the_catalogue_and_is_slower_than_toppra(tmp_path, rx130l):
     """plan-cp --timing catalogue on the singular line: within the catalogue speeds/accelerations on
     the drive-cycle samples, some of them binding, torques never checked against the peak yet within it
@@ -232,6 +233,7 @@ def test_cli_plan_ptp_timing_catalogue(tmp_path):
     assert res.exit_code == 2
 
 
+@pytest.mark.slow  # 0.7 s CPU (make test-fast: the unit tier within 60 s)
 def test_plan_poses_visits_the_cube_at_the_catalogue_limits(tmp_path, rx130l):
     """plan-poses: P1 then P5 → P4 → P3 → P2 → P1 per cycle, held for the dwell, every joint within the
     catalogue limits (some bound), the calibrated robot's IK when a calibration is given (not here)."""
@@ -258,6 +260,7 @@ def test_plan_poses_visits_the_cube_at_the_catalogue_limits(tmp_path, rx130l):
     assert np.max(np.abs(traj.tau_ff) / rx130l.tau_max) <= 1.0
 
 
+@pytest.mark.slow  # 1.9 s CPU (make test-fast: the unit tier within 60 s)
 def test_plan_cycles_repeats_a_path_with_return_moves(tmp_path, rx130l):
     from rxcomm.io.trajectory import load_trajectory_mcap
     from rxcomm.stages import plan_cp as stage

@@ -89,6 +89,7 @@ def test_cell_sim_stops_cleanly_on_sigterm():
     assert m and int(m.group(1)) > 0  # realtime: the cycles ran while it served
 
 
+@pytest.mark.socket
 def test_stage_function_serves_until_stopped():
     facts: list[dict] = []
     ready, stop = threading.Event(), threading.Event()
@@ -118,6 +119,7 @@ def test_stage_function_serves_until_stopped():
     assert facts[0]["q0_rad"] == pytest.approx(Q_VISIBLE) and facts[0]["cycle_us"] == 400
 
 
+@pytest.mark.socket
 def test_embedded_cell_for_run():
     srv = start_embedded_cell(TRUTH, port=0, q0=Q_VISIBLE)  # started: the caller stops it
     try:

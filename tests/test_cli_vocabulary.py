@@ -88,6 +88,7 @@ def test_short_help_is_the_start_of_the_commands_help_and_every_help_has_an_exam
         assert {a.partition("=")[0] for a in args if a.startswith("-")} <= spellings(cmd), name
 
 
+@pytest.mark.process
 @pytest.mark.parametrize("args", [[], ["--help"], ["--version"]])
 def test_import_of_the_cli_and_top_level_help_load_no_heavy_library(args):
     code = (
@@ -101,6 +102,7 @@ def test_import_of_the_cli_and_top_level_help_load_no_heavy_library(args):
         assert "plan-ptp" in res.stdout  # the listing still names every command
 
 
+@pytest.mark.process
 def test_every_commands_help_loads_no_heavy_library():
     """`rxcomm STAGE --help` answers from the options alone: a stage imports the library inside the
     functions that run it (rxcomm/stages/__init__.py), so its help costs no toppra, scipy, pinocchio."""
@@ -117,6 +119,7 @@ def test_every_commands_help_loads_no_heavy_library():
     assert res.stdout.strip().splitlines()[-1] == "done", res.stdout.strip().splitlines()[-1]
 
 
+@pytest.mark.process
 def test_completion_is_on_and_completes_commands_and_options():
     res = CliRunner().invoke(cli.app, ["--help"], terminal_width=200)
     assert "--install-completion" in res.output and "--show-completion" in res.output
@@ -155,6 +158,7 @@ def test_deprecated_spelling_still_runs_the_command():
     assert "deprecated" in res.output and "rx130l" in res.output
 
 
+@pytest.mark.make
 @pytest.mark.parametrize("goal", ["commission", "commission-ci"])
 def test_the_makefile_spells_every_option_as_docs_cli_md(tmp_path, goal):
     """`make -n -B GOAL` prints every rxcomm command of the chain: each option must be its command's."""

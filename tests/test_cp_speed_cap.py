@@ -38,6 +38,7 @@ def sample_path(robot: Robot, name: str) -> CartesianPath:
     return load_path(ISO_DIR / f"{name}.yaml", robot)[1]
 
 
+@pytest.mark.slow  # 1.1 s CPU (make test-fast: the unit tier within 60 s)
 @pytest.mark.parametrize("name", ["iso9283-circle-large", "iso9283-rectangle"])
 def test_first_nlp_solution_holds_the_cap_between_nodes(rx130l, name):
     """One NLP solve, no re-tightening, no regrid: the sampled TCP speed (FK of the sampled joint
@@ -50,6 +51,7 @@ def test_first_nlp_solution_holds_the_cap_between_nodes(rx130l, name):
     assert p.duration_s < 1.005 * p.toppra.profile.duration_s
 
 
+@pytest.mark.slow  # 1.3 s CPU (make test-fast: the unit tier within 60 s)
 def test_rectangle_re_tightening_converges_at_toppra_s_time(rx130l):
     """With the default re-tightening the plan ends inside run's tolerance within two rounds, its
     duration at most 0.5 % above toppra's (before: refused at 1.025 × after 4 rounds, 7 % slower)."""

@@ -133,6 +133,7 @@ def test_cutoff_auto_picks_the_cutoff_that_predicts_held_out_torque(rx130l, bset
         score(rx130l, res.params, noisy_log, s)
 
 
+@pytest.mark.slow  # 1.4 s CPU (make test-fast: the unit tier within 60 s)
 def test_params_out_csv_and_scoring_an_auto_model(tmp_path, rx130l, noisy_log):
     log = write_run_log(tmp_path / "excite-log.mcap", noisy_log.t, noisy_log.q, noisy_log.tau)
     out, table = tmp_path / "dynamics.yaml", tmp_path / "params.csv"
@@ -164,6 +165,7 @@ def test_params_out_csv_and_scoring_an_auto_model(tmp_path, rx130l, noisy_log):
     assert res.exit_code == 2 and "cutoff-hz" in res.output
 
 
+@pytest.mark.slow  # 1.1 s CPU (make test-fast: the unit tier within 60 s)
 def test_friction_option_overrides_drives_yaml_through_the_stage(tmp_path, noisy_log):
     """`--friction joint` on the RX130L (drives.yaml: both) identifies and writes the joint-friction
     model (59 base parameters, no motor columns); it used to exit 2 on its own artefact."""

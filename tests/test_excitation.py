@@ -153,6 +153,7 @@ def test_random_feasible_holds_every_limit_densely(rx130l, small_problem):
     assert 1 < prob.cond(x)[0] < 1e6
 
 
+@pytest.mark.slow  # 1.4 s CPU (make test-fast: the unit tier within 60 s)
 def test_small_design_is_feasible_at_the_drive_cycle_and_beats_baseline(rx130l, cell_rx, bset_rx):
     d = design_excitation(rx130l, cell_rx.allowed_region, SMALL, bset=bset_rx)
     s = d.samples
@@ -204,6 +205,7 @@ def test_impossible_region_is_infeasible(rx130l, bset_rx):
         prob.random_feasible(np.random.default_rng(0), attempts=5)
 
 
+@pytest.mark.slow  # 1.6 s CPU (make test-fast: the unit tier within 60 s)
 def test_excite_stage_writes_artefact_and_trajectory(tmp_path):
     out = tmp_path / "excitation.yaml"
     res = CliRunner().invoke(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from rxcomm.cli import app
@@ -10,10 +11,10 @@ from rxcomm.io.csv_export import read_csv_table, read_run_log_csv, read_trajecto
 from rxcomm.io.run_log import read_run_log
 from rxcomm.io.trajectory import Trajectory, load_trajectory_mcap
 
+from .runs import DQ, Q0, ROBOT_DIR, save_plan
 from .test_cross_validation import bset_rx, noisy_log, truth_rx  # noqa: F401 - identify's fixture log
 from .test_foxglove_log import run_log  # noqa: F401 - the module's run-log fixture
 from .test_identification import write_run_log as write_log
-from .test_run import DQ, Q0, ROBOT_DIR, save_plan
 
 runner = CliRunner()
 
@@ -49,6 +50,7 @@ def test_trajectory_csv_round_trips_exactly_with_units(tmp_path):
     assert (tmp_path / "plan.csv").read_text() == out.read_text()
 
 
+@pytest.mark.socket  # the run_log fixture runs a plan on a served cell
 def test_run_log_csv_round_trips(run_log, tmp_path, rx130l):  # noqa: F811
     path, _ = run_log
     out = tmp_path / "log.csv"
@@ -78,6 +80,7 @@ def test_export_refuses_what_it_cannot_export(tmp_path):
     assert r.exit_code == 2 and "missing.mcap" in r.output
 
 
+@pytest.mark.slow  # 1.4 s CPU (make test-fast: the unit tier within 60 s)
 def test_identified_dynamics_export_is_identify_s_parameter_table(tmp_path, rx130l, noisy_log):  # noqa: F811
     log = write_log(tmp_path / "excite-log.mcap", noisy_log.t, noisy_log.q, noisy_log.tau)
     out, table = tmp_path / "dynamics.yaml", tmp_path / "params.csv"

@@ -46,7 +46,9 @@ from rxcomm.reporting.runs import execution_section
 from rxcomm.stages import run as run_stage
 
 from .conftest import ROOT, SAMPLES
-from .test_run import CYCLE, DQ, Q0, cosine_plan, save_plan, write_configs
+from .runs import CYCLE, DQ, Q0, cosine_plan, save_plan, write_configs
+
+pytestmark = pytest.mark.socket  # faults on a gateway served on 127.0.0.1
 
 ROBOT_DIR = SAMPLES / "rx130l"
 TRUTH = ROBOT_DIR / "truth.yaml"
@@ -154,6 +156,7 @@ def test_recover_log_of_a_complete_part_and_of_a_non_log(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.realtime  # "0 underruns" needs a quiet machine
 def test_second_master_is_refused_while_the_first_streams_to_completion(rx130l):
     """Realtime cell: master A streams 4 s; master B, connected meanwhile, can neither start a run nor
     write a controlword, a quick stop or a block. A completes with 0 underruns and every record."""
@@ -360,6 +363,7 @@ def test_malformed_frames_print_nothing_and_the_gateway_keeps_serving(rx130l, ca
     assert err == "", err  # no traceback, no pymodbus log lines
 
 
+@pytest.mark.process
 def test_rxcomm_message_is_the_first_line_on_stderr(tmp_path):
     """An unreachable gateway: rxcomm's one-line error, no pymodbus line before it."""
     with socket.socket() as s:  # a port nobody listens on

@@ -140,6 +140,7 @@ def test_a_rerun_keeps_the_killed_runs_part(tmp_path, cell, capfd):  # noqa: F81
 # ---- 4: one writer per output, one make per build directory -----------------------------------------
 
 
+@pytest.mark.process  # a second writer in another process
 def test_a_second_writer_of_an_output_stops_naming_the_lock(tmp_path):
     out = tmp_path / "log.mcap"
     holder = subprocess.Popen(
@@ -167,6 +168,7 @@ def test_a_second_writer_of_an_output_stops_naming_the_lock(tmp_path):
     assert not lock_path(out).exists()
 
 
+@pytest.mark.make
 def test_a_second_make_commission_on_one_build_stops_at_once_naming_the_lock(tmp_path):
     shutil.copy(ROOT / "Makefile", tmp_path / "Makefile")
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
@@ -624,6 +626,7 @@ def test_a_stop_during_the_approach_says_approach(tmp_path, cell):  # noqa: F811
     assert "drives disabled except joint_1" in str(e.value) and "in fault" in str(e.value)
 
 
+@pytest.mark.socket  # a fake gateway on 127.0.0.1
 @pytest.mark.parametrize("reply", [None, b"\x00garbage that is no Modbus frame\xff" * 3])
 def test_a_silent_or_garbage_gateway_is_named_in_our_words(tmp_path, reply):
     srv = socket.socket()

@@ -17,7 +17,9 @@ from rxcomm.io.run_log import read_run_log
 from rxcomm.model.kinematics import frame_placement
 from rxcomm.stages import run as run_stage
 
-from .test_run import DQ, Q0, ROBOT_DIR, cosine_plan, gw, save_plan, start_cell
+from .runs import DQ, Q0, ROBOT_DIR, cosine_plan, gw, save_plan, start_cell
+
+pytestmark = pytest.mark.socket  # the run log comes from a run on a served cell
 
 LAYOUT = Path(__file__).parents[1] / "docs" / "foxglove" / "rxcomm-layout.json"
 

@@ -20,6 +20,8 @@ from rxcomm.gateway.client import GatewayClient
 from rxcomm.gateway.registers import DriveState, ErrorCode, Status
 from rxcomm.gateway.stream import stream
 
+pytestmark = pytest.mark.socket  # every test serves a gateway on 127.0.0.1
+
 Q0 = np.array([0.1, -0.5, 1.2, 0.0, 0.4, -0.2])
 
 
@@ -245,7 +247,7 @@ def test_buffer_full_answers_busy_then_accepts():
 # ---- stops ------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("cell", [TimeMode.REALTIME], indirect=True)
+@pytest.mark.parametrize("cell", [pytest.param(TimeMode.REALTIME, marks=pytest.mark.realtime)], indirect=True)
 def test_underrun_quick_stops(cell, client):
     client.enable_all()
     client.configure(watchdog_ms=1000, prefill=60)
@@ -268,7 +270,7 @@ def test_underrun_quick_stops(cell, client):
     assert all(a.state is DriveState.OPERATION_ENABLED for a in client.axes())
 
 
-@pytest.mark.parametrize("cell", [TimeMode.REALTIME], indirect=True)
+@pytest.mark.parametrize("cell", [pytest.param(TimeMode.REALTIME, marks=pytest.mark.realtime)], indirect=True)
 def test_watchdog_faults_0x8130(cell, client):
     client.enable_all()
     client.configure(watchdog_ms=50)
@@ -284,7 +286,9 @@ def test_watchdog_faults_0x8130(cell, client):
     client.enable_all()
 
 
-@pytest.mark.parametrize("mode", [TimeMode.VIRTUAL, TimeMode.REALTIME])
+@pytest.mark.parametrize(
+    "mode", [TimeMode.VIRTUAL, pytest.param(TimeMode.REALTIME, marks=pytest.mark.realtime)]
+)
 def test_disconnect_mid_stream_stops_drives(mode):
     srv = start_cell(mode)
     try:

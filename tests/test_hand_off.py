@@ -209,6 +209,7 @@ def test_hand_edited_csv_runs_and_one_beyond_a_limit_is_refused_naming_the_row(t
     assert "row 101" in r.output and "joint_1" in r.output and "beyond.csv" in r.output
 
 
+@pytest.mark.socket  # the run_log fixture runs a plan on a served cell
 def test_run_log_bag_decodes_message_by_message_with_the_log_s_names_and_stamps(run_log, tmp_path, rx130l):  # noqa: F811
     from mcap.reader import make_reader
 

@@ -358,6 +358,7 @@ def test_a_joint_standing_still_is_not_scored_and_never_clipped(rx130l, bset_rx,
     assert val.standstill_rms_nm[3] == pytest.approx(2.5 * prior.coulomb_nm[3], rel=1e-3)
 
 
+@pytest.mark.slow  # 1.6 s CPU (make test-fast: the unit tier within 60 s)
 def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
     truth = truth_parameters(rx130l, truth_rx)
     t, q, qd, qdd = sampled(rx130l, random_traj)
@@ -550,6 +551,7 @@ def test_default_holdout_is_interleaved_and_a_still_tail_does_not_blind_it(rx130
     assert "--cutoff-hz" in few and "--decimate-hz" in few
 
 
+@pytest.mark.slow  # 0.9 s CPU (make test-fast: the unit tier within 60 s)
 def test_scoring_a_model_on_a_log_reproduces_its_validation(
     tmp_path, rx130l, truth_rx, random_traj, validation_traj
 ):

@@ -97,11 +97,12 @@ def test_yaml_round_trip_keeps_types_order_and_hashes(tmp_path: Path) -> None:
     ]
     assert back.created.utcoffset().total_seconds() == 0
     text = out.read_text()
-    assert list(yaml.safe_load(text))[:7] == [
+    assert list(yaml.safe_load(text))[:8] == [
         "kind",
         "schema_version",
         "created",
         "rxcomm_version",
+        "code_identity",
         "inputs",
         "settings",
         "summary",
@@ -331,6 +332,7 @@ _KILLED_WRITER = textwrap.dedent(
 )
 
 
+@pytest.mark.process
 def test_kill_minus_9_and_recover(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     part = tmp_path / "run-log.mcap.part"
     proc = subprocess.Popen(

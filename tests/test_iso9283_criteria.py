@@ -215,7 +215,7 @@ def test_a_full_campaigns_criteria_take_under_a_second():
 def test_repeated_path_cycles_in_one_log_are_found(rx130l):
     """repeat_cycles: n runs of a path with return moves and dwells; path_cycles finds the n forward
     runs (the returns go the other way) and each holds the tracker samples of its own run."""
-    from rxcomm.acceptance.campaign import CampaignSettings, TrackedLog, path_cycles
+    from rxcomm.acceptance.campaign import EvaluationSettings, TrackedLog, path_cycles
     from rxcomm.planning.iso9283 import repeat_cycles
     from rxcomm.schemas.path import PathSpec
 
@@ -240,7 +240,7 @@ def test_repeated_path_cycles_in_one_log_are_found(rx130l):
     t_tr = np.arange(0, traj.t[-1], 1e-3)
     p_tr = np.column_stack([np.interp(t_tr, traj.t, traj.q[:, i]) for i in range(3)])  # any positions
     log = TrackedLog("x", traj.t, traj.q, t_tr, p_tr, None)
-    cycles = path_cycles(rx130l, log, spec, CampaignSettings())
+    cycles = path_cycles(rx130l, log, spec, EvaluationSettings())
     assert len(cycles) == 4
     for c in cycles:
         assert len(c.position_m) == pytest.approx(path.t[-1] / 1e-3, abs=2)
@@ -251,7 +251,7 @@ def test_a_closed_paths_rounding_step_between_dwells_is_no_cycle(rx130l):
     """On a closed path (start = end, a circle) the return move is a rounding step of a setpoint or
     two between the dwells: it starts and ends at the path's ends but travels nothing, so it is not
     a cycle; the n passes are."""
-    from rxcomm.acceptance.campaign import CampaignSettings, TrackedLog, path_cycles
+    from rxcomm.acceptance.campaign import EvaluationSettings, TrackedLog, path_cycles
     from rxcomm.planning.iso9283 import repeat_cycles
     from rxcomm.schemas.path import PathSpec
 
@@ -283,7 +283,7 @@ def test_a_closed_paths_rounding_step_between_dwells_is_no_cycle(rx130l):
     t_tr = np.arange(0, traj.t[-1], 1e-3)
     p_tr = np.column_stack([np.interp(t_tr, traj.t, traj.q[:, i]) for i in range(3)])
     log = TrackedLog("x", traj.t, traj.q, t_tr, p_tr, None)
-    cycles = path_cycles(rx130l, log, spec, CampaignSettings())
+    cycles = path_cycles(rx130l, log, spec, EvaluationSettings())
     assert len(cycles) == 3
     assert all(len(c.position_m) == pytest.approx(one.t[-1] / 1e-3, abs=2) for c in cycles)
 

@@ -23,7 +23,7 @@ from rxcomm.schemas.path import PathSpec
 from rxcomm.stages import run as run_stage
 
 from .conftest import SAMPLES
-from .test_run import cosine_plan, save_plan
+from .runs import cosine_plan, save_plan
 
 ROBOT_DIR = SAMPLES / "rx130l"
 
@@ -37,6 +37,7 @@ def test_needs_a_base_frame_exit_2(tmp_path):
     assert res.exit_code == 2 and "--calibration or --cell" in res.output
 
 
+@pytest.mark.socket
 def test_a_log_without_tracker_is_exit_2_naming_the_channel(tmp_path, rx130l):
     plan = save_plan(tmp_path / "p.mcap", cosine_plan(np.zeros(6), np.full(6, 0.05), 0.3))
     backend = IdealBackend(np.zeros(6), rated_torque_nm=np.asarray(rx130l.tau_max))  # no tracker

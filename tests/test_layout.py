@@ -9,6 +9,8 @@ import sys
 import tomllib
 from pathlib import Path
 
+import pytest
+
 from .conftest import ROOT
 
 
@@ -68,6 +70,7 @@ def _lint_imports(tree: Path) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.process  # lint-imports
 def test_layer_contract_holds_and_catches_a_violation(tmp_path):
     """`make lint` runs this contract (pyproject [tool.importlinter]); a model module importing the
     planner above it must break it, so the contract is not vacuous."""

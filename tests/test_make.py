@@ -1,4 +1,5 @@
-"""Honest make: editing the robot, the truth, a path or an option rebuilds exactly what depends on it.
+"""Honest make: editing the robot, the truth, a path, an option or the code rebuilds exactly what depends
+on it.
 
 Each test works on a temporary copy of the Makefile and the sample robot whose chain was "built" with
 `make -t` (touch: every artefact and option stamp up to date, no stage run), then asks GNU make what it
@@ -16,7 +17,10 @@ import pytest
 
 from .conftest import ROOT
 
-pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="GNU make not installed")
+pytestmark = [
+    pytest.mark.make,
+    pytest.mark.skipif(shutil.which("make") is None, reason="GNU make not installed"),
+]
 
 ROBOT = Path("samples/rx130l")
 
@@ -163,12 +167,18 @@ def _newer(path: Path) -> None:
     os.utime(path, (t, t))
 
 
+def _copy_sources(dest: Path) -> None:
+    """The Makefile, pyproject.toml and the rxcomm sources (the code stamps hash them)."""
+    shutil.copy(ROOT / "Makefile", dest / "Makefile")
+    shutil.copy(ROOT / "pyproject.toml", dest / "pyproject.toml")
+    shutil.copytree(ROOT / "rxcomm", dest / "rxcomm", ignore=shutil.ignore_patterns("__pycache__"))
+
+
 @pytest.fixture
 def built(tmp_path: Path) -> Path:
     """A copy of the Makefile and the sample robot with `make commission` and `make commission-ci`
     touched up to date."""
-    shutil.copy(ROOT / "Makefile", tmp_path / "Makefile")
-    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    _copy_sources(tmp_path)
     shutil.copytree(ROOT / ROBOT, tmp_path / ROBOT)
     (tmp_path / ".venv").mkdir()
     (tmp_path / ".venv" / ".installed").touch()  # after pyproject.toml: the install is current
@@ -297,8 +307,7 @@ def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(bu
 def test_a_robot_without_the_singular_line_runs_its_iso_line_and_a_missing_path_is_one_clear_error(tmp_path):
     """A robot directory the project does not ship: its CP path is its ISO 9283 line; a path file it
     lacks stops make with the file and how to write it (exit 2), not "No rule to make target"."""
-    shutil.copy(ROOT / "Makefile", tmp_path / "Makefile")
-    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    _copy_sources(tmp_path)
     robot = tmp_path / "newbot"
     shutil.copytree(ROOT / "samples/m900", robot)
     assert not (robot / "paths/line-near-singularity.yaml").exists()
@@ -314,3 +323,54 @@ def test_a_robot_without_the_singular_line_runs_its_iso_line_and_a_missing_path_
     assert "newbot/paths/iso9283-line.yaml: no such path file" in out.stderr
     assert "--iso9283 newbot/paths" in out.stderr
     assert not (tmp_path / "build" / "factory-cp.mcap").exists()
+
+
+# ---- the code: each rule lists the stamp of its command's sources (rxcomm/code_identity.py) ----------
+
+# The commands the chain runs.
+CHAIN_COMMANDS = {"robot-info", "select-configs", "run", "calibrate", "excite", "identify", "plan-cp"}
+CHAIN_COMMANDS |= {"plan-ptp", "plan-poses", "plan-cycles", "iso9283", "accept", "export", "report"}
+
+
+def _edit(path: Path) -> None:
+    path.write_text(path.read_text() + "\n# an edit\n")
+
+
+def test_every_rule_lists_the_code_stamp_of_the_command_its_recipe_runs(built):
+    """From make's own database: each chain rule's recipe runs `$(RX) COMMAND`, and the rule lists
+    build/.params/code-COMMAND."""
+    db = _make(built, "-pn", "commission").stdout
+    seen = {}
+    for block in db.split("\n\n"):
+        head = block.lstrip("\n").split("\n", 1)[0]
+        target, colon, prereqs = head.partition(":")
+        if not colon or not target.startswith("build/") or "/.params/" in target:
+            continue
+        recipe = re.search(r"^\t\$\(RX\) ([\w-]+)", block, re.M)
+        if recipe is None:
+            continue
+        seen[target[len("build/") :]] = recipe.group(1)
+        assert f"build/.params/code-{recipe.group(1)} " in prereqs + " ", (target, prereqs)
+    assert set(seen) == ALL and set(seen.values()) == CHAIN_COMMANDS
+
+
+def test_editing_a_module_rebuilds_the_rules_whose_command_imports_it(built):
+    html = built / "rxcomm/reporting/html.py"  # imported by `report` only
+    _newer(html)  # touched, not edited: the same code, nothing to rebuild
+    assert _remade(built) == (set(), set())
+    _edit(html)
+    assert _remade(built) == ({"report.md"}, {"code-report"})
+
+
+def test_editing_identification_rebuilds_identify_and_what_follows_it(built):
+    _edit(built / "rxcomm/identification/fit.py")  # imported by `identify` only
+    artefacts, stamps = _remade(built)
+    assert stamps == {"code-identify"}
+    # the same set as a newer dynamics.yaml (test above), and dynamics.yaml itself
+    assert artefacts == _remade(built, "-W", "build/dynamics.yaml")[0] | {"dynamics.yaml"}
+    assert {"excitation.yaml", "excite-log.mcap", "configs.yaml"}.isdisjoint(artefacts)
+
+
+def test_editing_the_cli_rebuilds_every_rule(built):
+    _edit(built / "rxcomm/cli.py")  # every command runs through it
+    assert _remade(built) == (ALL, {f"code-{c}" for c in CHAIN_COMMANDS})

@@ -142,6 +142,7 @@ def test_mujoco_cell_follows_like_the_own_cell():
     assert np.all(np.abs(peaks["mujoco"] - peaks["own"]) <= 0.2 * peaks["own"])
 
 
+@pytest.mark.socket  # serves the gateway on 127.0.0.1
 def test_cell_sim_on_mujoco_serves_and_says_what_is_not_faithful():
     """`cell-sim --plant mujoco`: the gateway answers on the MuJoCo plant, the tracker reads its site,
     and the start-up facts list what has no faithful MuJoCo form."""

@@ -174,6 +174,7 @@ def test_boundary_state_checks(rx130l, rx_dyn):
 
 
 # --- small solves (fast) ----------------------------------------------------------------------------
+@pytest.mark.slow  # 0.7 s CPU (make test-fast: the unit tier within 60 s)
 def test_small_solve_on_second_robot_meets_the_dense_check(m900):
     dyn = PtpDynamics.from_parameters(m900)
     q0 = np.array([-0.5, 0.3, -0.4, 0.2, 0.6, 0.0])
@@ -420,6 +421,7 @@ def test_compiled_node_functions_match_and_are_cached(tmp_path, monkeypatch, m90
     assert res.solution.success and res.max_limit_ratio <= 1.01
 
 
+@pytest.mark.slow  # 1.0 s CPU (make test-fast: the unit tier within 60 s)
 def test_tcp_box_keeps_the_tcp_inside(m900):
     dyn = PtpDynamics.from_parameters(m900)
     q0, q1 = np.array([-0.8, 0.3, -0.4, 0.2, 0.6, 0.0]), np.array([0.8, 0.3, -0.4, -0.4, 0.9, 1.0])

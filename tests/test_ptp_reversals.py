@@ -55,6 +55,7 @@ def rough_m900(tmp_path_factory):
     return robot_with_friction(tmp_path_factory.mktemp("m900"), "m900", {1: 14.0, 2: 6.0, 3: 2.0})
 
 
+@pytest.mark.slow  # 1.7 s CPU (make test-fast: the unit tier within 60 s)
 def test_energy_weighted_plan_passes_runs_check_at_a_reversal(rough_m900):
     robot = rough_m900
     res = plan_ptp(
@@ -77,6 +78,7 @@ def test_energy_weighted_plan_passes_runs_check_at_a_reversal(rough_m900):
     assert fc * robot.a_max[2] / eps > 1.6 * robot.tau_rate_max[2]
 
 
+@pytest.mark.slow  # 1.0 s CPU (make test-fast: the unit tier within 60 s)
 def test_plan_still_beyond_a_limit_is_refused(rough_m900):
     """Without re-solves the step stays: plan-ptp refuses (exit 3) rather than write what run refuses."""
     robot = rough_m900

@@ -274,6 +274,24 @@ def test_report_of_an_empty_build_says_not_measured_and_writes_both_files(tmp_pa
         assert title in md and title in page
     assert "| calibration.yaml in this build | not measured |" in md
     assert "| 0 |" not in md
+    assert "commissioned against no cell (no run log in this directory)" in md
+
+
+def test_the_preamble_says_what_the_run_logs_ran_on():
+    from rxcomm.reporting.runs import ran_on
+
+    sim = {"embedded_cell": True, "gateway": "127.0.0.1:40123"}
+    real = {"embedded_cell": False, "gateway": "192.168.0.10:502"}
+    assert (
+        ran_on({"a.yaml": sim, "b.yaml": sim}) == "the simulated cell `run` started itself (2 of 2 run logs)"
+    )
+    # a real gateway is named by its address, never called the simulated cell
+    assert ran_on({"a.yaml": real}) == "the gateway at 192.168.0.10:502 (1 of 1 run logs)"
+    both = ran_on({"a.yaml": sim, "b.yaml": real, "c.yaml": real})
+    assert both == (
+        "the simulated cell `run` started itself (1 of 3 run logs) and the gateway at 192.168.0.10:502 "
+        "(2 of 3 run logs)"
+    )
 
 
 def test_stiffness_from_identified_torques_is_shown_beside_the_prior_torques():

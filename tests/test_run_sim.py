@@ -28,7 +28,7 @@ from rxcomm.schemas.truth import CellTruth
 from rxcomm.stages import run as run_stage
 
 from .conftest import SAMPLES
-from .test_run import cosine_plan, save_plan, write_configs
+from .runs import cosine_plan, save_plan, write_configs
 
 pytest.importorskip("rxcomm.cell.sim")
 

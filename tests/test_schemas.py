@@ -29,7 +29,9 @@ def test_registered_model_is_strict_and_pinned(ref: str) -> None:
         assert cls.KIND.startswith("rxcomm/") and cls.SCHEMA_VERSION >= 1
         assert schema["properties"]["kind"]["const"] == cls.KIND
         assert schema["properties"]["schema_version"]["const"] == cls.SCHEMA_VERSION
-        assert set(ENVELOPE_FIELDS) <= set(schema["required"])
+        # code_identity is optional: artefacts written before it still read
+        assert set(ENVELOPE_FIELDS) - {"code_identity"} <= set(schema["required"])
+        assert set(ENVELOPE_FIELDS) <= set(schema["properties"])
         assert schema["properties"]["summary"].get("required", []) == list(cls.REQUIRED_SUMMARY_KEYS)
 
 

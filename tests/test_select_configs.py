@@ -181,6 +181,7 @@ def test_default_selection_predicts_better_than_both_baselines(name):
     assert sel.expected_error[0] < 0.06e-3  # ≈ tracker σ·sqrt(p/m) with p = 30 parameters, m = 192 rows
 
 
+@pytest.mark.slow  # 1.1 s CPU (make test-fast: the unit tier within 60 s)
 def test_linear_scan_sweeps_one_joint_at_a_time_from_the_widest_centre(rx130l):
     cell = _cell("rx130l")
     cand = stream_candidates(rx130l, cell, intervals=7, max_candidates=300, seed=1)
@@ -238,6 +239,7 @@ def test_too_few_or_singular_candidates(rx_blocks):
         select_poses(same, 8)
 
 
+@pytest.mark.slow  # 0.9 s CPU (make test-fast: the unit tier within 60 s)
 def test_32_of_4000_candidates_and_timing(rx130l):
     t0 = time.perf_counter()
     sel = select_measurement_poses(rx130l, _cell("rx130l"), 32, intervals=9, max_candidates=4000, restarts=5)

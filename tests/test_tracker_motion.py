@@ -163,7 +163,7 @@ def test_run_records_the_tracker_aligned_within_one_drive_cycle(tmp_path, rx130l
     from rxcomm.io.trajectory import Trajectory
     from rxcomm.stages import run as run_stage
 
-    from .test_run import save_plan
+    from .runs import save_plan
 
     raw = yaml.safe_load(TRUTH.read_text())
     raw["robot"] = str(TRUTH.parent.resolve())
@@ -210,7 +210,7 @@ def test_import_tracker_puts_a_csv_on_a_run_log(tmp_path, rx130l):
     from rxcomm.io.trajectory import Trajectory
     from rxcomm.stages import run as run_stage
 
-    from .test_run import save_plan
+    from .runs import save_plan
 
     t, q = joint_move(1.0, CYCLE, dq=(0.5, 0.3, -0.3, 0.2, -0.2, 0.3))
     qd = np.gradient(q, t, axis=0)

@@ -49,8 +49,9 @@ from rxcomm.schemas.strict import Strict
 COMMAND_SPEED_STEP_S = 0.004  # s between the FK samples of the command speed
 
 
-class CampaignSettings(Strict):
-    """How attained poses and paths are taken from the logs."""
+class EvaluationSettings(Strict):
+    """How attained poses and paths are taken from the logs for the ISO 9283 criteria (not to be confused
+    with `rxcomm.execution.campaign.CampaignSettings`, how a pose campaign is measured)."""
 
     min_dwell_s: float = Field(0.2, gt=0, description="a dwell: zero commanded velocity at least this, s")
     measure_fraction: float = Field(
@@ -122,7 +123,7 @@ def settle_drift_m(position_m: np.ndarray) -> float:
 
 
 def attained_poses(
-    robot: Robot, log: TrackedLog, points_m: Mapping[str, np.ndarray], s: CampaignSettings
+    robot: Robot, log: TrackedLog, points_m: Mapping[str, np.ndarray], s: EvaluationSettings
 ) -> dict[str, tuple[np.ndarray, np.ndarray | None, np.ndarray]]:
     """Per test pose: the attained positions [n, 3] and rotations [n, 3, 3] (or None) of its dwells,
     and each dwell's `settle_drift_m` [n]."""
@@ -164,7 +165,7 @@ class PathCycle:
     command_speed_m_per_s: np.ndarray  # nominal FK(q_demand) speed at the same instants
 
 
-def path_cycles(robot: Robot, log: TrackedLog, spec: PathSpec, s: CampaignSettings) -> list[PathCycle]:
+def path_cycles(robot: Robot, log: TrackedLog, spec: PathSpec, s: EvaluationSettings) -> list[PathCycle]:
     """The cycles of a test path in one log: each move between dwells (zero commanded velocity for
     ≥ `min_dwell_s`, or the log's ends) whose command TCP starts within `match_m` of the path's start,
     ends within it of the path's end and travels at least half the path's length (a return move the
@@ -228,7 +229,7 @@ def pose_entries(
     logs: Sequence[TrackedLog],
     points_m: Mapping[str, np.ndarray],
     rot_cmd: np.ndarray,
-    s: CampaignSettings,
+    s: EvaluationSettings,
 ) -> list[Criterion]:
     """AP_p, AP_a/b/c, RP_l, RP_a/b/c at P1–P5 from pose-cycle logs ("not measured" without)."""
     merged: dict[str, tuple[list, list, list]] = {}
@@ -267,7 +268,7 @@ _POSE_KEYS = ("AP_p", "AP_a", "AP_b", "AP_c", "RP_l", "RP_a", "RP_b", "RP_c")
 
 
 def path_entries(
-    robot: Robot, target: str, spec: PathSpec | None, logs: Sequence[TrackedLog], s: CampaignSettings
+    robot: Robot, target: str, spec: PathSpec | None, logs: Sequence[TrackedLog], s: EvaluationSettings
 ) -> list[Criterion]:
     """AT_p, RT_p, AV, RV (and CO on the rectangle) of one test path from its cycles' logs."""
     keys = ["AT_p", "RT_p", "AV", "RV"] + (["CO"] if target == "iso9283-rectangle" else [])
@@ -307,11 +308,11 @@ def evaluate(
     base_in_tracker: pin.SE3,
     pose_logs: Sequence[str | Path],
     path_logs: Mapping[str, Sequence[str | Path]],
-    settings: CampaignSettings | None = None,
+    settings: EvaluationSettings | None = None,
 ) -> tuple[Iso9283Cube, list[Criterion]]:
     """Every criterion of one robot state: the test cube (from the `iso9283-rectangle` spec) and
     the entries at P1–P5 and on each test path; logs not given are "not measured"."""
-    s = settings or CampaignSettings()
+    s = settings or EvaluationSettings()
     if "iso9283-rectangle" not in specs:
         raise InputError(
             "the ISO 9283 path specs need iso9283-rectangle (it defines the cube)", field="paths"

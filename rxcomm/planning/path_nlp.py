@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from rxcomm.errors import SolveOutcome
 from rxcomm.planning.path_dynamics import PathDynamics
 from rxcomm.planning.path_profile import PathProfile
 from rxcomm.planning.topp import PlanLimits, velocity_bound_x
@@ -78,6 +79,11 @@ class NlpResult:
     solve_seconds: float
     build_seconds: float
     duals: tuple[np.ndarray, np.ndarray] | None = None  # (λ_x, λ_g), to warm-start a re-solve
+
+    @property
+    def outcome(self) -> SolveOutcome:
+        """The solvers' one result convention, from IPOPT's status."""
+        return SolveOutcome.from_ipopt(self.status, self.ok, self.iterations)
 
 
 def _layout(n_nodes: int, dof: int) -> dict[str, tuple[int, int]]:

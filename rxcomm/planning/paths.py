@@ -1,20 +1,14 @@
-"""Cartesian TCP paths parametrised by arc length σ (m), and the ISO 9283 test paths (paper §5.1, §4).
+"""Cartesian TCP paths parametrised by arc length σ (m) (paper §5.1).
 
 A `CartesianPath` is a curve (position of the TCP in the base frame) and an orientation law, both
 functions of σ ∈ [0, length_m]. Curves are small objects with one method, `eval(s, order)`, giving the
 position (order 0) or its first/second derivative w.r.t. σ; because σ is arc length, |p'(σ)| = 1 and
 the TCP speed is σ̇. `build_path(spec)` turns a `rxcomm.schemas.path.PathSpec` into one, refusing
 zero-length segments, collinear circle points and blends that do not fit with `InputError` naming the
-field.
+field; `load_path` reads a path file and checks it is within the robot's reach.
 
-ISO 9283 (performance criteria and test methods for industrial robots), §6–7 as used by the paper's
-validation trajectory: the test cube is the largest cube with edges parallel to the base axes whose
-points the robot reaches (here: with one tool orientation, on one IK branch, away from singularities,
-inside an optional cell box); the test plane is the inclined plane through two opposite edges
-(bottom edge nearest the robot, top edge farthest); P1 is the cube centre and P2–P5 lie on the plane's
-diagonals at 10 % of the diagonal from its corners. Test paths in that plane: the diagonal line
-P2→P4, the rectangle P2-P3-P4-P5, a large circle (diameter 80 % of the edge) and a small circle (10 %
-of the edge) about P1. `iso9283_cube` finds the cube, `iso9283_paths` writes the path specs.
+The ISO 9283 test cube and its paths are in `rxcomm.planning.iso9283`, which builds on `rpy_matrix`
+and `unit_vector` here.
 """
 
 from __future__ import annotations

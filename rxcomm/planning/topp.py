@@ -32,6 +32,7 @@ import toppra.algorithm
 import toppra.constraint as tc
 from toppra.constraint.linear_constraint import LinearConstraint, canlinear_colloc_to_interpolate
 
+from rxcomm.errors import SolveOutcome, SolveStatus
 from rxcomm.planning.path_dynamics import InverseDynamics, PathDynamics, path_dynamics
 from rxcomm.planning.path_profile import PathProfile
 
@@ -219,6 +220,11 @@ class ToppResult:
     message: str = ""
     uncontrollable_at_m: float | None = None
     passes: int = 1
+
+    @property
+    def outcome(self) -> SolveOutcome:
+        """The solvers' one result convention (an uncontrollable path has no profile: infeasible)."""
+        return SolveOutcome(SolveStatus.SOLVED if self.ok else SolveStatus.INFEASIBLE, self.message)
 
 
 def velocity_bound_x(

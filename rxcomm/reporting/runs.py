@@ -22,6 +22,23 @@ from rxcomm.reporting.values import fmt
 LIMITS = ("position", "velocity", "acceleration", "torque", "torque_rate")
 
 
+def ran_on(runs: Mapping[str, Mapping]) -> str:
+    """What the run logs say they ran on (their `embedded_cell` and `gateway`): the simulated cell
+    `run` started itself, and/or the gateways by address (a real cell, or a `rxcomm cell-sim` served
+    apart: the log cannot tell which)."""
+    if not runs:
+        return "no cell (no run log in this directory)"
+    embedded = sum(bool(r.get("embedded_cell")) for r in runs.values())
+    gateways: dict[str, int] = {}
+    for r in runs.values():
+        if not r.get("embedded_cell"):
+            gateways[str(r.get("gateway"))] = gateways.get(str(r.get("gateway")), 0) + 1
+    n_runs = len(runs)
+    parts = [f"the simulated cell `run` started itself ({embedded} of {n_runs} run logs)"] if embedded else []
+    parts += [f"the gateway at {gw} ({n} of {n_runs} run logs)" for gw, n in sorted(gateways.items())]
+    return " and ".join(parts)
+
+
 def trajectory_section(
     title: str, s: Mapping, image: str | None, paper_duration: str, tol: Tolerance = DEFAULT_TOLERANCE
 ) -> Section:

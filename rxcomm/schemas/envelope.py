@@ -28,11 +28,21 @@ from typing import Annotated, Any, ClassVar
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
 
 import rxcomm
+from rxcomm.code_identity import code_identity
 from rxcomm.schemas.plain import sha256_file, to_plain
 
 Sha256Hex = Annotated[str, StringConstraints(pattern=r"^[0-9a-f]{64}$")]
 SummaryValue = float | int | str | bool | list[float] | list[int] | list[float | None] | None
-ENVELOPE_FIELDS = ("kind", "schema_version", "created", "rxcomm_version", "inputs", "settings", "summary")
+ENVELOPE_FIELDS = (
+    "kind",
+    "schema_version",
+    "created",
+    "rxcomm_version",
+    "code_identity",
+    "inputs",
+    "settings",
+    "summary",
+)
 
 
 def _schema_extra(schema: dict[str, Any], cls: type) -> None:
@@ -59,6 +69,12 @@ class Artefact(BaseModel):
     schema_version: int
     created: datetime
     rxcomm_version: str
+    # None: an artefact written before code identities (it still reads).
+    code_identity: str | None = Field(
+        None,
+        description="the code that wrote it: version, git describe of its checkout, sha256 of its sources "
+        "(rxcomm/code_identity.py)",
+    )
     inputs: dict[str, Sha256Hex]
     settings: dict[str, Any]
     summary: dict[str, SummaryValue]
@@ -117,7 +133,8 @@ class Artefact(BaseModel):
         summary: dict[str, Any] | None = None,
     ) -> dict[str, Any]:
         """Envelope fields for a new artefact of this class: hashes ``inputs`` (name -> file path),
-        dumps ``settings`` as JSON-able, stamps ``created`` (UTC, now) and ``rxcomm.__version__``."""
+        dumps ``settings`` as JSON-able, stamps ``created`` (UTC, now), ``rxcomm.__version__`` and the
+        code identity (``rxcomm.code_identity``)."""
         if isinstance(settings, BaseModel):
             settings_d = settings.model_dump(mode="json")
         else:
@@ -127,6 +144,7 @@ class Artefact(BaseModel):
             "schema_version": cls.SCHEMA_VERSION,
             "created": datetime.now(UTC).replace(microsecond=0),
             "rxcomm_version": rxcomm.__version__,
+            "code_identity": code_identity(),
             "inputs": {name: sha256_file(p) for name, p in inputs.items()},
             "settings": settings_d,
             "summary": to_plain(dict(summary or {})),

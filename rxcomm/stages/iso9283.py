@@ -26,7 +26,7 @@ from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283
 from rxcomm.schemas.path import PathSpec
 
 if TYPE_CHECKING:
-    from rxcomm.acceptance.campaign import CampaignSettings
+    from rxcomm.acceptance.campaign import EvaluationSettings
 
 
 def base_frame(calibration: Path | None, cell: Path | None) -> BaseFrame:
@@ -62,11 +62,11 @@ def execute(
     paths_dir: Path | None = None,
     calibration: Path | None = None,
     cell: Path | None = None,
-    settings: CampaignSettings | None = None,
+    settings: EvaluationSettings | None = None,
     plot: bool = False,
 ) -> Iso9283:
     """The stage as a function (tests call it): returns the artefact written. Raises RxcommError."""
-    from rxcomm.acceptance.campaign import CampaignSettings, evaluate
+    from rxcomm.acceptance.campaign import EvaluationSettings, evaluate
     from rxcomm.model.geometric_errors import placement_to_se3
     from rxcomm.model.robot import load_robot, robot_files
 
@@ -78,7 +78,7 @@ def execute(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {**logs, "calibration": calibration, "cell": cell, **robot_files(robot_dir)},
     )
-    s = settings or CampaignSettings()
+    s = settings or EvaluationSettings()
     frame = base_frame(calibration, cell)
     robot = load_robot(robot_dir)
     specs = read_specs(paths_dir)

@@ -31,7 +31,13 @@ from rxcomm.reporting.document import (
 )
 from rxcomm.reporting.exports import exports_section
 from rxcomm.reporting.identification import dynamics_section, excitation_section
-from rxcomm.reporting.runs import execution_section, ptp_vs_cp_figure, runs_section, trajectory_section
+from rxcomm.reporting.runs import (
+    execution_section,
+    ptp_vs_cp_figure,
+    ran_on,
+    runs_section,
+    trajectory_section,
+)
 from rxcomm.reporting.targets import acceptance_verdict, stage_verdicts, verdict_note
 from rxcomm.schemas.acceptance import Acceptance
 from rxcomm.schemas.calibration import Calibration
@@ -154,7 +160,7 @@ def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Re
     robot = (a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"] or {}).get("robot")
     preamble = (
         ("The robot (named by no artefact here)" if robot is None else f"Robot `{robot}`")
-        + f" commissioned against the simulated cell by rxcomm {__version__} on "
+        + f" commissioned against {ran_on(runs)} by rxcomm {__version__} on "
         f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC. Every figure is read from the artefacts in this directory "
         "(their envelopes hold the sha256 of every input). The verdict opens with the robot accepted as a "
         "whole (factory vs commissioned state, `rxcomm accept` against acceptance.yaml; factory: nominal "
