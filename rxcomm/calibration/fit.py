@@ -233,7 +233,7 @@ def calibrate(
     folds = np.random.default_rng(settings.seed + 1).permutation(fit.size) % min(settings.cv_folds, fit.size)
     specs = candidate_models(robot, ms_fit, ident, tau[fit], point, settings.compliance)
     cands = score_candidates(specs, lambda i, c: fitter_for(i, c, full_f), fit, folds, settings.model)
-    chosen, note = chosen_model(cands, settings.model, fit.size)
+    chosen, note = chosen_model(cands, settings.model, fit.size, settings.regularise)
     notes += [] if note is None else [note]
     frames_c = next(c for c in cands if c.name == "frames")
     if chosen.fit is None:
@@ -248,7 +248,7 @@ def calibrate(
     check_fits_robot(robot, ms_fit, result, tau[fit], t2b, point)
     notes += fit_notes(result, po, noise_source != "estimated")
     limit = settings.undetermined_std_ratio * noise.position_sigma_m
-    undetermined = undetermined_parameters(robot, chosen.idx, chosen.comp, result, limit)
+    undetermined = undetermined_parameters(robot, chosen.idx, chosen.comp, result, limit, settings.regularise)
     sets = {"fit": fit, "heldout": heldout}
     tables = _tables(
         robot, ms, sets, {"nominal": None, "calibrated": result, "frames_only": frames}, tau, t2b, point
