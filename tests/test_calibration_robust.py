@@ -15,6 +15,7 @@ from rxcomm.calibration.measurements import MeasurementSet
 from rxcomm.calibration.settings import CalibrateSettings
 from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.cli import app
+from rxcomm.errors import InputError
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
 from rxcomm.model.geometric_errors import random_poses
 from rxcomm.model.kinematics import tcp_placement
@@ -132,3 +133,45 @@ def test_tcp_on_the_last_link_works_with_urdf_out(tmp_path, rx):
     for q in random_poses(robot, 20, np.random.default_rng(0)):
         a, b = tcp_placement(calibrated, q), tcp_placement(robot, q, errors)
         assert np.max(np.abs(a.homogeneous - b.homogeneous)) < 1e-9
+
+
+@pytest.fixture(scope="module")
+def good(rx):
+    """30 fit + 10 validation poses on the tracker (rigid truth)."""
+    robot, truth, _ = rx
+    tracker = SimulatedTracker(robot, truth, np.random.default_rng(21))
+    qs = random_poses(robot, 40, np.random.default_rng(22))
+    return _measure(tracker, qs, ["fit"] * 30 + ["validation"] * 10)
+
+
+def test_shifted_validation_pose_is_a_warning_naming_it(rx, good):
+    """Validation pose 34 shifted by 100 mm: the calibration still beats nominal and is written, but a
+    warning names pose 34 (on main: exit 0 and no word); the clean set warns of nothing."""
+    robot, _, t2b = rx
+    clean = calibrate(robot, good, tracker_to_base=t2b)
+    assert not any("held-out poses disagree" in n for n in clean.notes)
+    p = good.position_m.copy()
+    p[34] += [0.1, 0.0, 0.0]
+    res = calibrate(
+        robot, MeasurementSet(good.q, p, good.rotation, good.valid, good.role), tracker_to_base=t2b
+    )
+    (warn,) = [n for n in res.notes if "held-out poses disagree" in n]
+    assert "34 (100." in warn and warn.count("mm,") == 1
+
+
+@pytest.mark.parametrize(
+    ("change", "named"), [("swap", "joint_2 and joint_3 are swapped"), ("flip", "joint_2's sign is flipped")]
+)
+def test_joint_mixup_is_named(rx, good, change, named):
+    """Joint columns 2 and 3 swapped, or J2's sign flipped, in the export: the error names that (on
+    main: 'check the angle convention'), position-only measurements too."""
+    robot, _, t2b = rx
+    q = good.q.copy()
+    if change == "swap":
+        q[:, [1, 2]] = q[:, [2, 1]]
+    else:
+        q[:, 1] = -q[:, 1]
+    for rot in (good.rotation, None):
+        bad = MeasurementSet(q, good.position_m, rot, good.valid, good.role)
+        with pytest.raises(InputError, match=named):
+            calibrate(robot, bad, tracker_to_base=t2b)
