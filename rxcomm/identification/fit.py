@@ -130,8 +130,8 @@ class Identification:
                 )
                 out.append(
                     f"held-out folds miss by more than {CV_TO_FIT_LIMIT:g}× the fit error ({figs}): the fit "
-                    "follows noise or one part of the log on these joints (too few rows or too little "
-                    "motion per parameter, or a model term that changes over the log); do not trust their "
+                    "follows noise or one part of the log on these joints (too few rows, too little "
+                    "motion, or a model term that changes over the log); do not trust their "
                     "parameters without more or longer data"
                 )
         if self.cutoff_note:
