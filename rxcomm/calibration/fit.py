@@ -51,7 +51,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
-from rxcomm.calibration.compliance import holding_torques
+from rxcomm.calibration.compliance import compliant_joints, holding_torques
 from rxcomm.calibration.diagnosis import explained, heldout_disagreement
 from rxcomm.calibration.frames import DataFrames, estimate_frames, reference_base
 from rxcomm.calibration.lm import BaselineComparison, FitResult, Fitter, at_links, rank_check
@@ -231,7 +231,14 @@ def calibrate(
         )
 
     estimate = noise_source == "estimated" or (not po and so is None)
-    full_f = _with_noise(fitter_for(np.array(ident.indices), ()), fit, sp, estimate)
+    # Noise and blunders against the richest model offered (joint compliance included), so that what
+    # the model can explain is not taken for noise or blunders.
+    comp = (
+        compliant_joints(tau[fit])
+        if settings.compliance and settings.model in ("auto", "full+compliance")
+        else ()
+    )
+    full_f = _with_noise(fitter_for(np.array(ident.indices), comp), fit, sp, estimate)
     _, fit, flagged = full_f.fit_dropping_outliers(fit)
     ms_fit = ms.subset(fit)
     noise = TrackerNoise(full_f.sigma_p, None if po else full_f.sigma_o, noise_source)
