@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rxcomm.cli import app
+from rxcomm.execution.plan import model_torque
 from rxcomm.identification.consistency import drive_violations
 from rxcomm.identification.excitation_problem import ExcitationProblem
 from rxcomm.identification.fit import identify
@@ -18,7 +19,7 @@ from rxcomm.identification.logs import JointLog
 from rxcomm.identification.settings import IdentifySettings
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.model.base_parameters import base_parameters
-from rxcomm.model.dynamics import RobotDynamics, truth_parameters
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters, truth_parameters
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.excitation import ExcitationSettings
@@ -125,3 +126,25 @@ def test_scoring_a_model_writes_it_with_the_new_figures(tmp_path, rx130l, stands
     assert out.base_parameters == art.base_parameters
     assert out.summary["validation"] == f"log: {path.name}" and out.inputs["validate"] == sha256_file(path)
     assert out.summary["validation_total_rms_every_row_nm"] > 0
+
+
+def test_feed_forward_at_a_planned_standstill_has_no_coulomb_term(rx130l):
+    """The feed-forward (`execution.plan.model_torque`) takes the *planned* velocity: at a planned
+    standstill it is the holding torque, no Coulomb term of either sign (checked for issue 30; the
+    planners' smooth sign is 0 at q̇ = 0)."""
+    params = prior_parameters(rx130l)
+    q = np.random.default_rng(0).uniform(-1.0, 1.0, (5, 6))
+    zero = np.zeros_like(q)
+    no_fc = dataclasses.replace(
+        params,
+        coulomb_nm=np.zeros(6),
+        motor_coulomb_nm=None if params.motor_coulomb_nm is None else np.zeros(6),
+    )
+    np.testing.assert_allclose(
+        model_torque(rx130l, params, q, zero, zero), model_torque(rx130l, no_fc, q, zero, zero), atol=1e-12
+    )
+    moving = np.full_like(q, 0.5)
+    assert np.all(
+        np.abs(model_torque(rx130l, params, q, moving, zero) - model_torque(rx130l, no_fc, q, moving, zero))
+        > 0.1
+    )
