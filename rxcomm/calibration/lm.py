@@ -220,6 +220,7 @@ class Fitter:
     tau: np.ndarray  # [N, n] prior holding torques of all poses of `ms`
     comp: tuple[int, ...] = ()  # compliant joints
     x0: np.ndarray | None = None
+    geometric_prior: np.ndarray | None = None  # [48] prior σ (`priors.effective_prior_sigmas`)
 
     def problem(self, poses: np.ndarray) -> Problem:
         sub = self.ms.subset(poses)
@@ -240,7 +241,9 @@ class Fitter:
     @property
     def prior(self) -> np.ndarray | None:
         """Prior σ of the solution vector (`priors`), None when the fit is not regularised."""
-        return prior_sigmas(self.robot, self.idx, self.comp) if self.settings.regularise else None
+        if not self.settings.regularise:
+            return None
+        return prior_sigmas(self.robot, self.idx, self.comp, self.geometric_prior)
 
     def fit(self, poses: np.ndarray, x0: np.ndarray | None = None) -> FitResult:
         return fit_problem(

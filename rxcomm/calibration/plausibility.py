@@ -16,7 +16,6 @@ import pinocchio as pin
 from rxcomm.calibration.frames import DataFrames
 from rxcomm.calibration.lm import FitResult, Fitter, at_links
 from rxcomm.calibration.measurements import MeasurementSet
-from rxcomm.calibration.priors import parameter_prior_sigmas
 from rxcomm.calibration.residuals import ErrorStats, pose_errors
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.model.geometric_errors import characteristic_length_m, parameter_names
@@ -92,15 +91,15 @@ def undetermined_parameters(
     comp: tuple[int, ...],
     result: FitResult,
     limit_m: float,
-    regularised: bool = True,
+    prior: np.ndarray | None = None,
 ) -> list[str]:
     """Parameters whose σ at the TCP (m; rotations × the characteristic length) exceeds `limit_m`,
-    or (`regularised`) whose σ is still above PRIOR_SHARE_UNDETERMINED of their prior's (the data
+    or (with a `prior` [48] σ) whose σ is still above PRIOR_SHARE_UNDETERMINED of their prior's (the data
     hardly inform them: the estimate stays near the prior), and compliances known to worse than 30 %."""
     names = parameter_names(robot)
     length = characteristic_length_m(robot)
     lever = np.tile(np.array([1, 1, 1, length, length, length]), robot.n + 2)
-    prior = parameter_prior_sigmas(robot) if regularised else np.full(len(names), np.inf)
+    prior = np.full(len(names), np.inf) if prior is None else prior
     out = [
         names[i]
         for i in idx

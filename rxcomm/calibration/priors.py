@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from rxcomm.calibration.compliance import TAU_REF_NM
-from rxcomm.model.geometric_errors import joint_offset_names, parameter_names
+from rxcomm.model.geometric_errors import identification_jacobians, joint_offset_names, parameter_names
 from rxcomm.model.robot import Robot
 
 # 1σ per class (SI). Sources and rationale: docs/architecture.md §11 "Calibration priors".
@@ -46,8 +46,33 @@ def parameter_prior_sigmas(robot: Robot) -> np.ndarray:
     return out
 
 
-def prior_sigmas(robot: Robot, idx: np.ndarray, comp: tuple[int, ...]) -> np.ndarray:
-    """Prior σ of a fit's solution vector: the geometric parameters `idx`, then the compliant
-    joints' c·TAU_REF (`residuals.Problem`); inf where the prior is flat."""
-    geo = parameter_prior_sigmas(robot)[np.asarray(idx, dtype=int)]
+def effective_prior_sigmas(
+    robot: Robot, identifiable: np.ndarray, q: np.ndarray, position_only: bool, point: np.ndarray | None
+) -> np.ndarray:
+    """[48] the prior σ of each identifiable parameter as the fit sees it: it also carries the
+    errors the structure folds into it (a non-identifiable parameter's Jacobian column is a
+    combination Σ c_i·col_i of identifiable ones over the poses `q`), so
+    σ_eff,i² = σ_i² + Σ_j c_ij²·σ_j² over the non-identifiable joint errors j (correlations
+    neglected). A prior on the identifiable parameters alone would be too tight: it made a linear
+    scan's calibration 2× worse at tracker grade. Other entries as `parameter_prior_sigmas`."""
+    sig = parameter_prior_sigmas(robot)
+    ident = np.asarray(identifiable, dtype=int)
+    rest = np.setdiff1d(np.flatnonzero(np.isfinite(sig)), ident)
+    if rest.size == 0:
+        return sig
+    jac = identification_jacobians(robot, q, None, None, position_only, point).reshape(-1, sig.size)
+    c, *_ = np.linalg.lstsq(jac[:, ident], jac[:, rest], rcond=None)
+    out = sig.copy()
+    finite = np.isfinite(out[ident])
+    out[ident[finite]] = np.sqrt(sig[ident[finite]] ** 2 + (c[finite] ** 2) @ (sig[rest] ** 2))
+    return out
+
+
+def prior_sigmas(
+    robot: Robot, idx: np.ndarray, comp: tuple[int, ...], geometric: np.ndarray | None = None
+) -> np.ndarray:
+    """Prior σ of a fit's solution vector: the geometric parameters `idx` (σ from `geometric` [48],
+    default `parameter_prior_sigmas`), then the compliant joints' c·TAU_REF (`residuals.Problem`);
+    inf where the prior is flat."""
+    geo = (parameter_prior_sigmas(robot) if geometric is None else geometric)[np.asarray(idx, dtype=int)]
     return np.concatenate([geo, np.full(len(comp), COMPLIANCE_SIGMA_RAD_PER_NM * TAU_REF_NM)])
