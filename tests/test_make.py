@@ -60,6 +60,7 @@ ALL = {
     "iso9283-factory.yaml",
     "iso9283.yaml",
     "verdict.yaml",
+    "exports/parity.yaml",
     "report.md",
 }
 # The factory state (issue 17): catalogue timing of the CP path and the PtP move, run without feed-forward.
@@ -92,6 +93,7 @@ AFTER_CELL = {
     "cp.mcap",
     "ptp.mcap",
     "verdict.yaml",
+    "exports/parity.yaml",
     "report.md",
 }
 AFTER_CELL |= {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "iso9283-factory.yaml", "iso9283.yaml"}
@@ -109,6 +111,7 @@ AFTER_POSES = {
     "run-ff.mcap",
     "run-ptp.mcap",
     "verdict.yaml",
+    "exports/parity.yaml",
     "report.md",
     *ISO_ON_MODEL,
     "iso9283-factory.yaml",  # the tracker's base frame is the calibration's
@@ -121,6 +124,7 @@ AFTER_MODEL = {
     "run-ff.mcap",
     "run-ptp.mcap",
     "verdict.yaml",
+    "exports/parity.yaml",  # the controller files of the calibration, the plans and the FF run
     "report.md",
     *ISO_ON_MODEL,
 }
@@ -284,7 +288,7 @@ def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(bu
         "iso-circle-cycles.mcap",
         "run-iso-circle.mcap",
     }
-    after_cal |= {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml"}
+    after_cal |= {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml", "exports/parity.yaml"}
     assert _remade(built, "-W", "build/calibration.yaml")[0] == after_cal
     assert _remade(built, "-W", "build/calibration-prior.yaml")[0] == {"report.md"}
     assert _remade(built, "-W", "build/dynamics.yaml")[0] == after_cal | {"calibration.yaml"}
