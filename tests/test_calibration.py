@@ -408,9 +408,9 @@ def test_bad_inputs_are_input_errors(tmp_path, rx_meas):
     flat = MeasurementSet(q, p, r, np.ones(40, bool), ("fit",) * 40)
     with pytest.raises(InputError, match="rank-deficient"):
         calibrate(robot, flat, CalibrateSettings(holdout_fraction=0.0), tracker_to_base=t2b)
-    # Joint angles in the wrong order: refused after the fit, naming the likely causes.
+    # Joint angles in the wrong order: refused, naming the swap.
     swapped = MeasurementSet(ms.q[:, [0, 2, 1, 3, 4, 5]], ms.position_m, None, ms.valid, ms.role)
-    with pytest.raises(InputError, match="wrong robot, joint order"):
+    with pytest.raises(InputError, match="joint_2 and joint_3 are swapped"):
         calibrate(robot, swapped, tracker_to_base=t2b)
 
 

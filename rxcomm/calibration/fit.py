@@ -31,8 +31,10 @@ same held-out poses (`BaselineComparison`).
 Input checks raise `InputError` (exit 2) with file and field: NaN rows, too few poses (says how
 many are needed), a pose set that cannot identify some parameters (names them), positions that look
 like millimetres, joint angles that look like degrees, orientations that do not fit a rigid tool
-(angle convention), measurements that do not fit the robot even after the fit. A calibration worse
-than the nominal model on the held-out poses raises `InfeasibleError` (exit 3).
+(angle convention), measurements that do not fit the robot even after the fit — named as a swapped
+joint pair or a flipped joint sign when one fits far better (`diagnosis`). A calibration worse
+than the nominal model on the held-out poses raises `InfeasibleError` (exit 3); held-out poses
+beyond the noise are a warning naming them.
 
 This module runs the steps; each concept lives in its own module of the package: `measurements`
 (reading and checking), `frames` (closed-form base and tool), `residuals` (weighted residual,
@@ -49,7 +51,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
-from rxcomm.calibration.compliance import holding_torques
+from rxcomm.calibration.compliance import compliant_joints, holding_torques
+from rxcomm.calibration.diagnosis import explained, heldout_disagreement
 from rxcomm.calibration.frames import DataFrames, estimate_frames, reference_base
 from rxcomm.calibration.lm import BaselineComparison, FitResult, Fitter, at_links, rank_check
 from rxcomm.calibration.measurements import MeasurementSet
@@ -60,6 +63,7 @@ from rxcomm.calibration.plausibility import (
     fit_notes,
     undetermined_parameters,
 )
+from rxcomm.calibration.priors import effective_prior_sigmas
 from rxcomm.calibration.residuals import ErrorStats, error_table
 from rxcomm.calibration.selection import Candidate, candidate_models, chosen_model, score_candidates
 from rxcomm.calibration.settings import CalibrateSettings
@@ -201,7 +205,10 @@ def calibrate(
     rank_check(robot, ms_fit, ident, point)
     # The frames from the data; a guess is a reference when it agrees, never a refusal.
     data = estimate_frames(robot, ms_fit, point)
-    check_rigid_tool(data, ms)
+    try:
+        check_rigid_tool(data, ms)
+    except InputError as e:
+        raise explained(robot, ms_fit, point, e) from e
     guess, source = (
         (tracker_to_base, "cell") if tracker_to_base is not None else (ms.tracker_to_base, "measurements")
     )
@@ -215,17 +222,26 @@ def calibrate(
     so = settings.orientation_sigma_rad or ms.orientation_sigma_rad
     noise_source = "settings" if settings.position_sigma_m else "measurements" if sp else "estimated"
     tau = holding_torques(robot, ms.q, dynamics)
+    poses = random_poses(robot, 60, np.random.default_rng(0))  # as `_identifiable`'s
+    sig = effective_prior_sigmas(robot, np.array(ident.indices), poses, po, point)
 
     def fitter_for(idx: np.ndarray, comp: tuple[int, ...], base: Fitter | None = None) -> Fitter:
         x0 = np.concatenate([start[idx], np.zeros(len(comp))])
         if base is not None:
             return replace(base, idx=np.asarray(idx), comp=comp, x0=x0)
         return Fitter(
-            robot, ms, t2b, np.asarray(idx), sp or 1e-3, so or 1e-2, point, settings, need, tau, comp, x0
+            robot, ms, t2b, np.asarray(idx), sp or 1e-3, so or 1e-2, point, settings, need, tau, comp, x0, sig
         )
 
     estimate = noise_source == "estimated" or (not po and so is None)
-    full_f = _with_noise(fitter_for(np.array(ident.indices), ()), fit, sp, estimate)
+    # Noise and blunders against the richest model offered (joint compliance included), so that what
+    # the model can explain is not taken for noise or blunders.
+    comp = (
+        compliant_joints(tau[fit])
+        if settings.compliance and settings.model in ("auto", "full+compliance")
+        else ()
+    )
+    full_f = _with_noise(fitter_for(np.array(ident.indices), comp), fit, sp, estimate)
     _, fit, flagged = full_f.fit_dropping_outliers(fit)
     ms_fit = ms.subset(fit)
     noise = TrackerNoise(full_f.sigma_p, None if po else full_f.sigma_o, noise_source)
@@ -233,7 +249,7 @@ def calibrate(
     folds = np.random.default_rng(settings.seed + 1).permutation(fit.size) % min(settings.cv_folds, fit.size)
     specs = candidate_models(robot, ms_fit, ident, tau[fit], point, settings.compliance)
     cands = score_candidates(specs, lambda i, c: fitter_for(i, c, full_f), fit, folds, settings.model)
-    chosen, note = chosen_model(cands, settings.model, fit.size)
+    chosen, note = chosen_model(cands, settings.model, fit.size, settings.regularise)
     notes += [] if note is None else [note]
     frames_c = next(c for c in cands if c.name == "frames")
     if chosen.fit is None:
@@ -245,16 +261,25 @@ def calibrate(
         raise InputError(f"the base + tool frames cannot be fitted: {frames_c.note}", file=ms.source)
     fitter = fitter_for(np.array(chosen.idx), chosen.comp, full_f)
     # Plausibility after the fit: what the frames and errors cannot explain is the wrong robot.
-    check_fits_robot(robot, ms_fit, result, tau[fit], t2b, point)
+    try:
+        check_fits_robot(robot, ms_fit, result, tau[fit], t2b, point)
+    except InputError as e:
+        raise explained(robot, ms_fit, point, e) from e
     notes += fit_notes(result, po, noise_source != "estimated")
     limit = settings.undetermined_std_ratio * noise.position_sigma_m
-    undetermined = undetermined_parameters(robot, chosen.idx, chosen.comp, result, limit)
+    undetermined = undetermined_parameters(
+        robot, chosen.idx, chosen.comp, result, limit, sig if settings.regularise else None
+    )
     sets = {"fit": fit, "heldout": heldout}
     tables = _tables(
         robot, ms, sets, {"nominal": None, "calibrated": result, "frames_only": frames}, tau, t2b, point
     )
-    # Sanity: the calibration must beat the nominal model on poses it never saw.
-    check_beats_nominal(fitter, result, heldout, tables)
+    # Sanity: the calibration must beat the nominal model on the held-out poses (those that agree
+    # with it, when most do: one mistyped pose must not decide).
+    disagreeing, warning = heldout_disagreement(fitter, result, fit, heldout)
+    notes += [] if warning is None else [warning]
+    agree = np.setdiff1d(heldout, disagreeing)
+    check_beats_nominal(fitter, result, agree if 2 * agree.size > heldout.size else heldout, tables)
     rigid = next((c for c in cands if c.name == "full"), None)
     if chosen.comp and rigid is not None and rigid.fit is not None:
         tables |= _tables(robot, ms, {"heldout": heldout}, {"rigid": rigid.fit}, tau, t2b, point)

@@ -19,6 +19,7 @@ import scipy.stats
 
 from rxcomm.calibration.compliance import TAU_REF_NM
 from rxcomm.calibration.measurements import MeasurementSet
+from rxcomm.calibration.priors import prior_sigmas
 from rxcomm.calibration.residuals import Problem
 from rxcomm.calibration.settings import CalibrateSettings
 from rxcomm.errors import InfeasibleError, InputError
@@ -66,23 +67,27 @@ def fit_problem(
     x0: np.ndarray | None = None,
     tau: np.ndarray | None = None,
     comp: tuple[int, ...] = (),
+    prior: np.ndarray | None = None,
 ) -> FitResult:
+    """The (regularised) fit: `prior` [k] the prior σ of each element of the solution vector (inf:
+    flat; None: no prior, plain least squares); its rows x/σ join the weighted residual (`priors`)."""
     idx = np.asarray(idx, dtype=int)
     prob = Problem(robot, ms.q, ms.position_m, ms.rotation, t2b, sigma_p, sigma_o, idx, point, tau, comp)
+    aug = Regularised(prob, prior)
     k = len(idx) + len(comp)
     x0 = np.zeros(k) if x0 is None else np.asarray(x0, dtype=float)
     m = prob.residual(x0).size
-    if m <= k:
-        raise InputError(f"{m} equations for {k} parameters: too few poses", file=ms.source)
+    if m <= aug.n_free:
+        raise InputError(f"{m} equations for {aug.n_free} parameters: too few poses", file=ms.source)
     if settings.loss == "linear":
         sol = scipy.optimize.least_squares(
-            prob.residual, x0, jac=prob.jacobian, method="lm", max_nfev=settings.max_iterations * (k + 1)
+            aug.residual, x0, jac=aug.jacobian, method="lm", max_nfev=settings.max_iterations * (k + 1)
         )
     else:
         sol = scipy.optimize.least_squares(
-            prob.residual,
+            aug.residual,
             x0,
-            jac=prob.jacobian,
+            jac=aug.jacobian,
             method="trf",
             loss=settings.loss,
             f_scale=3.0,
@@ -92,10 +97,12 @@ def fit_problem(
         raise InfeasibleError(f"calibration did not converge: {sol.message}")
     jac = prob.jacobian(sol.x)
     res = prob.residual(sol.x)
-    dof = m - k
+    info = jac.T @ jac + np.diag(aug.precision)
+    # the parameters the data spend (the hat matrix's trace; k without a prior)
+    dof = max(m - float(np.trace(np.linalg.pinv(info) @ (jac.T @ jac))), 1.0)
     s2 = float(res @ res) / dof
     sv = np.linalg.svd(jac * (1 / np.linalg.norm(jac, axis=0)), compute_uv=False)
-    cov = s2 * np.linalg.pinv(jac.T @ jac)
+    cov = s2 * np.linalg.pinv(info)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     names = parameter_names(robot)
     std = np.full(len(names), np.nan)
@@ -118,6 +125,44 @@ def fit_problem(
         compliance_std,
         np.array(sol.x),
     )
+
+
+@dataclass(frozen=True)
+class Regularised:
+    """A weighted residual with its prior rows x_k/σ_k appended (σ_k finite; `priors`)."""
+
+    prob: Problem
+    prior: np.ndarray | None
+
+    @property
+    def rows(self) -> np.ndarray:
+        return np.zeros(0, dtype=int) if self.prior is None else np.flatnonzero(np.isfinite(self.prior))
+
+    @property
+    def precision(self) -> np.ndarray:
+        """[k] 1/σ² (0 where flat)."""
+        k = len(self.prob.idx) + len(self.prob.comp)
+        out = np.zeros(k)
+        if self.prior is not None:
+            out[self.rows] = 1.0 / self.prior[self.rows] ** 2
+        return out
+
+    @property
+    def n_free(self) -> int:
+        return len(self.prob.idx) + len(self.prob.comp) - self.rows.size
+
+    def residual(self, x: np.ndarray) -> np.ndarray:
+        if self.prior is None:
+            return self.prob.residual(x)
+        return np.concatenate([self.prob.residual(x), x[self.rows] / self.prior[self.rows]])
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        if self.prior is None:
+            return self.prob.jacobian(x)
+        rows = self.rows
+        extra = np.zeros((rows.size, x.size))
+        extra[np.arange(rows.size), rows] = 1.0 / self.prior[rows]
+        return np.vstack([self.prob.jacobian(x), extra])
 
 
 def rank_check(robot: Robot, ms: MeasurementSet, ident: IdentifiableSet, point: np.ndarray | None) -> None:
@@ -175,6 +220,7 @@ class Fitter:
     tau: np.ndarray  # [N, n] prior holding torques of all poses of `ms`
     comp: tuple[int, ...] = ()  # compliant joints
     x0: np.ndarray | None = None
+    geometric_prior: np.ndarray | None = None  # [48] prior σ (`priors.effective_prior_sigmas`)
 
     def problem(self, poses: np.ndarray) -> Problem:
         sub = self.ms.subset(poses)
@@ -192,6 +238,13 @@ class Fitter:
             self.comp,
         )
 
+    @property
+    def prior(self) -> np.ndarray | None:
+        """Prior σ of the solution vector (`priors`), None when the fit is not regularised."""
+        if not self.settings.regularise:
+            return None
+        return prior_sigmas(self.robot, self.idx, self.comp, self.geometric_prior)
+
     def fit(self, poses: np.ndarray, x0: np.ndarray | None = None) -> FitResult:
         return fit_problem(
             self.robot,
@@ -205,23 +258,43 @@ class Fitter:
             self.x0 if x0 is None else x0,
             self.tau[poses],
             self.comp,
+            self.prior,
         )
 
     def residuals(self, poses: np.ndarray, fit: FitResult) -> np.ndarray:
         """[n, rows]: the weighted residuals (position /σ_p, orientation /σ_o) of `fit` at `poses`."""
         return self.problem(poses).residual(fit.x).reshape(poses.size, -1)
 
+    def standardised(self, poses: np.ndarray, fit: FitResult) -> tuple[np.ndarray, np.ndarray]:
+        """([n, rows] the weighted residuals r_k/√(1 − h_k), [n, rows] the redundancy 1 − h_k): h the
+        (regularised) hat matrix's diagonal, so a pose the fit leans on is not hidden by its leverage."""
+        prob = self.problem(poses)
+        res = prob.residual(fit.x)
+        qm, _ = np.linalg.qr(Regularised(prob, self.prior).jacobian(fit.x))
+        red = np.maximum(1.0 - np.sum(qm[: res.size] ** 2, axis=1), 1e-6)
+        return (res / np.sqrt(red)).reshape(poses.size, -1), red.reshape(poses.size, -1)
+
+    def robust(self) -> Fitter:
+        """This fitter with a redescending loss (Cauchy, scale 3σ) unless a robust loss is set: the
+        fit then does not lean toward a blunder, so the blunder stays in its own residual."""
+        if self.settings.loss != "linear":
+            return self
+        return replace(self, settings=self.settings.model_copy(update={"loss": "cauchy"}))
+
     def fit_dropping_outliers(self, poses: np.ndarray) -> tuple[FitResult, np.ndarray, np.ndarray]:
-        """(fit, the poses it used, the flagged poses). A pose with a component beyond outlier_sigma
-        robust σ (MAD of all weighted residual components) is flagged. One blunder smears into its
-        neighbours' residuals through the fit, so when dropping, the worst pose only is removed and
-        the rest refitted, until none is beyond (at most a quarter of the poses)."""
-        result = self.fit(poses)
+        """(fit, the poses it used, the flagged poses). Each pose is tested on a robust fit
+        (`robust`): a pose with a standardised residual component (`standardised`: r_k/√(1 − h_k))
+        beyond outlier_sigma σ is flagged, σ the fitter's noise (≥ the MAD of the components, when
+        the noise is underestimated). One blunder smears into its neighbours' residuals through the
+        fit, so when dropping, the worst pose only is removed and the rest refitted, until none is
+        beyond (at most a quarter of the poses); the fit returned is this fitter's on the rest."""
+        rob = self.robust()
+        result = rob.fit(poses)
         flagged: list[int] = []
         while True:
-            res = self.residuals(poses, result)
-            scale = max(1.4826 * float(np.median(np.abs(res))), 1e-12)
-            worst = np.max(np.abs(res), axis=1)
+            z, _ = rob.standardised(poses, result)
+            scale = max(1.4826 * float(np.median(np.abs(z))), 1.0)
+            worst = np.max(np.abs(z), axis=1)
             beyond = worst > self.settings.outlier_sigma * scale
             if not np.any(beyond):
                 break
@@ -238,23 +311,22 @@ class Fitter:
                     file=self.ms.source,
                     field="poses",
                 )
-            result = self.fit(poses, result.x)
+            result = rob.fit(poses, result.x)
+        result = result if rob is self else self.fit(poses, result.x)
         return result, poses, np.array(sorted(flagged), dtype=int)
 
     def noise_from_residuals(self, poses: np.ndarray, robust: bool, rounds: int = 6) -> Fitter:
         """This fitter with σ_p, σ_o estimated from the fit's residuals (variance components):
         per group s² = Σ r_k² / Σ (1 − h_k) (Förstner), h the hat-matrix diagonal, so the redundancy
         the fit leaves each row is accounted for; `robust`: the scale 1.4826·median|r_k/√(1 − h_k)|
-        instead, which a blunder does not inflate. Repeated until the weights settle."""
-        f = self
+        of a robust fit (`robust`) instead, which a blunder does not inflate. Repeated until the
+        weights settle."""
+        f = self.robust() if robust else self
         fit = None
         for _ in range(rounds):
             fit = f.fit(poses, None if fit is None else fit.x)
-            prob = f.problem(poses)
-            jac, res = prob.jacobian(fit.x), prob.residual(fit.x)
-            qm, _ = np.linalg.qr(jac)
-            red = np.maximum(1.0 - np.sum(qm**2, axis=1), 1e-6).reshape(poses.size, -1)
-            z = np.abs(res.reshape(poses.size, -1)) / np.sqrt(red)
+            z, red = f.standardised(poses, fit)
+            z = np.abs(z)
             if robust:
                 k_p = 1.4826 * float(np.median(z[:, :3]))
                 k_o = 1.4826 * float(np.median(z[:, 3:])) if z.shape[1] == 6 else 1.0
@@ -266,7 +338,7 @@ class Fitter:
             f = replace(f, sigma_p=f.sigma_p * k_p, sigma_o=f.sigma_o * k_o)
             if abs(k_p - 1) < 0.01 and abs(k_o - 1) < 0.01:
                 break
-        return f
+        return replace(f, settings=self.settings)
 
     def compare_baseline(self, poses: np.ndarray, heldout: np.ndarray, main: FitResult) -> BaselineComparison:
         """The same calibration from the baseline poses; a set that cannot identify the parameters

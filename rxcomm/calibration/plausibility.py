@@ -81,15 +81,30 @@ def fit_notes(result: FitResult, position_only: bool, noise_given: bool) -> list
     return notes
 
 
+# A parameter whose posterior σ is above this share of its prior σ is mostly the prior's, not the data's.
+PRIOR_SHARE_UNDETERMINED = 0.7
+
+
 def undetermined_parameters(
-    robot: Robot, idx: tuple[int, ...], comp: tuple[int, ...], result: FitResult, limit_m: float
+    robot: Robot,
+    idx: tuple[int, ...],
+    comp: tuple[int, ...],
+    result: FitResult,
+    limit_m: float,
+    prior: np.ndarray | None = None,
 ) -> list[str]:
     """Parameters whose σ at the TCP (m; rotations × the characteristic length) exceeds `limit_m`,
-    and compliances known to worse than 30 %."""
+    or (with a `prior` [48] σ) whose σ is still above PRIOR_SHARE_UNDETERMINED of their prior's (the data
+    hardly inform them: the estimate stays near the prior), and compliances known to worse than 30 %."""
     names = parameter_names(robot)
     length = characteristic_length_m(robot)
     lever = np.tile(np.array([1, 1, 1, length, length, length]), robot.n + 2)
-    out = [names[i] for i in idx if result.std[i] * lever[i] > limit_m]
+    prior = np.full(len(names), np.inf) if prior is None else prior
+    out = [
+        names[i]
+        for i in idx
+        if result.std[i] * lever[i] > limit_m or result.std[i] > PRIOR_SHARE_UNDETERMINED * prior[i]
+    ]
     for j in comp:
         if not result.compliance_std[j] < 0.3 * abs(result.compliance[j]):
             out.append(f"{robot.joint_names[j]}.compliance")

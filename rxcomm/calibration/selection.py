@@ -1,6 +1,12 @@
-"""The model chosen by the data: candidate error models (base + tool frames; + joint offsets; the
-full identifiable set; + joint compliance), each scored by k-fold cross-validation over the fit
-poses, the simplest within one paired standard error of the best chosen."""
+"""Candidate error models (base + tool frames; + joint offsets; the full identifiable set; + joint
+compliance), each fitted with the priors of `priors` and scored by k-fold cross-validation over the
+fit poses. With `model: auto` the estimate is the full geometric model, regularised: the priors, not a
+choice between candidates, decide how far the data move it from the frames-only answer, so the
+estimate does not flip between models when the noise estimate moves. Joint compliance is added when
+the cross-validation prefers it by more than one standard error (a structural term, not a
+manufacturing tolerance: it has to earn its place). The cross-validated figures
+are a report of each candidate (the chosen one's among them), not a switch; `choose` (the one
+standard-error rule) is kept for unregularised fits (`regularise: false`)."""
 
 from __future__ import annotations
 
@@ -147,11 +153,19 @@ def score_candidates(
     ]
 
 
-def chosen_model(cands: list[Candidate], model: str, n_poses: int) -> tuple[Candidate, str | None]:
-    """(the given model, else the one-standard-error choice, else — too few poses to cross-validate,
-    nothing scored — the full rigid model; a note saying so or None)."""
+def chosen_model(
+    cands: list[Candidate], model: str, n_poses: int, regularised: bool = True
+) -> tuple[Candidate, str | None]:
+    """(the given model; else, regularised, the richest candidate that could be fitted; else the
+    one-standard-error choice, else — too few poses to cross-validate, nothing scored — the full
+    rigid model; a note saying so or None)."""
     if model != "auto":
         return next(c for c in cands if c.name == model), None
+    if regularised:
+        rigid = [c for c in cands if c.name in ("full", "full+compliance") and c.fit is not None]
+        if len(rigid) == 2 and all(c.cv_misfit is not None for c in rigid):
+            return choose(rigid), None  # compliance is a structural term, not a tolerance: it must earn it
+        return next(c for c in reversed(cands) if c.fit is not None or c.name == "frames"), None
     if any(c.cv_misfit is not None for c in cands):
         return choose(cands), None
     note = f"{n_poses} fit poses are too few to cross-validate the models: the full model is used"

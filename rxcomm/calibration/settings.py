@@ -39,7 +39,12 @@ class CalibrateSettings(BaseModel):
     max_iterations: int = Field(100, ge=1)
     cv_folds: int = Field(5, ge=2, description="folds of the cross-validation that chooses the model")
     model: Literal["auto", "frames", "offsets", "full", "full+compliance"] = Field(
-        "auto", description="error model; auto: the simplest not significantly worse in cross-validation"
+        "auto", description="error model; auto: the richest model offered, regularised by the priors"
+    )
+    regularise: bool = Field(
+        True,
+        description="priors from manufacturing tolerances on the joint errors (calibration.priors): "
+        "few noisy poses shrink toward the frames-only answer",
     )
     compliance: bool = Field(True, description="offer joint-compliance candidates to the model selection")
     undetermined_std_ratio: float = Field(

@@ -1,6 +1,7 @@
 """The calibrated URDF: the geometric errors folded into the joint origins (base error into the
 first joint's origin, so the URDF root stays the nominal base frame of the cell; tool error into the
-fixed joint carrying the TCP's parent frame, so drives.yaml's TCP stays valid), and the TCP as a
+fixed joint carrying the TCP's parent frame — a new one when that frame is a moving link such as
+`wrist_3_link` — so drives.yaml's TCP stays valid), and the TCP as a
 named fixed frame (link `tcp`, joint `tcp_joint` on drives.yaml's tcp), so that any URDF tool
 (RViz, Foxglove, MoveIt) reaches the calibrated TCP by FK without drives.yaml. Joint compliance is
 not in a URDF: it stays in calibration.yaml."""
@@ -57,15 +58,8 @@ def calibrated_urdf_text(robot: Robot, errors: ErrorModel) -> str:
             for j in root.iter("joint")
             if j.get("type") == "fixed" and j.find("child").get("link") == parent
         ]
-        if not carrier:
-            raise InputError(
-                f"the tool error cannot be folded into the URDF: TCP parent frame {parent!r} is not the "
-                "child of a fixed joint (add a fixed flange link)",
-                file=robot.urdf_path,
-                field="tcp.parent_frame",
-            )
+        el = carrier[0] if carrier else _split_link(root, parent, robot)
         f = placement_to_se3(robot.drives.tcp.xyz_m, robot.drives.tcp.rpy_rad)
-        el = carrier[0]
         _set_origin(el, _origin(el) * f * pin.exp6(tool) * f.inverse())
     tcp_name = _add_tcp_frame(root, robot)
     root.insert(
@@ -77,6 +71,31 @@ def calibrated_urdf_text(robot: Robot, errors: ErrorModel) -> str:
     )
     ET.indent(root)
     return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+
+
+def _split_link(root: ET.Element, parent: str, robot: Robot) -> ET.Element:
+    """A fixed carrier for the tool error when the TCP's parent frame is a moving link (e.g.
+    `wrist_3_link`, the child of the last revolute joint): that joint's child becomes a new empty
+    link `{parent}_uncalibrated`, joined to `parent` by a new fixed joint (identity origin, returned)
+    that takes the tool error; everything on `parent` (meshes, inertia, child frames) moves with it."""
+    movers = [j for j in root.iter("joint") if j.find("child").get("link") == parent]
+    if not movers:
+        raise InputError(
+            f"the tool error cannot be folded into the URDF: TCP parent frame {parent!r} is no link's "
+            "child in it",
+            file=robot.urdf_path,
+            field="tcp.parent_frame",
+        )
+    links = {el.get("name") for el in root.iter("link")}
+    name = f"{parent}_uncalibrated"
+    while name in links:
+        name += "_"
+    movers[0].find("child").set("link", name)
+    ET.SubElement(root, "link", name=name)
+    joint = ET.SubElement(root, "joint", name=f"{parent}_tool_error", type="fixed")
+    ET.SubElement(joint, "parent", link=name)
+    ET.SubElement(joint, "child", link=parent)
+    return joint
 
 
 def _add_tcp_frame(root: ET.Element, robot: Robot) -> str:

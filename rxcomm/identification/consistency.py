@@ -114,25 +114,35 @@ def link_min_eigenvalues(params: DynamicParameters) -> np.ndarray:
     return np.array([np.linalg.eigvalsh(pseudo_inertia(pi))[0] for pi in params.inertial])
 
 
+# Relative round-off of a least-squares solution (≈ 1e4 · machine ε): below it a value is zero.
+ROUND_OFF = 1e-9
+
+
 def drive_violations(params: DynamicParameters) -> list[str]:
     """Names of drive parameters that must not be negative but are (rotor inertia, Coulomb, viscous,
-    spring k and k·L0)."""
+    spring k and k·L0); a value within round-off of zero (`ROUND_OFF` of the largest of its kind) is
+    zero, not negative."""
     out = []
+
+    def negative(v: np.ndarray | tuple, i: int) -> bool:
+        v = np.asarray(v, dtype=float)
+        return bool(v[i] < -ROUND_OFF * max(float(np.max(np.abs(v))), 1e-300))
+
     for i, j in enumerate(params.joint_names):
         for attr, name in (
             ("rotor_inertia_kgm2", "rotor_inertia"),
             ("coulomb_nm", "fc"),
             ("viscous_nm_s_per_rad", "fv"),
         ):
-            if getattr(params, attr)[i] < 0:
+            if negative(getattr(params, attr), i):
                 out.append(f"{j}.{name}")
     if params.spring is not None:
-        out += [f"spring.{s}" for s, v in zip(("k", "kL0"), params.spring, strict=True) if v < 0]
+        out += [f"spring.{s}" for k, s in enumerate(("k", "kL0")) if params.spring[k] < 0]
     if params.has_motor_friction:
         for i, j in enumerate(params.joint_names):
-            if params.motor_coulomb_nm[i] < 0:
+            if negative(params.motor_coulomb_nm, i):
                 out.append(f"{j}.fc_motor")
-            if params.motor_viscous_nm_s_per_rad[i] < 0:
+            if negative(params.motor_viscous_nm_s_per_rad, i):
                 out.append(f"{j}.fv_motor")
     return out
 

@@ -56,6 +56,11 @@ from rxcomm.model.dynamics import (
 )
 from rxcomm.model.robot import Robot
 
+# A joint whose cross-validated held-out error exceeds its fit error by more than this is flagged.
+CV_TO_FIT_LIMIT = 3.0
+# The cut-off used when `auto` cannot choose (the option's long-standing default).
+FALLBACK_CUTOFF_HZ = 10.0
+
 
 @dataclass(frozen=True, eq=False)
 class Identification:
@@ -81,6 +86,7 @@ class Identification:
     timings: dict[str, float] = field(default_factory=dict)
     cross_validation: CrossValidation | None = None
     cutoff_choice: CutoffChoice | None = None
+    cutoff_note: str | None = None  # why `auto` could not choose (and the cut-off used instead)
 
     @property
     def friction_mode(self) -> str:
@@ -111,6 +117,25 @@ class Identification:
                 f"{fc:.0f} --decimate-hz {2 * fc:.0f} (or --cutoff-hz auto: the cut-off the held-out folds "
                 "prefer), or record a longer log"
             )
+        cv = self.cross_validation
+        if cv is not None and cv.folds_scored:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ratio = cv.rms_nm / cv.fit_rms_nm
+            over = [j for j in range(len(ratio)) if ratio[j] > CV_TO_FIT_LIMIT]
+            if over:
+                names = self.params.joint_names
+                figs = ", ".join(
+                    f"{names[j]} {cv.rms_nm[j]:.3g} vs {cv.fit_rms_nm[j]:.3g} N·m ({ratio[j]:.0f}×)"
+                    for j in over
+                )
+                out.append(
+                    f"held-out folds miss by more than {CV_TO_FIT_LIMIT:g}× the fit error ({figs}): the fit "
+                    "follows noise or one part of the log on these joints (too few rows, too little "
+                    "motion, or a model term that changes over the log); do not trust their "
+                    "parameters without more or longer data"
+                )
+        if self.cutoff_note:
+            out.append(self.cutoff_note)
         big = [self.bset.names[i] for i in np.flatnonzero(self.estimate.relative_std > 1.0)]
         if big:
             more = f" and {len(big) - 5} more" if len(big) > 5 else ""
@@ -129,17 +154,7 @@ class Identification:
             "validation_nrmse": nan_list(val.nrmse),
             "validation_rms_nm": nan_list(val.rms_nm),
             "seconds": self.seconds,
-            "validation": val.source,
-            "validation_r2": nan_list(val.r2),
-            "validation_scored_on": "rows where the joint moves (|qd| >= min_speed_rad_s); plain prediction",
-            "validation_nrmse_normalisation": "rms error / (max - min) of the measured torque (moving rows)",
-            "validation_joints_not_scored": ", ".join(
-                j for j, ok in zip(self.params.joint_names, val.scored, strict=True) if not ok
-            ),
-            "validation_rms_all_rows_nm": val.rms_all_nm.tolist(),
-            "validation_standstill_fraction": val.standstill_fraction.tolist(),
-            "validation_standstill_rms_nm": nan_list(val.standstill_rms_nm),
-            "validation_standstill_in_band_fraction": nan_list(val.standstill_in_band_fraction),
+            **validation_summary(val, self.params.joint_names),
             "friction": self.friction_mode,
             "cutoff_hz": self.cutoff_hz,
             "rows_per_parameter": self.rows_per_parameter,
@@ -164,9 +179,35 @@ class Identification:
             **(
                 self.cutoff_choice.summary()
                 if self.cutoff_choice
-                else {"cutoff_choice": "given (--cutoff-hz)"}
+                else {"cutoff_choice": self.cutoff_note or "given (--cutoff-hz)"}
             ),
         }
+
+
+def validation_summary(val: Validation, joint_names: tuple[str, ...] | list[str]) -> dict[str, object]:
+    """The validation's keys of the summary: per joint on moving rows, every row and standstill (in
+    the friction band), and over all joints; null where not scored (never 0)."""
+
+    def finite(v: float) -> float | None:
+        return float(v) if math.isfinite(v) else None
+
+    return {
+        "validation_nrmse": nan_list(val.nrmse),
+        "validation_rms_nm": nan_list(val.rms_nm),
+        "validation": val.source,
+        "validation_r2": nan_list(val.r2),
+        "validation_scored_on": "rows where the joint moves (|qd| >= min_speed_rad_s); plain prediction",
+        "validation_nrmse_normalisation": "rms error / (max - min) of the measured torque (moving rows)",
+        "validation_joints_not_scored": ", ".join(
+            j for j, ok in zip(joint_names, val.scored, strict=True) if not ok
+        ),
+        "validation_rms_all_rows_nm": val.rms_all_nm.tolist(),
+        "validation_total_rms_moving_nm": finite(val.total_rms_moving_nm),
+        "validation_total_rms_every_row_nm": finite(val.total_rms_every_row_nm),
+        "validation_standstill_fraction": val.standstill_fraction.tolist(),
+        "validation_standstill_rms_nm": nan_list(val.standstill_rms_nm),
+        "validation_standstill_in_band_fraction": nan_list(val.standstill_in_band_fraction),
+    }
 
 
 def identify(
@@ -193,10 +234,15 @@ def identify(
     timings["base_set"] = time.perf_counter() - t0
     tick = time.perf_counter()
     clean = check_log(log, robot, settings)
-    choice = None
+    choice, note = None, None
     if settings.cutoff_hz == "auto":
-        choice = choose_cutoff(robot, bset, clean, settings)
-        settings, data = settings.with_cutoff(choice.cutoff_hz), choice.data
+        try:
+            choice = choose_cutoff(robot, bset, clean, settings)
+            settings, data = settings.with_cutoff(choice.cutoff_hz), choice.data
+        except InputError as e:
+            note = f"{e.reason}: cut-off {FALLBACK_CUTOFF_HZ:g} Hz used"
+            settings = settings.with_cutoff(FALLBACK_CUTOFF_HZ)
+            data = preprocess(clean, settings, robot)
         timings["choose_cutoff"] = time.perf_counter() - tick
         tick = time.perf_counter()
     else:
@@ -258,6 +304,7 @@ def identify(
         timings=timings,
         cross_validation=cv,
         cutoff_choice=choice,
+        cutoff_note=note,
     )
 
 

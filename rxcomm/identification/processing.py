@@ -29,7 +29,10 @@ class Processed:
     """Filtered, differentiated, decimated samples: `t` [M], `q`, `qd`, `qdd`, `tau` [M, n], and
     `coulomb` [M, n]: sgn(q̇) taken at the source rate and low-passed like the torque; `near_stick`
     [M, n]: within the stick guard of a sample where the joint was slower than min_speed_rad_s;
-    `motor_coulomb` [M, n]: sgn(R·q̇) of the motors, filtered alike (None without a robot)."""
+    `motor_coulomb` [M, n]: sgn(R·q̇) of the motors, filtered alike (None without a robot);
+    `coulomb_predicted`, `motor_coulomb_predicted`: the same with the sign 0 where the joint (motor)
+    is slower than standstill_speed_rad_s — the prediction's friction shape: zero velocity at standstill,
+    never the sign of the noise in q̇ (the fit's rows keep away from standstill, `near_stick`)."""
 
     t: np.ndarray
     q: np.ndarray
@@ -41,6 +44,8 @@ class Processed:
     sample_hz: float
     source_hz: float
     motor_coulomb: np.ndarray | None = None
+    coulomb_predicted: np.ndarray | None = None
+    motor_coulomb_predicted: np.ndarray | None = None
 
     def window(self, t0: float, t1: float) -> Processed:
         return self.select((self.t >= t0) & (self.t < t1))
@@ -57,6 +62,10 @@ class Processed:
             coulomb=self.coulomb[k],
             near_stick=self.near_stick[k],
             motor_coulomb=None if self.motor_coulomb is None else self.motor_coulomb[k],
+            coulomb_predicted=None if self.coulomb_predicted is None else self.coulomb_predicted[k],
+            motor_coulomb_predicted=(
+                None if self.motor_coulomb_predicted is None else self.motor_coulomb_predicted[k]
+            ),
         )
 
 
@@ -85,9 +94,16 @@ def preprocess(log: JointLog, settings: IdentifySettings, robot: Robot | None = 
     # Parallel filtering of the one discontinuous column: the measured torque's Coulomb jumps are
     # smeared by the low-pass over ~1/cutoff, so the regressor's sgn(q̇) gets the same filter.
     coulomb = sosfiltfilt(sos, np.sign(qd), axis=0, padlen=pad)
-    motor = None
+    v_min = settings.standstill_speed_rad_s
+    still = np.where(np.abs(qd) >= v_min, np.sign(qd), 0.0)
+    coulomb_predicted = sosfiltfilt(sos, still, axis=0, padlen=pad)
+    motor = motor_predicted = None
     if robot is not None and robot.has_motor_friction:
-        motor = sosfiltfilt(sos, np.sign(qd @ robot.joint_to_motor.T), axis=0, padlen=pad)
+        vm = qd @ robot.joint_to_motor.T
+        motor = sosfiltfilt(sos, np.sign(vm), axis=0, padlen=pad)
+        scale = np.abs(np.diag(robot.joint_to_motor))  # a motor's speed in its axis's joint units
+        shape = np.where(np.abs(vm) >= v_min * scale, np.sign(vm), 0.0)
+        motor_predicted = sosfiltfilt(sos, shape, axis=0, padlen=pad)
     guard = 1.0 / fc if settings.stick_guard_s is None else settings.stick_guard_s
     slow = np.abs(qd) < settings.min_speed_rad_s
     if robot is not None and robot.has_motor_friction and robot.coupled_motors:
@@ -119,6 +135,8 @@ def preprocess(log: JointLog, settings: IdentifySettings, robot: Robot | None = 
         fs / stride,
         fs,
         None if motor is None else motor[idx],
+        coulomb_predicted[idx],
+        None if motor_predicted is None else motor_predicted[idx],
     )
 
 

@@ -36,6 +36,13 @@ class IdentifySettings(Strict):
     min_speed_rad_s: float = Field(
         0.05, ge=0, description="rows of a joint slower than this are rejected (friction sign uncertain)"
     )
+    standstill_speed_rad_s: float = Field(
+        0.005,
+        ge=0,
+        description="the prediction takes a joint slower than this as standing (zero velocity: no "
+        "Coulomb term), never the sign of the noise in q̇; above the filtered q̇'s noise (≈1e-4 rad/s "
+        "for 2e-5 rad encoder noise at 10 Hz), below any motion (a stop passes it in a few ms)",
+    )
     method: Literal["wls", "ols"] = Field("wls", description="weighted (per-joint noise) or ordinary LS")
     physical: bool = Field(False, description="write the physically consistent estimate")
     holdout_fraction: float = Field(

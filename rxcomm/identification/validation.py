@@ -53,6 +53,19 @@ class Validation:
     def scored(self) -> np.ndarray:
         return np.isfinite(self.rms_nm)
 
+    @property
+    def total_rms_moving_nm(self) -> float:
+        """√(mean over the scored joints of rms_nm²): each joint weighs the same, however long it moved
+        (NaN: none scored)."""
+        ok = self.scored
+        return math.sqrt(float(np.mean(self.rms_nm[ok] ** 2))) if ok.any() else math.nan
+
+    @property
+    def total_rms_every_row_nm(self) -> float:
+        """√(mean over the same joints of rms_all_nm²): every row, standstill included."""
+        ok = self.scored
+        return math.sqrt(float(np.mean(self.rms_all_nm[ok] ** 2))) if ok.any() else math.nan
+
 
 def nan_list(a: np.ndarray) -> list[float | None]:
     return [float(v) if np.isfinite(v) else None for v in a]
@@ -97,17 +110,22 @@ def validate(
     params = params.conform(robot)
     params.check_robot(robot)
     y = regressor(robot, data)
-    pred = (y @ params.vector()).reshape(data.tau.shape)
+    fitted = (y @ params.vector()).reshape(data.tau.shape)
+    # the prediction without the Coulomb terms, for the stiction band; then with the Coulomb shape of
+    # zero velocity at standstill (`Processed.coulomb_predicted`), never the sign of noise in q̇
+    free, pred = fitted.copy(), np.zeros_like(fitted)
+    if robot.friction_mode != "motor":
+        free -= data.coulomb * params.coulomb_nm
+        pred += data.coulomb_predicted * params.coulomb_nm
+    if params.has_motor_friction:
+        free -= (data.motor_coulomb * params.motor_coulomb_nm) @ robot.joint_to_motor
+        pred += (data.motor_coulomb_predicted * params.motor_coulomb_nm) @ robot.joint_to_motor
+    pred += free
     err = data.tau - pred
     moving = np.abs(data.qd) >= min_speed_rad_s
     n = robot.n
     still_rms, in_band = np.full(n, np.nan), np.full(n, np.nan)
     still = ~moving
-    # the prediction without the Coulomb terms, for the stiction band
-    free = pred - data.coulomb * params.coulomb_nm if robot.friction_mode != "motor" else pred.copy()
-    if params.has_motor_friction:
-        m_c = data.motor_coulomb * params.motor_coulomb_nm
-        free = free - m_c @ robot.joint_to_motor
     band = friction_band_nm(robot, params)
     rms, nrmse, r2 = joint_scores(data.tau, pred, moving)
     for j in range(n):

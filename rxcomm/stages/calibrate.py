@@ -60,7 +60,10 @@ def print_model_and_noise(robot: Robot, res: CalibrationResult, source: str) -> 
     n = res.noise
     ori = "" if n.orientation_sigma_rad is None else f", {n.orientation_sigma_rad * 1e3:.4g} mrad"
     out.print(f"  tracker noise ({source}): {n.position_sigma_m * 1e3:.4g} mm{ori} (1σ per axis)")
-    out.print("  model selection (cross-validated over the fit poses; rms position / orientation):")
+    out.print(
+        "  candidate models (cross-validated over the fit poses, a report; the estimate is regularised by "
+        "the priors; rms position / orientation):"
+    )
     for c in res.candidates:
         mark = "→" if c.name == res.model else " "
         if c.cv_misfit is None:
@@ -80,7 +83,8 @@ def print_model_and_noise(robot: Robot, res: CalibrationResult, source: str) -> 
     if res.undetermined:
         out.print(
             f"  [yellow]not determined by these data (σ > {res.settings.undetermined_std_ratio:g} × the "
-            f"position noise at the TCP): {', '.join(res.undetermined)}[/yellow]"
+            f"position noise at the TCP, or above 70 % of the prior's: left near the prior): "
+            f"{', '.join(res.undetermined)}[/yellow]"
         )
     for note in res.notes:
         out.print(f"  [yellow]note:[/yellow] {note}")
