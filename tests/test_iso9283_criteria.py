@@ -299,3 +299,17 @@ def test_settle_drift_is_the_motion_across_the_measuring_window():
     noise = np.random.default_rng(0).normal(0.0, 50e-6, (n, 3))  # the cell's tracker σ, per axis
     assert settle_drift_m(noise + 1.0) < 20e-6  # σ of the difference of two 100-sample means: 7 µm per axis
     assert settle_drift_m(np.ones((n, 3))) == 0.0
+
+
+def test_pose_dwells_are_the_still_runs_of_the_demand_long_enough():
+    from rxcomm.acceptance.campaign import CampaignSettings, TrackedLog, pose_dwells_s
+
+    dt = 0.004
+    # still 0.6 s, move 0.2 s, still 0.1 s (shorter than min_dwell_s: no dwell), move, still 1.5 s
+    q = np.concatenate(
+        [np.zeros(150), np.linspace(0, 1, 50), np.ones(25), np.linspace(1, 2, 50), 2 * np.ones(376)]
+    )
+    log = TrackedLog("x", np.arange(len(q)) * dt, q[:, None], np.zeros(2), np.zeros((2, 3)), None)
+    got = pose_dwells_s(log, CampaignSettings(min_dwell_s=0.2))
+    # each linspace starts on the value held before it, so the dwells are 150 and 376 zero steps of dt
+    assert got == pytest.approx([150 * dt, 376 * dt], abs=1e-9)

@@ -121,6 +121,15 @@ def settle_drift_m(position_m: np.ndarray) -> float:
     return float(np.linalg.norm(p[-n:].mean(axis=0) - p[:n].mean(axis=0)))
 
 
+def pose_dwells_s(log: TrackedLog, s: CampaignSettings) -> list[float]:
+    """The durations of a pose-cycle log's dwells (zero commanded velocity ≥ `min_dwell_s`), s: the
+    test condition ISO 9283 asks a report to state (the measuring window is their last
+    `measure_fraction`). The plan's first dwell counts too: it is a dwell at P1 like the others."""
+    dt = float(np.median(np.diff(log.t_joint)))
+    still = np.all(np.abs(np.diff(log.q_demand, axis=0)) < 1e-12, axis=1)
+    return [(b - a) * dt for a, b in _runs(still) if (b - a) * dt >= s.min_dwell_s]
+
+
 def attained_poses(
     robot: Robot, log: TrackedLog, points_m: Mapping[str, np.ndarray], s: CampaignSettings
 ) -> dict[str, tuple[np.ndarray, np.ndarray | None, np.ndarray]]:
@@ -301,6 +310,15 @@ def path_entries(
 PATH_TARGETS = ("iso9283-line", "iso9283-circle-large", "iso9283-circle-small", "iso9283-rectangle")
 
 
+@dataclass(frozen=True)
+class Conditions:
+    """What the logs say about how the tests ran: the pose test's median dwell and measuring window
+    (None without a pose log)."""
+
+    pose_dwell_s: float | None
+    measuring_window_s: float | None
+
+
 def evaluate(
     robot: Robot,
     specs: Mapping[str, PathSpec],
@@ -308,9 +326,10 @@ def evaluate(
     pose_logs: Sequence[str | Path],
     path_logs: Mapping[str, Sequence[str | Path]],
     settings: CampaignSettings | None = None,
-) -> tuple[Iso9283Cube, list[Criterion]]:
-    """Every criterion of one robot state: the test cube (from the `iso9283-rectangle` spec) and
-    the entries at P1–P5 and on each test path; logs not given are "not measured"."""
+) -> tuple[Iso9283Cube, list[Criterion], Conditions]:
+    """Every criterion of one robot state: the test cube (from the `iso9283-rectangle` spec), the
+    entries at P1–P5 and on each test path (logs not given are "not measured") and the test
+    conditions the logs show."""
     s = settings or CampaignSettings()
     if "iso9283-rectangle" not in specs:
         raise InputError(
@@ -323,4 +342,7 @@ def evaluate(
     for target in PATH_TARGETS:
         logs = [tracked_log(p, base_in_tracker) for p in path_logs.get(target, ())]
         out += path_entries(robot, target, specs.get(target), logs, s)
-    return cube, out
+    dwells = [d for lg in poses for d in pose_dwells_s(lg, s)]
+    dwell = float(np.median(dwells)) if dwells else None
+    window = None if dwell is None else s.measure_fraction * dwell
+    return cube, out, Conditions(dwell, window)

@@ -149,10 +149,40 @@ def acceptance_rows(
     return rows
 
 
+ACCEPTED = "ACCEPTED"
+NOT_ACCEPTED = "NOT ACCEPTED"
+
+
+def verdict_line(rows: Sequence[VerdictRow]) -> str:
+    """The one line a report and `accept`'s console open with: ``ACCEPTED`` when every acceptance
+    criterion passes, else ``NOT ACCEPTED — n of m acceptance criteria failed: …`` naming the failed
+    ones (and the unmeasured ones, which cannot accept a robot either)."""
+    failed = [r.criterion for r in rows if r.verdict == "FAIL"]
+    unmeasured = [r.criterion for r in rows if r.verdict == "not measured"]
+    if not rows:
+        return f"{NOT_ACCEPTED} — no acceptance criterion was judged"
+    if not failed and not unmeasured:
+        return ACCEPTED
+    line = f"{NOT_ACCEPTED} — {len(failed)} of {len(rows)} acceptance criteria failed"
+    line += f": {', '.join(failed)}" if failed else ""
+    if unmeasured:
+        line += f"; {len(unmeasured)} not measured: {', '.join(unmeasured)}"
+    return line
+
+
 def overall(rows: Sequence[VerdictRow]) -> dict[str, object]:
-    """The summary: FAIL if any row fails, PASS if all pass, else incomplete (some not measured)."""
+    """The summary: FAIL if any row fails, PASS if all pass, else incomplete (some not measured);
+    `accepted` (true only when all pass) and the verdict line make and CI gate on."""
     n_pass = sum(r.verdict == "PASS" for r in rows)
     n_fail = sum(r.verdict == "FAIL" for r in rows)
     n_nm = len(rows) - n_pass - n_fail
-    verdict = "FAIL" if n_fail else ("PASS" if n_nm == 0 else "incomplete")
-    return {"verdict": verdict, "n_pass": n_pass, "n_fail": n_fail, "n_not_measured": n_nm}
+    verdict = "FAIL" if n_fail else ("PASS" if n_nm == 0 and rows else "incomplete")
+    return {
+        "verdict": verdict,
+        "accepted": verdict == "PASS",
+        "verdict_line": verdict_line(rows),
+        "n_criteria": len(rows),
+        "n_pass": n_pass,
+        "n_fail": n_fail,
+        "n_not_measured": n_nm,
+    }

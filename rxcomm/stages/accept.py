@@ -6,6 +6,10 @@ their ``NAME.yaml`` summaries give cycle time and energy) and optionally each st
 criteria (``--factory-iso9283``, ``--commissioned-iso9283``, kind `rxcomm/Iso9283`), and writes
 ``verdict.yaml`` (kind `rxcomm/Acceptance`): criterion, factory, commissioned, ratio, threshold,
 verdict. Anything not given is "not measured", and the summary's verdict is then "incomplete".
+
+The console opens with one line, ``ACCEPTED`` or ``NOT ACCEPTED — n of m acceptance criteria failed:
+…`` (`rxcomm.acceptance.verdict.verdict_line`); the exit code is 0 either way (a verdict is a result,
+not an error): make and CI gate on the summary's ``accepted``.
 """
 
 from __future__ import annotations
@@ -87,13 +91,18 @@ def command(
     used = {k: Path(v) for k, v in inputs.items() if v is not None}
     artefact = Acceptance(**Acceptance.envelope(used, settings, summary), rows=rows)
     write_yaml_artefact(output, artefact)
-    console.out.print(f"acceptance → {output}: {summary['verdict']}")
+    # the verdict first, one line (make and CI gate on summary.accepted; the exit code is 0 either way)
+    console.out.print(str(summary["verdict_line"]), markup=False, highlight=False)
+    console.out.print("acceptance criteria, factory → commissioned:")
     for r in rows:
         ratio = "—" if r.ratio is None else f"{r.ratio:.3g}"
         f = "not measured" if r.factory is None else f"{r.factory:.4g}"
         c = "not measured" if r.commissioned is None else f"{r.commissioned:.4g}"
         console.out.print(
             f"  {r.criterion:32s} {f:>13s} → {c:>13s} {r.unit:5s} ratio {ratio:>6s}  "
-            f"{r.threshold:18s} {r.verdict}"
+            f"{r.threshold:18s} {r.verdict}",
+            markup=False,
+            highlight=False,
         )
+    console.out.print(f"verdict → {output}")
     return summary
