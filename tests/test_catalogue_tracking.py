@@ -67,6 +67,7 @@ def test_the_samples_catalogues_are_bound_by_torque_and_say_so():
     for name in ("rx130l", "m900"):
         cat = catalogue_limits(load_robot(SAMPLES / name), n_poses=300)
         assert set(cat.acceleration_binding) == {"torque"}, (name, cat.acceleration_binding)
+        assert cat.binding_text() == "torque: " + ", ".join(cat.joint_names)
         assert np.all(cat.following_error_peak_rad <= cat.following_error_allowed_rad)
         joints = cat.as_dict()["joints"]
         assert joints[5]["acceleration_binding"] == "torque" and joints[5]["following_error_peak_rad"] > 0
@@ -107,7 +108,10 @@ def test_a_robot_at_full_drive_acceleration_runs_its_factory_ptp_within_the_wind
     print(f"\nacceleration scales with the following-error bound: {cut_scales}")
     start, goal = "0.0,-0.3,1.6,0.0,0.4,0.0", "0.6,0.1,1.2,1.2,-0.6,2.5"
     out = tmp_path / "factory-ptp.mcap"
-    plan_stage.command(robot_dir, out, start=start, goal=goal, timing="catalogue")
+    summary = plan_stage.command(robot_dir, out, start=start, goal=goal, timing="catalogue")
+    assert summary["catalogue_acceleration_bound"] == (
+        "drive: joint_1, joint_2, joint_3, joint_4, joint_5; following error: joint_6"
+    )
     kw = dict(feedforward=False, approach=True, interpolation_ratio=1, show_progress=False)
     s = run_stage.execute(out, robot_dir, tmp_path / "run.mcap", **kw)
     assert s["outcome"] == "completed"

@@ -79,6 +79,14 @@ class CatalogueLimits:
     following_error_allowed_rad: float  # the stated fraction of the drives' window
     acceleration_binding: tuple[str, ...]  # per joint: "torque", "following error" or "drive"
 
+    def binding_text(self) -> str:
+        """Which bound binds each joint's acceleration, e.g. 'torque: joint_1, joint_2; following
+        error: joint_6' (the plans' summaries state it)."""
+        by: dict[str, list[str]] = {}
+        for name, b in zip(self.joint_names, self.acceleration_binding, strict=True):
+            by.setdefault(b, []).append(name)
+        return "; ".join(f"{b}: {', '.join(names)}" for b, names in by.items())
+
     @property
     def bound_by(self) -> tuple[str, ...]:
         """Every joint whose torque row binds a limit (speed or acceleration)."""
