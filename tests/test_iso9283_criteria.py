@@ -313,3 +313,13 @@ def test_pose_dwells_are_the_still_runs_of_the_demand_long_enough():
     got = pose_dwells_s(log, CampaignSettings(min_dwell_s=0.2))
     # each linspace starts on the value held before it, so the dwells are 150 and 376 zero steps of dt
     assert got == pytest.approx([150 * dt, 376 * dt], abs=1e-9)
+
+
+def test_path_cycles_are_grouped_by_command_speed_fastest_first():
+    from rxcomm.acceptance.campaign import speed_groups
+
+    # 100 %, 50 % and 10 % of 1 m/s, each cycle's plateau a little off (±2 %): three groups
+    speeds = [0.5, 1.0, 0.1, 0.99, 0.51, 0.102, 1.01, 0.49]
+    assert speed_groups(speeds) == [[6, 1, 3], [4, 0, 7], [5, 2]]
+    assert speed_groups([0.4]) == [[0]]
+    assert speed_groups([1.0, 0.94]) == [[0], [1]]  # 6 % apart: two speeds

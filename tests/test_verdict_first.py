@@ -178,3 +178,27 @@ def test_chromium_shows_not_accepted_first(build, tmp_path):
     assert first.startswith("<h1>rxcomm commissioning report</h1>")
     headline = '<p id="headline" class="headline not-accepted">'
     assert first.endswith(headline + "NOT ACCEPTED — 1 of 7 acceptance criteria failed: AP_p")
+
+
+def test_a_path_at_several_speeds_has_one_row_per_speed_and_the_set_says_what_it_lacks():
+    from rxcomm.reporting.iso9283 import path_table, reduced
+
+    iso = _iso(1e-4, 1e-4, 2e-4, pose_cycles=30).model_dump(mode="json")
+    slow = [
+        c | {"command_speed_m_per_s": v, "value": c["value"] * k}
+        for c in iso["criteria"]
+        if c["target"] == "iso9283-line"
+        for v, k in ((0.5, 0.5), (0.1, 0.25))
+    ]
+    iso["criteria"] += slow
+    t = path_table("commissioned state", iso)
+    assert [r[:4] for r in t.rows] == [
+        ["iso9283-line", "1 m/s", "10", "0.2 mm"],
+        ["iso9283-line", "0.5 m/s", "10", "0.1 mm"],
+        ["iso9283-line", "0.1 m/s", "10", "0.05 mm"],
+        ["iso9283-circle-large", "0.4 m/s", "10", "0.2 mm"],
+    ]
+    text = reduced([iso])
+    assert "pose cycles" not in text  # 30: the standard's count
+    assert "iso9283-circle-large at fewer than 3 command speeds" in text and "iso9283-line at" not in text
+    assert "not run: iso9283-circle-small, iso9283-rectangle" in text and "no payload" in text
