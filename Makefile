@@ -324,15 +324,39 @@ $(B)/iso9283.yaml: $(B)/run-poses.mcap $(B)/run-iso-line.mcap $(C_LINE_EXTRA) $(
 	$(RX) iso9283 $(ISO_ARGS) --pose-log $(B)/run-poses.mcap --line-log $(B)/run-iso-line.mcap \
 		$(addprefix --line-log ,$(C_LINE_EXTRA)) --circle-log $(B)/run-iso-circle.mcap -o $@
 
+# The reference task at the factory's cycle time (issue 29): the commissioned CP and PtP plans slowed
+# uniformly in time to the factory runs' durations and run with feed-forward, so `accept` compares
+# electrical energy at equal time (a faster motion cannot spend less friction work on the same path).
+RUN_S = $$($(PY) -c "import yaml; print(yaml.safe_load(open('$(1)'))['summary']['duration_s'])")
+EQ_ARGS = --robot $(ROBOT) --cycles 1 --dynamics $(B)/dynamics.yaml
+$(B)/cp-at-factory-time.mcap: $(B)/cp.mcap $(B)/run-factory-cp.mcap $(B)/dynamics.yaml $(ROBOT_FILES) \
+		$(call params,cp-at-factory-time,$(EQ_ARGS))
+	$(RX) plan-cycles $< $(EQ_ARGS) --duration-s $(call RUN_S,$(B)/run-factory-cp.yaml) -o $@
+
+$(B)/ptp-at-factory-time.mcap: $(B)/ptp.mcap $(B)/run-factory-ptp.mcap $(B)/dynamics.yaml $(ROBOT_FILES) \
+		$(call params,ptp-at-factory-time,$(EQ_ARGS))
+	$(RX) plan-cycles $< $(EQ_ARGS) --duration-s $(call RUN_S,$(B)/run-factory-ptp.yaml) -o $@
+
+$(B)/run-cp-at-factory-time.mcap: $(B)/cp-at-factory-time.mcap $(B)/dynamics.yaml $(SIM_FILES) \
+		$(call params,run-cp-at-factory-time,$(PTPRUN_ARGS))
+	$(RX) run $< $(PTPRUN_ARGS) -o $@
+
+$(B)/run-ptp-at-factory-time.mcap: $(B)/ptp-at-factory-time.mcap $(B)/dynamics.yaml $(SIM_FILES) \
+		$(call params,run-ptp-at-factory-time,$(PTPRUN_ARGS))
+	$(RX) run $< $(PTPRUN_ARGS) -o $@
+
 # The verdict: the reference task (the CP path, then the PtP move between its end states) and the
 # ISO 9283 criteria in both states against the thresholds beside the cell. Reads the runs' NAME.yaml.
 ACCEPTANCE ?= $(ROBOT)/acceptance.yaml
 TASK_LOGS  := --factory-log $(B)/run-factory-cp.mcap --factory-log $(B)/run-factory-ptp.mcap \
-	--commissioned-log $(B)/run-ff.mcap --commissioned-log $(B)/run-ptp.mcap
+	--commissioned-log $(B)/run-ff.mcap --commissioned-log $(B)/run-ptp.mcap \
+	--commissioned-equal-time-log $(B)/run-cp-at-factory-time.mcap \
+	--commissioned-equal-time-log $(B)/run-ptp-at-factory-time.mcap
 ACCEPT_ARGS = --thresholds $(ACCEPTANCE) $(TASK_LOGS) \
 	--factory-iso9283 $(B)/iso9283-factory.yaml --commissioned-iso9283 $(B)/iso9283.yaml
 $(B)/verdict.yaml: $(ACCEPTANCE) $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.mcap $(B)/run-ff.mcap \
-		$(B)/run-ptp.mcap $(B)/iso9283-factory.yaml $(B)/iso9283.yaml $(call params,accept,$(ACCEPT_ARGS))
+		$(B)/run-ptp.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap \
+		$(B)/iso9283-factory.yaml $(B)/iso9283.yaml $(call params,accept,$(ACCEPT_ARGS))
 	$(RX) accept $(ACCEPT_ARGS) -o $@
 
 # The artefacts `report` reads (rxcomm/stages/report.py): the stages', every run log of the chain (with
@@ -342,7 +366,8 @@ $(B)/report.md: $(B)/configs.yaml $(B)/calibration-prior.yaml $(B)/calibration.y
 		$(B)/excite-log.mcap $(B)/validation-log.mcap $(B)/run-factory-cp.mcap \
 		$(B)/run-factory-ptp.mcap $(B)/run-factory-poses.mcap $(B)/run-poses.mcap \
 		$(B)/run-factory-iso-line.mcap $(B)/run-iso-line.mcap $(B)/run-factory-iso-circle.mcap \
-		$(B)/run-iso-circle.mcap $(B)/verdict.yaml
+		$(B)/run-iso-circle.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap \
+		$(B)/verdict.yaml
 	$(RX) report $(B) -o $@
 
 # The main job: the report plus the chain's products it does not read.

@@ -323,3 +323,20 @@ def test_path_cycles_are_grouped_by_command_speed_fastest_first():
     assert speed_groups(speeds) == [[6, 1, 3], [4, 0, 7], [5, 2]]
     assert speed_groups([0.4]) == [[0]]
     assert speed_groups([1.0, 0.94]) == [[0], [1]]  # 6 % apart: two speeds
+
+
+def test_time_scaling_keeps_the_path_and_divides_speeds_by_k():
+    from rxcomm.io.trajectory import Trajectory
+    from rxcomm.planning.iso9283 import time_scaled
+
+    dt = 0.001
+    t = np.arange(1001) * dt  # 1 s of q = sin(π t) on one joint
+    q = np.sin(np.pi * t)[:, None]
+    traj = Trajectory(t, q, np.pi * np.cos(np.pi * t)[:, None], -(np.pi**2) * np.sin(np.pi * t)[:, None])
+    slow = time_scaled(traj, 2.5, dt)  # k = 2.5
+    assert slow.duration_s == pytest.approx(2.5) and slow.t[1] - slow.t[0] == pytest.approx(dt)
+    ts = slow.t
+    # linear interpolation between the 1 ms samples: error ≤ h²/8·max|q̈| = 1.2e-6 rad
+    np.testing.assert_allclose(slow.q[:, 0], np.sin(np.pi * ts / 2.5), atol=1.3e-6)
+    np.testing.assert_allclose(slow.qd[:, 0], np.pi / 2.5 * np.cos(np.pi * ts / 2.5), atol=1e-5)
+    np.testing.assert_allclose(slow.qdd[:, 0], -(np.pi**2) / 6.25 * np.sin(np.pi * ts / 2.5), atol=1e-5)

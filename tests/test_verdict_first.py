@@ -75,6 +75,9 @@ def build(tmp_path) -> Path:
     _run_log(b / "run-factory-ptp.yaml", 3.0, 1.5e5, 600.0)
     _run_log(b / "run-ff.yaml", 1.2, 1.8e5, 800.0)
     _run_log(b / "run-ptp.yaml", 0.9, 1.2e5, 500.0)
+    # the commissioned task slowed to the factory's 4.0 + 3.0 s
+    _run_log(b / "run-cp-at-factory-time.yaml", 4.0, 0.9e5, 700.0)
+    _run_log(b / "run-ptp-at-factory-time.yaml", 3.0, 0.6e5, 450.0)
     write_yaml_artefact(b / "iso9283-factory.yaml", _iso(4e-3, 1e-4, 3e-3))
     write_yaml_artefact(b / "iso9283.yaml", _iso(1.8e-4, 1e-4, 3e-4))
     return b
@@ -94,6 +97,8 @@ def _accept(build: Path, thresholds: Path) -> str:
         "--commissioned-log",
         str(build / "run-ptp.mcap"),
     ]
+    for name in ("run-cp-at-factory-time", "run-ptp-at-factory-time"):
+        args += ["--commissioned-equal-time-log", str(build / f"{name}.mcap")]
     args += ["--factory-iso9283", str(build / "iso9283-factory.yaml")]
     args += ["--commissioned-iso9283", str(build / "iso9283.yaml")]
     res = runner.invoke(app, args)
@@ -202,3 +207,36 @@ def test_a_path_at_several_speeds_has_one_row_per_speed_and_the_set_says_what_it
     assert "pose cycles" not in text  # 30: the standard's count
     assert "iso9283-circle-large at fewer than 3 command speeds" in text and "iso9283-line at" not in text
     assert "not run: iso9283-circle-small, iso9283-rectangle" in text and "no payload" in text
+
+
+def test_energy_at_the_factory_cycle_time_is_judged_only_at_that_time():
+    from rxcomm.acceptance.verdict import acceptance_rows
+    from rxcomm.schemas.acceptance import Threshold
+
+    th = [Threshold(criterion="electrical_energy_at_factory_time", unit="J", max_ratio=1.0)]
+    factory = [
+        {"duration_s": 4.0, "electrical_energy_j": 900.0},
+        {"duration_s": 3.0, "electrical_energy_j": 600.0},
+    ]
+    slowed = [
+        {"duration_s": 4.02, "electrical_energy_j": 700.0},
+        {"duration_s": 3.0, "electrical_energy_j": 450.0},
+    ]
+    (row,) = acceptance_rows(th, factory, [], None, None, slowed)
+    # 1150 J at 7.02 s (within 2 % of 7 s) against 1500 J: ratio 0.767, PASS
+    assert row.factory == 1500.0 and row.commissioned == 1150.0 and row.verdict == "PASS"
+    assert row.ratio == pytest.approx(1150 / 1500) and "at 7.02 s (factory 7 s)" in row.note
+    # slowed to the wrong time (the optimal 2.1 s): not an equal-time comparison, not measured
+    fast = [
+        {"duration_s": 1.2, "electrical_energy_j": 800.0},
+        {"duration_s": 0.9, "electrical_energy_j": 500.0},
+    ]
+    (row,) = acceptance_rows(th, factory, [], None, None, fast)
+    assert row.verdict == "not measured" and "run at 2.1 s, not the factory's 7 s" in row.note
+    (row,) = acceptance_rows(th, factory, [], None, None, [])
+    assert row.verdict == "not measured" and "no run of the commissioned task at the factory" in row.note
+    # more energy at equal time fails
+    (row,) = acceptance_rows(
+        th, factory, [], None, None, [{"duration_s": 7.0, "electrical_energy_j": 1600.0}]
+    )
+    assert row.verdict == "FAIL"

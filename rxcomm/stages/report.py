@@ -33,7 +33,13 @@ from rxcomm.reporting.document import (
 )
 from rxcomm.reporting.identification import dynamics_section, excitation_section
 from rxcomm.reporting.iso9283 import iso9283_sections
-from rxcomm.reporting.runs import execution_section, ptp_vs_cp_figure, runs_section, trajectory_section
+from rxcomm.reporting.runs import (
+    energy_section,
+    execution_section,
+    ptp_vs_cp_figure,
+    runs_section,
+    trajectory_section,
+)
 from rxcomm.reporting.targets import acceptance_verdict, headline, stage_verdicts, verdict_note
 from rxcomm.schemas.acceptance import Acceptance
 from rxcomm.schemas.calibration import Calibration
@@ -184,7 +190,7 @@ def build_report(
         headline=headline_text,
         acceptance=acceptance,
         acceptance_note="" if not acceptance else verdict_note(acceptance, "acceptance criteria"),
-        acceptance_sections=iso,
+        acceptance_sections=[*iso, energy_section(runs)],
     )
     return report, missing
 
