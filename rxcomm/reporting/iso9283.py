@@ -101,7 +101,7 @@ def _pose_conditions(iso: Mapping | None) -> tuple[str, str, str]:
     d = NOT_MEASURED if not isinstance(dwell, float | int) else f"{dwell:.3g} s"
     w = NOT_MEASURED if not isinstance(window, float | int) else f"{window:.3g} s"
     if frac is not None and w != NOT_MEASURED:
-        w += f" (the dwell's last {frac:.0%}: the mean of the tracker samples there)"
+        w += f" (the dwell's last {frac * 100:.0f} %: the mean of the tracker samples there)"
     return n, d, w
 
 
