@@ -7,7 +7,11 @@ PY     := $(VENV)/bin/python
 RX     := $(VENV)/bin/rxcomm
 ROBOT  ?= samples/rx130l
 CELL   ?= $(ROBOT)/cell.yaml
-BUILD  ?= build
+# The embedded cell's physics: own (rxcomm.cell.plant) or mujoco (rxcomm.cell.mujoco_plant); each
+# plant builds into its own directory so the two can be compared on the same plans.
+PLANT  ?= own
+plant_suffix = $(if $(filter-out own,$(PLANT)),-$(PLANT))
+BUILD  ?= build$(plant_suffix)
 STAMP  := $(VENV)/.installed
 
 .PHONY: setup test test-fast lint bench commission commission-ci acceptance clean schemas
@@ -88,7 +92,7 @@ FORCE:
 # Reads a trajectory summary's joint state for plan-ptp (the CP plan's end states).
 QOF        = $$($(PY) -c "import yaml; s = yaml.safe_load(open('$(1)'))['summary']; \
 	print(','.join(repr(v) for v in s['$(2)']))")
-RUN_SIM   := --robot $(ROBOT) --truth $(TRUTH) --approach --interpolation-ratio 1
+RUN_SIM   := --robot $(ROBOT) --truth $(TRUTH) --plant $(PLANT) --approach --interpolation-ratio 1
 
 $(B)/robot-info.txt: $(STAMP) $(ROBOT_FILES) $(call params,robot-info,$(ROBOT)) | $(B)
 	$(RX) robot-info --robot $(ROBOT) > $@.part && mv $@.part $@ && cat $@
@@ -100,7 +104,7 @@ $(B)/configs.yaml: $(STAMP) $(ROBOT_FILES) $(CELL) $(call params,select-configs,
 	$(RX) select-configs $(SELECT_ARGS) -o $@
 
 # The measurement campaign: point-to-point moves need no path accuracy, so a coarse setpoint ratio.
-MEAS_ARGS = --robot $(ROBOT) --truth $(TRUTH) --speed-fraction 0.5 --interpolation-ratio 8
+MEAS_ARGS = --robot $(ROBOT) --truth $(TRUTH) --plant $(PLANT) --speed-fraction 0.5 --interpolation-ratio 8
 $(B)/calib-meas.yaml: $(B)/configs.yaml $(SIM_FILES) $(call params,measure,$(MEAS_ARGS))
 	$(RX) run $< $(MEAS_ARGS) -o $@
 
@@ -265,7 +269,7 @@ $(B)/run-iso-circle.mcap: $(B)/iso-circle-cycles.mcap $(B)/dynamics.yaml $(SIM_F
 		$(call params,run-iso-circle,$(PTPRUN_ARGS))
 	$(RX) run $< $(PTPRUN_ARGS) -o $@
 
-POSE_RUN = --robot $(ROBOT) --truth $(TRUTH) --approach --interpolation-ratio 8
+POSE_RUN = --robot $(ROBOT) --truth $(TRUTH) --plant $(PLANT) --approach --interpolation-ratio 8
 $(B)/run-factory-poses.mcap: $(B)/factory-poses.mcap $(SIM_FILES) \
 		$(call params,run-factory-poses,$(POSE_RUN) --no-feedforward)
 	$(RX) run $< $(POSE_RUN) --no-feedforward -o $@
@@ -359,6 +363,17 @@ $(B)/verdict.yaml: $(ACCEPTANCE) $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.m
 		$(B)/iso9283-factory.yaml $(B)/iso9283.yaml $(call params,accept,$(ACCEPT_ARGS))
 	$(RX) accept $(ACCEPT_ARGS) -o $@
 
+# The controller hand-off (issue 31): the calibration as URDF, joint-origin table, MDH and Hayati-MDH, the
+# commissioned plans and the feed-forward run as CSV, ROS 2 JointTrajectory YAML and ROS 2 bag, each read
+# back by an independent reader; exports/parity.yaml holds every file's parity figure (the report lists it).
+# (`+`: the directory is made under `make -t` / `-n` too, so a touched build has the file it vouches for.)
+EXPORT_ARGS = --robot $(ROBOT) --calibration $(B)/calibration.yaml --format all
+EXPORTED    := $(B)/calibration.yaml $(B)/cp.mcap $(B)/ptp.mcap $(B)/run-ff.mcap
+$(B)/exports/parity.yaml: $(EXPORTED) $(ROBOT_FILES) $(call params,exports,$(EXPORT_ARGS))
+	+@mkdir -p $(@D)
+	rm -f $(@D)/*
+	$(RX) export $(EXPORTED) $(EXPORT_ARGS) -o $(@D)
+
 # The artefacts `report` reads (rxcomm/stages/report.py): the stages', every run log of the chain (with
 # their PNGs) and the verdict; it reads no robot file and has no options. It writes report.html beside.
 $(B)/report.md: $(B)/configs.yaml $(B)/calibration-prior.yaml $(B)/calibration.yaml $(B)/excitation.yaml $(B)/dynamics.yaml \
@@ -367,23 +382,37 @@ $(B)/report.md: $(B)/configs.yaml $(B)/calibration-prior.yaml $(B)/calibration.y
 		$(B)/run-factory-ptp.mcap $(B)/run-factory-poses.mcap $(B)/run-poses.mcap \
 		$(B)/run-factory-iso-line.mcap $(B)/run-iso-line.mcap $(B)/run-factory-iso-circle.mcap \
 		$(B)/run-iso-circle.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap \
-		$(B)/verdict.yaml
+		$(B)/verdict.yaml $(B)/exports/parity.yaml
 	$(RX) report $(B) -o $@
 
 # The main job: the report plus the chain's products it does not read.
 commission: $(B)/robot-info.txt $(B)/report.md
 	@echo "commissioning report: $(B)/report.md"
 
+# One `make commission` per build directory at a time: a make that builds the chain (not -n/-t/-q)
+# takes $(B)/.make.lock (flock) while it parses, held by a watcher until that make exits, so a second
+# one on the same directory stops at once naming the lock instead of racing the first for its outputs.
+ifneq ($(filter commission,$(MAKECMDGOALS)),)
+ifeq ($(findstring n,$(firstword -$(MAKEFLAGS)))$(findstring t,$(firstword -$(MAKEFLAGS)))$(findstring q,$(firstword -$(MAKEFLAGS))),)
+BUILD_LOCK := $(shell mkdir -p $(B) && sh -c 'exec 9>"$$1"; flock -n 9 || { echo busy; exit 0; }; echo held; \
+	( while kill -0 "$$0" 2>/dev/null; do sleep 0.2; done ) >/dev/null 2>&1 </dev/null &' $$PPID $(B)/.make.lock)
+ifeq ($(BUILD_LOCK),busy)
+$(error another make commission is building $(B) (it holds the lock $(B)/.make.lock); wait for it or use another BUILD=)
+endif
+endif
+endif
+
 # CI: the same rules, reduced (fewer poses and candidates, fewer excitation starts), in its own dir.
+CI_BUILD ?= build-ci$(plant_suffix)
 commission-ci:
-	$(MAKE) commission BUILD=build-ci N_POSES=16 \
+	$(MAKE) commission BUILD=$(CI_BUILD) N_POSES=16 \
 		SELECT_OPTS="--max-candidates 1500 --restarts 2 --validation-poses 16" EXCITE_OPTS="--starts 2"
 
 # ISO 9283's own counts: 30 pose cycles (make commission: POSE_CYCLES, 5) and 10 path cycles, the line
 # also at 0.5 and 0.1 m/s, into build-acceptance/; the report's ISO 9283 section states which set ran
 # and what it still leaves out (the circle at one speed, the small circle and rectangle, no payload).
 acceptance:
-	$(MAKE) commission BUILD=build-acceptance POSE_CYCLES=30 LINE_CYCLES=10 LINE_SPEEDS_EXTRA="0.5 0.1"
+	$(MAKE) commission BUILD=build-acceptance$(plant_suffix) POSE_CYCLES=30 LINE_CYCLES=10 LINE_SPEEDS_EXTRA="0.5 0.1"
 
 clean:
-	rm -rf $(BUILD) build-ci build-acceptance
+	rm -rf $(BUILD) build-ci build-ci-mujoco build-mujoco build-acceptance

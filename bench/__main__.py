@@ -26,6 +26,7 @@ SECTIONS = [
     "bench.foundation",
     "bench.calibration",
     "bench.run",
+    "bench.plant",
     "bench.identification",
     "bench.logs",
     "bench.plan_ptp",

@@ -110,8 +110,8 @@ STAGES: dict[str, Stage] = {
     ),
     "export": Stage(
         "export",
-        "Export an artefact for another tool, by its kind",
-        "rxcomm export build/cp.mcap -o cp.csv",
+        "Export artefacts for other tools, by kind and --format, each with its parity figure",
+        "rxcomm export build/cp.mcap --format ros2-trajectory",
     ),
     "accept": Stage(
         "accept",
@@ -135,6 +135,16 @@ STAGES: dict[str, Stage] = {
         "Repeat a test path's plan for the ISO 9283 cycles, with return moves at the catalogue limits.",
         "rxcomm plan-cycles build/iso-line.mcap --robot samples/rx130l --cycles 10 "
         "-o build/iso-line-cycles.mcap",
+    ),
+    "import-robot": Stage(
+        "import_robot",
+        "Write a robot directory (URDF + drives.yaml, the model kept beside) from a MuJoCo model.",
+        "rxcomm import-robot arm.xml -o robots/arm",
+    ),
+    "truth": Stage(
+        "truth",
+        "Draw a plausible hidden truth for any robot (errors, dynamics, noise) for the simulated cell.",
+        "rxcomm truth --robot robots/arm --seed 1 -o robots/arm/truth.yaml",
     ),
     "import-tracker": Stage(
         "import_tracker",

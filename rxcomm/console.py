@@ -11,7 +11,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import typer
 from rich.console import Console
@@ -26,7 +26,8 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from rxcomm.errors import GatewayError, InputError, RxcommError
+from rxcomm.errors import GatewayError, InputError, RxcommError, Terminated
+from rxcomm.io.files import release_outputs
 
 # soft_wrap: never hard-wrap at 80 columns when output goes to a file or a pipe (make, CI logs).
 out = Console(highlight=False, soft_wrap=True)
@@ -71,9 +72,11 @@ def stage_command(fn: Callable[..., T]) -> Callable[..., T]:
             raise fail(e) from e
         except OSError as e:
             raise fail(os_error(e)) from e
-        except KeyboardInterrupt:
-            err.print("interrupted")
+        except KeyboardInterrupt as e:
+            err.print("terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted")
             raise typer.Exit(code=5) from None
+        finally:
+            release_outputs()  # the outputs' locks (rxcomm.io.files.check_outputs), for the next stage
 
     return wrapper
 
@@ -105,6 +108,20 @@ def progress() -> Progress | PlainProgress:
         console=err,
         transient=False,
     )
+
+
+def named_progress() -> tuple[Callable[[str, float], None], Callable[[], None]]:
+    """A started progress display and (update(what, fraction), stop): a bar per named task."""
+    bar = progress()
+    bar.start()
+    tasks: dict[str, Any] = {}
+
+    def update(what: str, fraction: float) -> None:
+        if what not in tasks:
+            tasks[what] = bar.add_task(what, total=1000)
+        bar.update(tasks[what], completed=int(1000 * fraction))
+
+    return update, bar.stop
 
 
 class PlainProgress:

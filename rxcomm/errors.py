@@ -51,3 +51,8 @@ class SafetyStop(RxcommError):
     """Motion was stopped for safety (fault, following error, watchdog, e-stop, user abort)."""
 
     exit_code = 5
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C where a stage installs the handler (`run`): the same quick stop,
+    disabled drives, kept log and exit 5, with "terminated (SIGTERM)" in the message."""

@@ -12,6 +12,15 @@ from rxcomm.errors import InputError
 
 # The robot every stage works on: one option, one name, one help text (docs/cli.md).
 RobotDir = Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")]
+Plant = Annotated[str, typer.Option(help="The simulated cell's physics: own or mujoco (architecture §6).")]
+
+
+def embedded_plant(plant: str, gateway: str | None) -> str:
+    """`--plant` is the embedded cell's: refused beside `--gateway` (a real cell has its own physics)."""
+    if gateway is not None and plant != "own":
+        raise InputError("--plant chooses the embedded cell's physics: not with --gateway", field="--plant")
+    return plant
+
 
 # Options that mean the same in several stages, with one help text.
 # plan-cp, plan-ptp: the optimal plan, or a generic controller's from the catalogue limits.
@@ -21,6 +30,21 @@ IdentifiedDynamics = Annotated[
     Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
 ]
 TimeWeight = Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")]
+# plan-cp, plan-ptp, run: artefacts that claim another robot or an impossible one (issue 27).
+OtherRobot = Annotated[
+    bool,
+    typer.Option(
+        help="Accept a calibration or dynamics made for other robot files (their URDF / drives.yaml "
+        "sha256 in its envelope differ), with a warning naming the difference."
+    ),
+]
+AllowInconsistent = Annotated[
+    bool,
+    typer.Option(
+        help="Accept physically inconsistent dynamics (M(q) not positive definite, a negative mass, "
+        "rotor inertia or friction), with a warning."
+    ),
+]
 # plan-poses, plan-cycles: a plan derived from catalogue timing.
 PLAN_OUTPUT = typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")
 PlanDynamics = Annotated[

@@ -34,8 +34,10 @@ def test_trajectory_csv_round_trips_exactly_with_units(tmp_path):
     r = runner.invoke(app, ["export", str(plan), "-o", str(out)])
     assert r.exit_code == 0, r.output
     comments, cols = read_csv_table(out)
-    assert list(cols)[:3] == ["t_s", "q1_rad", "q2_rad"] and "qd6_rad_s" in cols and "qdd1_rad_s2" in cols
-    assert "tau_ff6_Nm" in cols and any("rxcomm/Trajectory" in c for c in comments)
+    # a plan written without joint names: joint1 … in the header (the plan's own names otherwise)
+    assert list(cols)[:3] == ["t_s", "q_joint1_rad", "q_joint2_rad"] and "qd_joint6_rad_s" in cols
+    assert "qdd_joint1_rad_s2" in cols and "tau_ff_joint6_Nm" in cols
+    assert any("rxcomm/Trajectory" in c for c in comments) and any("joint (link) side" in c for c in comments)
     back = read_trajectory_csv(out)
     ref, _ = load_trajectory_mcap(plan)
     for name in ("t", "q", "qd", "qdd", "tau_ff"):
@@ -97,12 +99,15 @@ def test_identified_dynamics_export_is_identify_s_parameter_table(tmp_path, rx13
 
 
 def test_every_exporter_names_a_real_kind_and_library_call():
+    from rxcomm.schemas.calibration import Calibration
     from rxcomm.schemas.dynamics import Dynamics
     from rxcomm.schemas.kinematics import Kinematics
     from rxcomm.schemas.run_log import RunLog
     from rxcomm.schemas.trajectory import TrajectorySummary
     from rxcomm.stages.export import EXPORTERS, exporter
 
-    assert set(EXPORTERS) == {TrajectorySummary.KIND, RunLog.KIND, Dynamics.KIND, Kinematics.KIND}
-    for kind in EXPORTERS:
-        assert callable(exporter(kind)), kind
+    kinds = {TrajectorySummary.KIND, RunLog.KIND, Dynamics.KIND, Kinematics.KIND, Calibration.KIND}
+    assert set(EXPORTERS) == kinds
+    for kind, formats in EXPORTERS.items():
+        for fmt in formats:
+            assert callable(exporter(kind, fmt)), (kind, fmt)

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 
 from rxcomm.execution.frames import DEMAND_PREFIX, link_transforms, link_tree, tcp_poses
 from rxcomm.io.run_log import read_run_log
@@ -79,13 +80,16 @@ def test_run_log_has_frame_transforms_joint_names_and_epoch_stamps(run_log, rx13
         assert ch.message_encoding == "json"
         assert by_topic["/run/tcp"][1].name == "foxglove.PoseInFrame"
         tf = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/run/tf"])]
-        _, _, joint = next(reader.iter_messages(topics=["/run/joints"]))
-        body = json.loads(joint.data)
-    assert body["joint_names"] == list(rx130l.joint_names)
-    # epoch time: within the run, in log_time and in the message stamp alike
+        joints_ch, joints_schema = by_topic["/run/joints"]
+        assert joints_schema.encoding == "protobuf" and joints_ch.message_encoding == "protobuf"
+        assert json.loads(joints_ch.metadata["rxcomm/constants"])["joint_names"] == list(rx130l.joint_names)
+    with open(path, "rb") as f:  # the protobuf messages decode with their schema (Foxglove does the same)
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        _, _, joint, body = next(reader.iter_decoded_messages(topics=["/run/joints"]))
+    assert len(body.q_actual) == rx130l.n and body.tcp_error_m >= 0
+    # epoch time: within the run
     now = time.time_ns()
     assert started_ns - 10**9 <= joint.log_time <= now
-    assert body["timestamp"]["sec"] * 10**9 + body["timestamp"]["nsec"] == joint.log_time
     first = tf[0]["transforms"]
     assert [(x["parent_frame_id"], x["child_frame_id"]) for x in first] == list(link_tree(rx130l).pairs)
     stamps = [x["transforms"][0]["timestamp"] for x in tf]

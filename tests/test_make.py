@@ -60,6 +60,7 @@ ALL = {
     "iso9283-factory.yaml",
     "iso9283.yaml",
     "verdict.yaml",
+    "exports/parity.yaml",
     "report.md",
     "cp-at-factory-time.mcap",
     "ptp-at-factory-time.mcap",
@@ -100,6 +101,7 @@ AFTER_CELL = {
     "cp.mcap",
     "ptp.mcap",
     "verdict.yaml",
+    "exports/parity.yaml",
     "report.md",
 }
 AFTER_CELL |= {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "iso9283-factory.yaml", "iso9283.yaml"}
@@ -117,6 +119,7 @@ AFTER_POSES = {
     "run-ff.mcap",
     "run-ptp.mcap",
     "verdict.yaml",
+    "exports/parity.yaml",
     "report.md",
     *ISO_ON_MODEL,
     "iso9283-factory.yaml",  # the tracker's base frame is the calibration's
@@ -131,6 +134,7 @@ AFTER_MODEL = {
     "run-ff.mcap",
     "run-ptp.mcap",
     "verdict.yaml",
+    "exports/parity.yaml",  # the controller files of the calibration, the plans and the FF run
     "report.md",
     *ISO_ON_MODEL,
     *EQ_PLANS,
@@ -301,7 +305,8 @@ def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(bu
         "iso-circle-cycles.mcap",
         "run-iso-circle.mcap",
     }
-    after_cal |= {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml", *EQ_PLANS, *EQ_RUNS}
+    after_cal |= {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml", "exports/parity.yaml"}
+    after_cal |= {*EQ_PLANS, *EQ_RUNS}
     assert _remade(built, "-W", "build/calibration.yaml")[0] == after_cal
     assert _remade(built, "-W", "build/calibration-prior.yaml")[0] == {"report.md"}
     assert _remade(built, "-W", "build/dynamics.yaml")[0] == after_cal | {"calibration.yaml"}

@@ -28,7 +28,8 @@ from rxcomm.schemas.kinematics import Kinematics, MdhForm, MdhJoint, ZeroOffset
 FIT_POSES, CHECK_POSES = 64, 200
 CONVENTION = (
     "Craig modified DH: T_i = Rx(alpha_{i-1}) Ry(beta_{i-1}) Tx(a_{i-1}) Rz(q_i + theta_offset_i) Tz(d_i); "
-    "TCP in the base frame = base * T_1 * ... * T_n * tool; beta = 0 in plain MDH"
+    "TCP in the base frame = base * T_1 * ... * T_n * tool; beta = 0 in plain MDH; base and tool "
+    "rpy_rad = [roll, pitch, yaw] about the fixed X, Y, Z axes, R = Rz(yaw) Ry(pitch) Rx(roll) (URDF)"
 )
 
 

@@ -9,6 +9,7 @@ import pinocchio as pin
 
 from rxcomm.errors import InputError
 from rxcomm.io.yaml_io import read_yaml_artefact
+from rxcomm.model.artefact_checks import check_same_robot
 from rxcomm.model.geometric_errors import COMPONENTS, ErrorModel, placement_to_se3
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.calibration import Calibration
@@ -51,5 +52,6 @@ def load_calibrated_robot(robot: Robot, path: str | Path) -> Robot:
             file=path,
             field="joint_names",
         )
+    check_same_robot(robot, art.inputs, path)
     errors = ErrorModel.from_mapping(robot, {p.name: p.value for p in art.parameters}, file=str(path))
     return errors.apply(robot)

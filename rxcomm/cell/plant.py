@@ -117,6 +117,11 @@ class Plant:
         m = pin.crba(self.model, self.data, np.linspace(0.3, 0.8, n))
         self._crba_full = bool(np.allclose(m, m.T))
 
+    @property
+    def tracker_state(self) -> np.ndarray:
+        """What the tracker needs of the plant to see the TCP: the joint angles (rigid links)."""
+        return self.q
+
     def spring_torque(self, q: np.ndarray) -> np.ndarray:
         out = np.zeros(self.n)
         if self._spring is not None:

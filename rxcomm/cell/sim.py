@@ -37,9 +37,11 @@ from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
 from rxcomm.cell.tracker import MotionTracker, SimulatedTracker
 from rxcomm.cell.truth import SimTruth, load_truth
 from rxcomm.errors import InputError
+from rxcomm.schemas.cell import TrackerSpec
 from rxcomm.schemas.strict import Strict
 
 NOISE_BLOCK = 1024
+PLANTS = ("own", "mujoco")
 
 
 class SimSettings(Strict):
@@ -87,19 +89,19 @@ class SimulatedCell(BackendState):
         self._noise = np.empty((0, n))
         self._noise_next = 0
         self.gains: DriveGains = drive_gains(robot, s.tuning)
-        self.plant = Plant(robot, truth.params, q0, substeps=s.substeps)
+        self.plant = self._make_plant(q0)
         self.drives = CascadedDrives(self.gains, self._encoder())
         visibility = None if truth.cell is None else truth.cell.tracker
-        self._tracker = SimulatedTracker(robot, truth.truth, tracker_rng, visibility=visibility)
+        self._tracker = self._make_tracker(tracker_rng, visibility)
         rate = 1000.0 if visibility is None else visibility.sample_rate_hz
         # Performance tests mount their target facing the tracker: its range and view cone hold,
         # the calibration probe's cone does not (a TCP pointing down would hide the whole ISO cube).
         facing = None if visibility is None else visibility.model_copy(update={"probe_half_angle_rad": np.pi})
         self.motion_tracker = MotionTracker(
-            SimulatedTracker(robot, truth.truth, motion_rng, visibility=facing),
+            self._make_tracker(motion_rng, facing),
             rate,
             truth.truth.noise.tracker_latency_s,
-            n,
+            len(self.plant.tracker_state),
             max_samples=s.tracker_max_samples,
         )
         self._enabled = np.zeros(n, dtype=bool)
@@ -111,6 +113,17 @@ class SimulatedCell(BackendState):
             following_error_limit_rad=g.following_error_limit_rad,
             quick_stop_decel_rad_s2=g.quick_stop_decel_rad_s2,
         )
+
+    # ---- the plant and what the tracker sees of it (`rxcomm.cell.mujoco_plant` swaps both) ----------
+
+    plant_name = "own"
+    plant_notes: tuple[str, ...] = ()
+
+    def _make_plant(self, q0: np.ndarray) -> Plant:
+        return Plant(self.truth.robot, self.truth.params, q0, substeps=self.settings.substeps)
+
+    def _make_tracker(self, rng: np.random.Generator, visibility: TrackerSpec | None) -> SimulatedTracker:
+        return SimulatedTracker(self.truth.robot, self.truth.truth, rng, visibility=visibility)
 
     # ---- CellBackend ---------------------------------------------------------------------------
 
@@ -131,7 +144,7 @@ class SimulatedCell(BackendState):
             following_error_rad=(position_demand_rad - enc) * enabled,
         )
         self.cycles += 1
-        self.motion_tracker.step(self.cycles * self.cycle_s, self.plant.q)
+        self.motion_tracker.step(self.cycles * self.cycle_s, self.plant.tracker_state)
         return self._fb
 
     def stream_started(self) -> None:
@@ -141,7 +154,7 @@ class SimulatedCell(BackendState):
     def tracker(self) -> TrackerReading | None:
         if not self.standing_still():
             return None
-        reading = self._tracker.measure(self.plant.q)
+        reading = self._tracker.measure(self.plant.tracker_state)
         if not reading.valid:
             return None
         return TrackerReading(np.array(reading.position_m), np.array(reading.quaternion_wxyz))
@@ -171,12 +184,42 @@ def simulated_cell(
     cell_path: str | Path | None = None,
     q0: Sequence[float] | None = None,
     settings: SimSettings | None = None,
+    plant: str = "own",
 ) -> SimulatedCell:
-    """A `SimulatedCell` from a truth file (`q0` overrides `settings.q0_rad`)."""
+    """A `SimulatedCell` from a truth file (`q0` overrides `settings.q0_rad`) on `plant` (`PLANTS`)."""
     s = settings or SimSettings()
     if q0 is not None:
         s = s.model_copy(update={"q0_rad": tuple(float(x) for x in q0)})
-    return SimulatedCell(load_truth(truth_path, cell_path), s)
+    return cell_class(plant)(load_truth(truth_path, cell_path), s)
+
+
+class MujocoCell(SimulatedCell):
+    """The simulated cell on the MuJoCo plant (`rxcomm.cell.mujoco_plant`, imported only here): the same
+    drives, noise and tracker, MuJoCo's physics, the tracker reading the model's TCP site."""
+
+    plant_name = "mujoco"
+
+    def _make_plant(self, q0: np.ndarray):  # type: ignore[override]
+        from rxcomm.cell.mujoco_plant import MujocoPlant
+
+        plant = MujocoPlant(self.truth, q0, substeps=self.settings.substeps)
+        self.plant_notes = plant.built.notes
+        return plant
+
+    def _make_tracker(self, rng: np.random.Generator, visibility: TrackerSpec | None) -> SimulatedTracker:
+        from rxcomm.cell.mujoco_plant import MujocoSiteTracker
+
+        built = self.plant.built  # type: ignore[union-attr]
+        return MujocoSiteTracker(built, self.truth, self.truth.truth, rng, visibility=visibility)
+
+
+def cell_class(plant: str) -> type[SimulatedCell]:
+    """The simulated cell on `plant`: "own" (`rxcomm.cell.plant`) or "mujoco" (`rxcomm.cell.mujoco_plant`)."""
+    if plant == "own":
+        return SimulatedCell
+    if plant == "mujoco":
+        return MujocoCell
+    raise InputError(f"unknown plant {plant!r}: one of {list(PLANTS)}", field="--plant")
 
 
 def start_embedded_cell(
@@ -188,13 +231,15 @@ def start_embedded_cell(
     cell_path: str | Path | None = None,
     settings: SimSettings | None = None,
     server_config: ServerConfig | None = None,
+    plant: str = "own",
 ) -> CellServer:
     """Serve a simulated cell on 127.0.0.1 (port 0: ephemeral, see `.port`); returns the STARTED server.
 
     The caller stops it (`server.stop()`, or use it as a context manager). Virtual time unless
-    `realtime`. `server_config` overrides host/port/time mode and the gateway's sizes entirely.
+    `realtime`. `plant`: "own" or "mujoco" (`cell_class`). `server_config` overrides host/port/time
+    mode and the gateway's sizes entirely.
     """
-    backend = simulated_cell(truth_path, cell_path=cell_path, q0=q0, settings=settings)
+    backend = simulated_cell(truth_path, cell_path=cell_path, q0=q0, settings=settings, plant=plant)
     cfg = server_config or ServerConfig(
         port=port, time_mode=TimeMode.REALTIME if realtime else TimeMode.VIRTUAL
     )

@@ -130,13 +130,7 @@ class SimulatedTracker:
         `deflection_every` states and interpolated between (µm at 1 kHz samples of a 2 rad/s move)."""
         qs = np.asarray(qs, dtype=float)
         k = len(qs)
-        q_link = qs
-        if self._dyn is not None and k:
-            idx = np.unique(np.append(np.arange(0, k, deflection_every), k - 1))
-            defl = np.array([qs[i] - self.link_angles(qs[i]) for i in idx])
-            rows = np.arange(k)
-            q_link = qs - np.column_stack([np.interp(rows, idx, defl[:, j]) for j in range(qs.shape[1])])
-        p, r = predict_poses(self._nominal, q_link, self._errors, self._t2b, point=self._point)
+        p, r = self.true_poses(qs, deflection_every)
         visible = np.ones(k, dtype=bool)
         if self._visibility is not None:
             spec = self._visibility
@@ -155,6 +149,17 @@ class SimulatedTracker:
         noise_p = self._rng.normal(0.0, self._sigma_p, (k, 3))
         turn = Rotation.from_rotvec(self._rng.normal(0.0, self._sigma_o, (k, 3))).as_matrix()
         return p + noise_p, turn @ r, visible
+
+    def true_poses(self, qs: np.ndarray, deflection_every: int = 25) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-free poses (positions [k, 3], rotations [k, 3, 3]) of many states (`measure_many`)."""
+        k = len(qs)
+        q_link = qs
+        if self._dyn is not None and k:
+            idx = np.unique(np.append(np.arange(0, k, deflection_every), k - 1))
+            defl = np.array([qs[i] - self.link_angles(qs[i]) for i in idx])
+            rows = np.arange(k)
+            q_link = qs - np.column_stack([np.interp(rows, idx, defl[:, j]) for j in range(qs.shape[1])])
+        return predict_poses(self._nominal, q_link, self._errors, self._t2b, point=self._point)
 
     def measure(self, q_true: np.ndarray) -> TrackerReading:
         """A noisy reading at the true joint angles `q_true` (rad)."""

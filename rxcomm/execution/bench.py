@@ -37,9 +37,9 @@ import sys, numpy as np
 from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
 kind, truth = sys.argv[1], sys.argv[4]
 q0, rated = (np.array([float(x) for x in a.split(",")]) for a in sys.argv[2:4])
-if kind == "sim":
+if kind in ("sim", "mujoco"):
     from rxcomm.cell.sim import start_embedded_cell
-    srv = start_embedded_cell(truth, realtime=True, q0=q0)
+    srv = start_embedded_cell(truth, realtime=True, q0=q0, plant="mujoco" if kind == "mujoco" else "own")
 else:
     from rxcomm.cell.backend import IdealBackend
     config = ServerConfig(time_mode=TimeMode.REALTIME)
@@ -77,8 +77,9 @@ def bench_streaming(
 ) -> list[dict[str, Any]]:
     """Stream ``duration_s`` of trajectory to a realtime gateway in another process; one row per figure.
 
-    ``backend``: "ideal" (the protocol double: measures streaming alone) or "sim" (the simulated cell,
-    whose physics must then keep up with 2.5 kHz on this machine too).
+    ``backend``: "ideal" (the protocol double: measures streaming alone), "sim" (the simulated cell,
+    whose physics must then keep up with 2.5 kHz on this machine too) or "mujoco" (the simulated cell
+    on the MuJoCo plant).
     """
     robot = load_robot(robot_dir)
     q0 = np.array([0.0, -0.3, 1.2, 0.0, 0.6, 0.0])

@@ -20,9 +20,10 @@ from pydantic import Field
 
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
+from rxcomm.execution.guards import raise_if_terminated
 from rxcomm.execution.plan import StreamPlan, prepare_plan
 from rxcomm.execution.records import RunResult, timing_figures
-from rxcomm.execution.session import Session, StreamSettings, StreamStopped
+from rxcomm.execution.session import Session, StreamSettings, StreamStopped, interrupt_reason
 from rxcomm.gateway.client import GatewayClient, TrackerSample
 from rxcomm.io.yaml_io import write_yaml_artefact
 from rxcomm.model.dynamics import DynamicParameters
@@ -163,8 +164,12 @@ def run_campaign(
     except (GatewayError, SafetyStop) as e:
         run.error = e
         run.stop_note = ses.stop_drives(after_stop=True)
-    except KeyboardInterrupt:
-        run.error = SafetyStop("interrupted by the user (Ctrl-C)")
+    except KeyboardInterrupt as e:
+        run.error = SafetyStop(interrupt_reason(e))
+        run.stop_note = ses.stop_drives(after_stop=True)
+    except OSError as e:  # the poses so far could not be written (a full disk): stop, drives disabled
+        reason = e.strerror or str(e)
+        run.error = InputError(f"the measurements could not be written ({reason})", file=e.filename)
         run.stop_note = ses.stop_drives(after_stop=True)
     result.seconds = time.perf_counter() - t_start
     return result
@@ -179,6 +184,7 @@ def _settle_and_read(ses: Session, s: CampaignSettings) -> tuple[TrackerSample |
         nonlocal beat
         deadline = time.monotonic() + seconds
         while True:
+            raise_if_terminated()
             beat += 1
             ses.client.heartbeat(beat)
             left = deadline - time.monotonic()

@@ -9,6 +9,7 @@ the actual root), so a second URDF layer with that frame prefix shows it in the 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,7 +107,7 @@ class FoxgloveFrames:
 
     def __init__(self, w: McapWriter, robot: Robot, sample_s: float) -> None:
         self.w, self.robot, self.sample_s = w, robot, sample_s
-        self.stride = max(1, round(1.0 / (FOXGLOVE_RATE_HZ * sample_s)))
+        self.stride = max(1, math.ceil(1.0 / (FOXGLOVE_RATE_HZ * sample_s) - 1e-9))  # at most the rate
         self.tree = link_tree(robot)
         self.n = 0
         self.n_tracker = 0

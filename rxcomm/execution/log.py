@@ -46,6 +46,11 @@ from rxcomm.schemas.run_log import (
 )
 
 FLUSH_PERIOD_S = 0.5  # wall time between chunks handed to the OS: what a killed run can lose
+# "rows": one protobuf message per sample, float32 joint values (docs/logs.md §1); "json-columns": the
+# layout before issue 32 (per-sample JSON + float64 column blocks), kept writable for the bench's
+# before column and the test that both layouts read alike.
+LAYOUTS = ("rows", "json-columns")
+JOINT_DTYPE = "<f4"  # 2.4e-7 rad at 4 rad, below the gateway's 1 µrad count; torque to 6e-8 relative
 
 
 class RunLogWriter:
@@ -69,6 +74,7 @@ class RunLogWriter:
         embedded_cell: bool,
         period_s: float = FLUSH_PERIOD_S,
         keep_encoder_s: float = 0.0,
+        layout: str = "rows",
     ) -> None:
         self.path = Path(path)
         summary_yaml_path(self.path)  # refuses a name not ending in .mcap before anything is written
@@ -76,6 +82,9 @@ class RunLogWriter:
         self.inputs, self.settings = dict(inputs), dict(settings)
         self.feedforward, self.embedded_cell = feedforward, embedded_cell
         self.period_s = period_s
+        if layout not in LAYOUTS:
+            raise ValueError(f"run log layout {layout!r} is not one of {LAYOUTS}")
+        self.layout = layout
         self._w: McapWriter | None = None
         self._plan: StreamPlan | None = None
         self.n_joint = 0  # /run/joints rows written
@@ -115,8 +124,12 @@ class RunLogWriter:
             # Channels first, with units in the schema, so even a log stopped before its first record
             # has them.
             names = {"joint_names": list(self.robot.joint_names)}
-            w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n), constants=names)
-            w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
+            if self.layout == "rows":
+                w.add_row_channel(JOINTS_TOPIC, "rxcomm.RunJoints", joint_rows(self.robot.n), constants=names)
+                w.add_row_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", gateway_rows())
+            else:  # the layout before issue 32 (per-sample JSON + column blocks): benches and tests
+                w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n), constants=names)
+                w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
             self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s)
             w.flush()
         except BaseException:
@@ -187,7 +200,9 @@ class RunLogWriter:
         assert self._w is not None
         if self._tracker is not None:
             raise ValueError("tracker channel already written")
-        self._tracker = write_tracker_channel(self._w, t_tracker_s, position_m, quaternion_wxyz, channel)
+        self._tracker = write_tracker_channel(
+            self._w, t_tracker_s, position_m, quaternion_wxyz, channel, rows=self.layout == "rows"
+        )
 
     def close(self, result: RunResult) -> tuple[Path, dict[str, Any]]:
         """Write the rest of ``result.log`` and the summary; returns (the file written, the summary).
@@ -261,13 +276,30 @@ def write_run_log(
     settings: Mapping[str, Any],
     feedforward: str,
     embedded_cell: bool,
+    layout: str = "rows",
 ) -> tuple[Path, dict[str, Any]]:
     """Write the log of a finished ``result`` in one go (``RunLogWriter`` does it during the run);
     returns (the file written, the summary)."""
     w = RunLogWriter(
-        path, robot, inputs=inputs, settings=settings, feedforward=feedforward, embedded_cell=embedded_cell
+        path,
+        robot,
+        inputs=inputs,
+        settings=settings,
+        feedforward=feedforward,
+        embedded_cell=embedded_cell,
+        layout=layout,
     )
     return w.close(result)
+
+
+def joint_rows(n: int) -> dict[str, tuple[str, int]]:
+    """``/run/joints`` row fields: vectors of ``n`` float32, the TCP figures float32 scalars."""
+    return {k: (JOINT_DTYPE, 0 if k.startswith("tcp_") else n) for k in JOINT_FIELDS}
+
+
+def gateway_rows() -> dict[str, tuple[str, int]]:
+    """``/run/gateway`` row fields: the counters as int64, the times as float64."""
+    return {k: ("<f8" if k in ("lead_s", "round_trip_s", "wall_s") else "<i8", 0) for k in GATEWAY_FIELDS}
 
 
 def _joint_schema(n: int) -> dict[str, dict[str, Any]]:
@@ -282,12 +314,20 @@ def write_tracker_channel(
     position_m: np.ndarray,
     quaternion_wxyz: np.ndarray,
     channel: TrackerChannel,
+    *,
+    rows: bool = True,
 ) -> TrackerChannel:
     """Add ``/run/tracker`` to `w`: the samples at t = t_tracker_s − offset_s (those before the
-    stream start dropped); returns `channel` with the samples kept."""
+    stream start dropped), as a row channel (float64) unless ``rows`` is False (the old layout);
+    returns `channel` with the samples kept."""
     t = np.asarray(t_tracker_s) - channel.offset_s
     keep = t >= 0
-    w.add_channel(TRACKER_TOPIC, "rxcomm.RunTracker", tracker_schema())
+    if rows:
+        sizes = {"position_m": 3, "quaternion_wxyz": 4}
+        fields = {k: ("<f8", sizes.get(k, 0)) for k in TRACKER_FIELDS}
+        w.add_row_channel(TRACKER_TOPIC, "rxcomm.RunTracker", fields)
+    else:
+        w.add_channel(TRACKER_TOPIC, "rxcomm.RunTracker", tracker_schema())
     w.write_arrays(
         TRACKER_TOPIC,
         t[keep],
@@ -353,11 +393,14 @@ class Recovery:
 
 
 def recovered_path(part: str | Path) -> Path:
-    """``run.mcap.part`` -> ``run.recovered.mcap``: never the completed log's name, so neither make nor
-    a later stage mistakes a cut-off log for a complete run."""
+    """``run.mcap.part`` -> ``run.recovered.mcap`` (a moved-aside ``run.mcap.part.2`` ->
+    ``run.2.recovered.mcap``): never the completed log's name, so neither make nor a later stage
+    mistakes a cut-off log for a complete run."""
     part = Path(part)
-    name = part.name.removesuffix(".part")
-    stem = name.removesuffix(".mcap")
+    name, _, n = part.name.rpartition(".part.")
+    if not (name and n.isdigit()):
+        name, n = part.name.removesuffix(".part"), ""
+    stem = name.removesuffix(".mcap") + (f".{n}" if n else "")
     return part.with_name(f"{stem}.recovered.mcap")
 
 

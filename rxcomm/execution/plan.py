@@ -8,6 +8,7 @@ setpoint period (R drive cycles) when the gateway interpolates.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -115,13 +116,16 @@ def prepare_plan(
     feedforward: bool = True,
     limit_tolerance: float = SAMPLED_LIMIT_TOLERANCE,
     what: str = "plan",
+    sample_label: Callable[[int], str] | None = None,
 ) -> StreamPlan:
     """Resample ``traj`` at the drive cycle, compute the model torque, check every limit densely.
 
     ``params`` is the model: its torque is the feed-forward (zeros when ``feedforward`` is False) and
     is what the torque and torque-rate limits are checked on either way (without feed-forward the
     drives' loops must produce it). Raises InputError for a malformed plan and SafetyStop (exit 5)
-    naming the limit, joint and time of the worst sample when a ratio exceeds 1 + ``limit_tolerance``.
+    naming the limit, joint and time of the worst sample when a ratio exceeds 1 + ``limit_tolerance``;
+    ``sample_label`` (index of the plan's own sample nearest that time -> e.g. "row 57") adds where it
+    is in a plan file written elsewhere.
     """
     check_plan_shape(robot, traj, what)
     q, qd, qdd = resample(traj, cycle_s)
@@ -130,8 +134,11 @@ def prepare_plan(
     report = check_limits(robot, t, q, qd, qdd, tau)
     if report.max_ratio > 1.0 + limit_tolerance:
         limit, joint, t_s, ratio = report.worst()
+        where = ""
+        if sample_label is not None:
+            where = f" ({sample_label(int(np.argmin(np.abs(traj.t - traj.t[0] - t_s))))})"
         raise SafetyStop(
-            f"{what} outside the robot's limits: {limit} of {joint} at t = {t_s:.4f} s is "
+            f"{what} outside the robot's limits: {limit} of {joint} at t = {t_s:.4f} s{where} is "
             f"{ratio:.3f} × its limit (checked every {cycle_s * 1e3:g} ms)"
         )
     return StreamPlan(cycle_s, q, qd, qdd, tau if feedforward else np.zeros_like(tau), report)

@@ -20,8 +20,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rxcomm.errors import GatewayError, RxcommError
+from rxcomm.execution.guards import raise_if_terminated
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.record_sink import RecordSink
+from rxcomm.execution.stalls import StallWatch
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import BlockReply, RoundTripStats
 from rxcomm.gateway.registers import Status
@@ -166,8 +168,12 @@ class _Recorder:
         self.status_seen = 0  # OR of every status word received
         self._trace_end = 0  # one past the highest record received
         self._next_emit = self.t0 + (sink.period_s if sink is not None else 0.0)
+        self.stalls: StallWatch | None = None  # the pauses between replies, for a stop's message
 
     def __call__(self, reply: BlockReply) -> None:
+        raise_if_terminated()  # a SIGTERM between two transactions: stop as Ctrl-C does
+        if self.stalls is not None:
+            self.stalls.reply()
         tr = reply.trace
         if tr.count:
             self.chunks.append((tr.first, tr.position_rad, tr.torque_nm))

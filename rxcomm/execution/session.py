@@ -29,7 +29,7 @@ from collections.abc import Callable
 import numpy as np
 from pydantic import Field
 
-from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
+from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop, Terminated
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.record_sink import BackgroundSink
 from rxcomm.execution.records import (
@@ -38,6 +38,7 @@ from rxcomm.execution.records import (
     StreamLog,
     _Recorder,
 )
+from rxcomm.execution.stalls import StallWatch
 from rxcomm.gateway import codec
 from rxcomm.gateway import registers as R
 from rxcomm.gateway.client import GatewayClient
@@ -222,21 +223,30 @@ class Session:
         rt0 = self.timing.count
         wall0, cpu0 = time.perf_counter(), time.process_time()
         error: RxcommError | None = None
+        writer_failed = False
         busy = 0
+        rec.stalls = StallWatch()
         try:
-            res = stream(
-                self.client,
-                sub.q,
-                sub.tau_ff,
-                high_level=self.high_level(),
-                on_reply=rec,
-                keep_trace=False,  # the recorder has it (and drops it once a sink took it)
-            )
+            with rec.stalls:
+                res = stream(
+                    self.client,
+                    sub.q,
+                    sub.tau_ff,
+                    high_level=self.high_level(),
+                    on_reply=rec,
+                    keep_trace=False,  # the recorder has it (and drops it once a sink took it)
+                )
             busy = res.busy_replies
         except (GatewayError, SafetyStop) as e:
-            error = self._explain(e)
-        except KeyboardInterrupt:  # stream() sent the quick stop already
-            error = SafetyStop("interrupted by the user (Ctrl-C): quick stop sent")
+            rec.stalls.reply()  # the pause before the stop counts too
+            error = self._explain(e, rec.stalls)
+        except KeyboardInterrupt as e:  # stream() sent the quick stop already
+            error = SafetyStop(f"{interrupt_reason(e)}: quick stop sent")
+        except OSError as e:  # the run log's writer failed (a full disk): stop the motion, keep the log
+            with contextlib.suppress(GatewayError):
+                self.client.quick_stop()
+            error = log_write_error(e, sink)
+            writer_failed = True
         except BaseException:  # what was handed over still reaches the log before this propagates
             if writer is not None:
                 with contextlib.suppress(Exception):
@@ -250,12 +260,16 @@ class Session:
             rec.last_execute = max(executed, rec.last_execute)
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
         keep = sub.n if error is None else min(sub.n, rec.last_execute)
-        if sink is not None:  # the rest to the sink too: the log holds counts only
+        if sink is not None and not writer_failed:  # the rest to the sink too: the log holds counts only
             # after a stop, up to the last record that arrived (those of the last setpoints before
             # it may never come)
             rec.emit(keep if error is None else max(rec.emitted, rec.arrived_end(keep)))
         if writer is not None:
-            writer.stop()  # every hand-over written before the caller closes the log
+            try:
+                writer.stop()  # every hand-over written before the caller closes the log
+            except OSError:
+                if not writer_failed:
+                    raise
         after = self._status()
         gw = rec.gateway_arrays()
         overruns = None
@@ -321,8 +335,9 @@ class Session:
         except GatewayError:
             return None
 
-    def _explain(self, error: RxcommError) -> RxcommError:
-        """The stop as the cell saw it: which axes faulted with which code, communication or safety."""
+    def _explain(self, error: RxcommError, stalls: StallWatch | None = None) -> RxcommError:
+        """The stop as the cell saw it: which axes faulted with which code, communication or safety;
+        an underrun or a watchdog stop also says what held the master (``StallWatch``)."""
         if isinstance(error, GatewayError) and not self.client_open:
             # stream() reads the status after a refused block; if that fails too, the first error is the cause
             cause = error.__context__ if isinstance(error.__context__, GatewayError) else error
@@ -339,6 +354,8 @@ class Session:
         what = _cause_name(st.stop_cause) + ("" if not code else f", {_code_name(code)}")
         where = ", ".join(f"{n} {_code_name(c)}" for n, c in faulted)
         text = f"{what} at t = {t_s:.3f} s" + (f" ({where})" if where else "")
+        if stalls is not None and (code in COMMUNICATION_ERRORS or st.stop_cause == StopCause.UNDERRUN):
+            text += f"; {stalls.describe()}"
         if code in COMMUNICATION_ERRORS:
             return GatewayError(f"stream stopped by the gateway: {text}")
         if Status(st.status) & STOP_BITS or faulted:
@@ -359,9 +376,31 @@ class Session:
                     c.quick_stop()
                 self._wait_standstill()
             c.disable_all()
-            return "drives disabled"
+            return self._drive_states()
         except (GatewayError, SafetyStop) as e:
             return f"could not disable the drives ({e}); the gateway's watchdog stops them"
+
+    def _drive_states(self) -> str:
+        """What the drives are in after the disable, as read back: "drives disabled", or the axes in
+        fault with their codes (a watchdog that fired while the gateway was silent faults them)."""
+        try:
+            axes = self.client.axes()
+        except GatewayError:
+            return "drives disabled (not read back)"
+        faulted = [
+            f"{self.robot.joint_names[i]} {a.error_code:#06x}"
+            for i, a in enumerate(axes)
+            if a.state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+        ]
+        if len(faulted) == len(axes):
+            return f"drives in fault, not disabled ({', '.join(faulted)}): clear with --fault-reset"
+        if faulted:
+            return f"drives disabled except {', '.join(faulted)} in fault: clear with --fault-reset"
+        on = DriveState.OPERATION_ENABLED
+        enabled = [self.robot.joint_names[i] for i, a in enumerate(axes) if a.state == on]
+        if enabled:
+            return f"drives still enabled: {', '.join(enabled)}"
+        return "drives disabled"
 
     def _wait_standstill(self) -> None:
         """Until the demand of every axis stops changing (the stop ramp ended), feeding the watchdog."""
@@ -376,6 +415,18 @@ class Session:
             if np.max(np.abs(now - last)) < 1e-6:
                 return
             last = now
+
+
+def interrupt_reason(e: BaseException) -> str:
+    """Why the run was interrupted: SIGTERM (rxcomm.errors.Terminated) or Ctrl-C."""
+    return "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted by the user (Ctrl-C)"
+
+
+def log_write_error(e: OSError, sink: object) -> InputError:
+    """A run log that cannot be written (a full disk) as exit 2 naming the file: the motion stops."""
+    part = getattr(sink, "part_path", None) or e.filename
+    reason = e.strerror or str(e)
+    return InputError(f"the run log could not be written ({reason}): quick stop sent", file=part)
 
 
 class StreamStopped(Exception):  # noqa: N818 - a carrier inside rxcomm.execution, never escapes run_*

@@ -17,6 +17,7 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.execution.records import NOT_APPLICABLE_VIRTUAL, RunResult, timing_figures
+from rxcomm.model.batch_kinematics import serial_chain, tcp_positions
 from rxcomm.model.energy import electrical_power, motion_energy
 from rxcomm.model.kinematics import frame_placement
 from rxcomm.model.robot import Robot
@@ -24,6 +25,9 @@ from rxcomm.model.robot import Robot
 
 def tcp_errors(robot: Robot, q_demand: np.ndarray, q_actual: np.ndarray) -> np.ndarray:
     """Per sample |p_tcp(q_demand) − p_tcp(q_actual)| (m), nominal kinematics; NaN rows stay NaN."""
+    if serial_chain(robot) is not None:  # the writer's batch FK, so both give the same figures
+        q_demand = np.asarray(q_demand, dtype=float)
+        return tcp_error_and_speed(robot, q_demand, np.zeros_like(q_demand), np.asarray(q_actual))[0]
     data = robot.create_data()
     out = np.full(len(q_demand), np.nan)
     for i, (qd, qa) in enumerate(zip(q_demand, q_actual, strict=True)):
@@ -39,7 +43,17 @@ def tcp_error_and_speed(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per sample (m) ``tcp_errors`` and (m/s) the planned TCP speed |v(q_demand, qd_demand)|, with one
     kinematics pass per side (the demand pass carries the velocity): the writer does this while the
-    robot moves, so it counts."""
+    robot moves, so it counts: a serial chain of revolute joints goes through the numpy batch FK)."""
+    chain = serial_chain(robot)
+    if chain is not None:
+        p_d, v = tcp_positions(chain, q_demand, qd_demand)
+        assert v is not None
+        ok = np.all(np.isfinite(q_actual), axis=1)
+        err = np.full(len(q_demand), np.nan)
+        if ok.any():
+            p_a, _ = tcp_positions(chain, q_actual[ok])
+            err[ok] = np.linalg.norm(p_d[ok] - p_a, axis=1)
+        return err, np.linalg.norm(v, axis=1)
     model, data, fid = robot.model, robot.create_data(), robot.tcp_frame_id
     err = np.full(len(q_demand), np.nan)
     speed = np.zeros(len(q_demand))

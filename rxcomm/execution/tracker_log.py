@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from rxcomm.errors import InputError
-from rxcomm.execution.log import _gateway_schema, _joint_schema, tracker_topic, write_tracker_channel
+from rxcomm.execution.log import gateway_rows, joint_rows, tracker_topic, write_tracker_channel
 from rxcomm.io.mcap_io import McapWriter, read_mcap
 from rxcomm.io.yaml_io import read_yaml_artefact, summary_yaml_path, write_mcap_summary
 from rxcomm.schemas.plain import sha256_file
@@ -36,16 +36,17 @@ def attach_tracker(
     contents = read_mcap(src)
     env = dict(contents.envelope)
     env["inputs"] = {**env.get("inputs", {}), **{k: sha256_file(p) for k, p in inputs.items()}}
-    schemas = {JOINTS_TOPIC: _joint_schema(len(meta.joint_names)), GATEWAY_TOPIC: _gateway_schema()}
+    # written in the row layout whatever the source's (docs/logs.md §1)
+    rows = {JOINTS_TOPIC: joint_rows(len(meta.joint_names)), GATEWAY_TOPIC: gateway_rows()}
+    titles = {JOINTS_TOPIC: "rxcomm.RunJoints", GATEWAY_TOPIC: "rxcomm.RunGateway"}
+    names = {JOINTS_TOPIC: {"joint_names": list(meta.joint_names)}, GATEWAY_TOPIC: None}
     w = McapWriter(out, env)
     try:
-        for topic, schema in schemas.items():
-            w.add_channel(
-                topic, contents.topics[topic].schema_title if topic in contents.topics else topic, schema
-            )
+        for topic, fields in rows.items():
+            w.add_row_channel(topic, titles[topic], fields, constants=names[topic])
             if topic in contents.topics:
                 td = contents.topics[topic]
-                w.write_arrays(topic, td.t, td.fields, digits=10)
+                w.write_arrays(topic, td.t, td.fields)
         kept = write_tracker_channel(w, t_tracker_s, position_m, quaternion_wxyz, channel)
     except BaseException:
         w.abort()

@@ -13,12 +13,18 @@ from collections.abc import Callable
 
 import numpy as np
 
-from rxcomm.errors import GatewayError, SafetyStop
+from rxcomm.errors import GatewayError, LocatedError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.log import RunLogWriter
 from rxcomm.execution.plan import StreamPlan, distance_to_start, prepare_plan
 from rxcomm.execution.records import RecordSink, RunResult
-from rxcomm.execution.session import RunSettings, Session, StreamStopped
+from rxcomm.execution.session import (
+    RunSettings,
+    Session,
+    StreamStopped,
+    interrupt_reason,
+    log_write_error,
+)
 from rxcomm.gateway.client import GatewayClient
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.robot import Robot
@@ -107,15 +113,31 @@ def run_trajectory(
             result.approach = s.log
         else:
             result.log = s.log
-        result.error = s.error
+        result.error = _during(s.error, stage, approach is not None)
         result.stop_note = ses.stop_drives(after_stop=True)
     except (GatewayError, SafetyStop) as e:  # enable failed or refused after enabling
-        result.error = e
+        result.error = _during(e, stage, approach is not None)
         result.stop_note = ses.stop_drives(after_stop=True)
-    except KeyboardInterrupt:
-        result.error = SafetyStop("interrupted by the user (Ctrl-C)")
+    except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM where the stage turns it into Terminated
+        result.error = _during(SafetyStop(interrupt_reason(e)), stage, approach is not None)
+        result.stop_note = ses.stop_drives(after_stop=True)
+    except OSError as e:  # the run log could not be opened (a full disk) with the drives enabled
+        result.error = log_write_error(e, sink)
         result.stop_note = ses.stop_drives(after_stop=True)
     return result
+
+
+def _during(error: RxcommError, stage: str, moved: bool) -> RxcommError:
+    """A stop before the plan's first setpoint says so: "during the approach move" (the robot was on
+    its way to the plan's start), or "before the plan started" (enabling)."""
+    if stage != "approach":
+        return error
+    where = "during the approach move to the plan's start" if moved else "before the plan started"
+    if isinstance(error, LocatedError):
+        return type(error)(f"{where}: {error.reason}", file=error.file, field=error.field)
+    if isinstance(error, GatewayError | SafetyStop):
+        return type(error)(f"{where}: {error}")
+    return error
 
 
 def _named(progress: Callable[[str, float], None] | None, what: str) -> Callable[[float], None] | None:

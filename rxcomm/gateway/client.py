@@ -166,9 +166,24 @@ class GatewayClient:
             rsp = fn(**kwargs)
         except (ModbusException, OSError) as e:  # OSError: the peer reset or closed the socket
             self.close()  # never reuse a connection that may deliver a stale answer
-            raise GatewayError(f"{what}: {e}") from e
+            raise GatewayError(f"{what}: {self._in_our_words(e)}") from e
         self.timing.add(time.perf_counter() - t0)
         return rsp
+
+    def _in_our_words(self, e: BaseException) -> str:
+        """A pymodbus or socket error as what happened, with the gateway's address."""
+        at = f"{self.host}:{self.port}"
+        text = str(e)
+        if isinstance(e, OSError):
+            return f"the connection to the gateway {at} was lost ({e.strerror or text or type(e).__name__})"
+        if "No response" in text:
+            return (
+                f"no valid Modbus TCP answer from the gateway {at} within {self.timeout_s:g} s (silent, "
+                "or not an rxcomm drive gateway)"
+            )
+        if "decode" in text.lower() or "invalid" in text.lower():
+            return f"the gateway {at} answered with something that is not a Modbus TCP reply"
+        return f"Modbus error talking to the gateway {at}: {text.removeprefix('Modbus Error: ')}"
 
     def _read(self, address: int, count: int, what: str) -> list[int]:
         rsp = self._call(what, self._mb.read_holding_registers, address=address, count=count)

@@ -20,7 +20,7 @@ import numpy as np
 from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text
 from rxcomm.io.run_log import read_run_log
-from rxcomm.io.trajectory import Trajectory, load_trajectory_mcap
+from rxcomm.io.trajectory import Trajectory
 from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.run_log import JOINT_FIELDS
 
@@ -69,10 +69,13 @@ def read_csv_table(path: str | Path) -> tuple[list[str], dict[str, np.ndarray]]:
     for i, r in enumerate(body):
         if len(r) != len(header):
             raise InputError(f"row {i + 1} has {len(r)} cells, the header {len(header)}", file=path)
-    try:
-        values = np.array([[float(x) if x else np.nan for x in r] for r in body], dtype=float)
-    except ValueError as e:
-        raise InputError(f"not a number: {e}", file=path) from e
+    values = np.full((len(body), len(header)), np.nan)
+    for i, r in enumerate(body):
+        for j, x in enumerate(r):
+            try:
+                values[i, j] = float(x) if x else np.nan
+            except ValueError:
+                raise InputError(f"row {i + 1}: {x!r} is not a number", file=path, field=header[j]) from None
     values = values.reshape(len(body), len(header))
     return comments, {name: values[:, j] for j, name in enumerate(header)}
 
@@ -80,32 +83,75 @@ def read_csv_table(path: str | Path) -> tuple[list[str], dict[str, np.ndarray]]:
 # ---------------------------------------------------------------- trajectory
 
 
-def trajectory_header(dof: int) -> list[str]:
+def trajectory_header(joint_names: Sequence[str]) -> list[str]:
+    """``t_s`` then ``q_<joint>_rad`` … ``tau_ff_<joint>_Nm``, the joints in the robot's order."""
+    return ["t_s", *(f"{f}_{name}_{unit}" for f, unit in TRAJECTORY_FIELDS for name in joint_names)]
+
+
+def _legacy_header(dof: int) -> list[str]:  # before joint names (q1_rad …): still read
     return ["t_s", *(f"{f}{j + 1}_{unit}" for f, unit in TRAJECTORY_FIELDS for j in range(dof))]
 
 
-def write_trajectory_csv(path: str | Path, traj: Trajectory, comments: Sequence[str] = ()) -> Path:
+TRAJECTORY_UNITS = (
+    "units: t s (from the plan's start); q rad; qd rad/s; qdd rad/s²; tau_ff N·m, the feed-forward "
+    "torque on the joint (link) side of the gearbox; columns per joint in the robot's order"
+)
+
+
+def write_trajectory_csv(
+    path: str | Path, traj: Trajectory, joint_names: Sequence[str], comments: Sequence[str] = ()
+) -> Path:
     """t, q, q̇, q̈, τ_ff per joint (s, rad, rad/s, rad/s², N·m), one row per sample."""
+    if len(joint_names) != traj.dof:
+        raise InputError(f"{len(joint_names)} joint names for {traj.dof} joints", field="joint_names")
     cols = [traj.t, *(getattr(traj, f)[:, j] for f, _ in TRAJECTORY_FIELDS for j in range(traj.dof))]
-    units = (
-        "units: t s; q rad; qd rad/s; qdd rad/s²; tau_ff N·m (joint side); joints 1..n in the robot's order"
-    )
-    return _write_csv(Path(path), [*comments, units], trajectory_header(traj.dof), cols)
+    joints = "joints: " + ", ".join(joint_names)
+    return _write_csv(Path(path), [*comments, TRAJECTORY_UNITS, joints], trajectory_header(joint_names), cols)
+
+
+def csv_joint_names(header: Sequence[str]) -> list[str]:
+    """The joint names of a trajectory CSV header: the ``q_<joint>_rad`` columns in order."""
+    return [c[2:-4] for c in header if c.startswith("q_") and c.endswith("_rad") and len(c) > 6]
+
+
+def read_trajectory_csv_named(path: str | Path) -> tuple[Trajectory, list[str] | None]:
+    """(trajectory, joint names; None for the old ``q1_rad`` header) of a trajectory CSV
+    (:func:`write_trajectory_csv`'s columns, in any order). InputError names the row or column that is
+    wrong; rows count from 1 at the first data row."""
+    path = Path(path)
+    _, cols = read_csv_table(path)
+    names = csv_joint_names(list(cols))
+    if names:
+        expected = trajectory_header(names)
+    else:
+        dof = sum(1 for k in cols if k.startswith("q") and k.endswith("_rad") and k[1:-4].isdigit())
+        names, expected = [f"joint{j + 1}" for j in range(dof)], _legacy_header(dof)
+    missing = [c for c in expected if c not in cols]
+    if not names or missing or len(cols) != len(expected):
+        extra = [c for c in cols if c not in expected]
+        raise InputError(
+            f"trajectory columns: missing {missing}, unknown {extra} (expected {expected})",
+            file=path,
+            field="header",
+        )
+    arrays = {
+        f: np.column_stack([cols[expected[1 + k * len(names) + j]] for j in range(len(names))])
+        for k, (f, _) in enumerate(TRAJECTORY_FIELDS)
+    }
+    for f, a in (("t", cols["t_s"][:, None]), *arrays.items()):
+        bad = ~np.isfinite(a).all(axis=1)
+        if bad.any():
+            raise InputError(f"row {int(np.argmax(bad)) + 1}: {f} is empty or not finite", file=path, field=f)
+    try:
+        traj = Trajectory(cols["t_s"], arrays["q"], arrays["qd"], arrays["qdd"], arrays["tau_ff"])
+    except ValueError as e:
+        raise InputError(str(e).replace("sample", "row"), file=path) from e
+    return traj, (None if expected == _legacy_header(len(names)) else names)
 
 
 def read_trajectory_csv(path: str | Path) -> Trajectory:
-    """The trajectory of a CSV that :func:`write_trajectory_csv` wrote; InputError names what is wrong."""
-    path = Path(path)
-    _, cols = read_csv_table(path)
-    dof = sum(1 for k in cols if k.startswith("q") and k.endswith("_rad") and k[1:-4].isdigit())
-    expected = trajectory_header(dof)
-    if list(cols) != expected:
-        raise InputError(f"columns {list(cols)} are not {expected}", file=path, field="header")
-    arrays = {f: np.column_stack([cols[f"{f}{j + 1}_{u}"] for j in range(dof)]) for f, u in TRAJECTORY_FIELDS}
-    try:
-        return Trajectory(cols["t_s"], arrays["q"], arrays["qd"], arrays["qdd"], arrays["tau_ff"])
-    except ValueError as e:
-        raise InputError(str(e), file=path) from e
+    """The trajectory of :func:`read_trajectory_csv_named`."""
+    return read_trajectory_csv_named(path)[0]
 
 
 # ---------------------------------------------------------------- run log
@@ -163,13 +209,6 @@ def comment_lines(envelope: Mapping[str, Any], source: Path, sha256: str) -> lis
 
 
 # ---------------------------------------------------------------- artefact -> CSV
-
-
-def export_trajectory_csv(source: str | Path, out: str | Path) -> Path:
-    """A trajectory MCAP (plan-cp, plan-ptp, excite) as the controller CSV."""
-    source = Path(source)
-    traj, env = load_trajectory_mcap(source)
-    return write_trajectory_csv(out, traj, comment_lines(env, source, sha256_file(source)))
 
 
 def export_run_log_csv(source: str | Path, out: str | Path) -> Path:

@@ -5,19 +5,39 @@ same directory (so the rename stays on one file system) and renamed over ``NAME`
 Before it reads heavy input or moves anything, a stage calls :func:`check_outputs`, so an output that
 would destroy an input, or that cannot be written, is refused in the first second and not after the
 work (issue 14).
+
+One output policy for every stage (issue 27), applied by :func:`check_outputs` once the checks pass:
+missing directories are created; each output is locked for this process (``.NAME.lock`` beside it,
+``fcntl.flock``), so a second writer of the same output stops at once naming the lock instead of
+sharing its ``.part``; an existing ``NAME.part`` (a killed or stopped writer's, e.g. a recoverable run
+log) is moved aside to ``NAME.part.N`` (the next free N) and named on stderr, never replaced.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
+import fcntl
 import os
+import sys
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from rxcomm.errors import InputError
 
 PART_SUFFIX = ".part"
+LOCK_SUFFIX = ".lock"
+
+
+def _stderr_note(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+# Where a moved-aside ``.part`` (or an artefact accepted with a warning) is announced: a plain stderr
+# line, the console's own format without a terminal (tests may replace it).
+notice: Callable[[str], None] = _stderr_note
+_held_locks: dict[Path, tuple[int, Path]] = {}  # output (resolved) -> (fd, lock file) held by this process
 
 
 def part_path(path: str | Path, suffix: str = PART_SUFFIX) -> Path:
@@ -89,6 +109,77 @@ def _check_writable_place(path: Path, field: str, *, directory: bool) -> None:
         os.unlink(probe)
 
 
+def lock_path(path: str | Path) -> Path:
+    """``dir/NAME`` -> ``dir/.NAME.lock``: the lock a writer of ``NAME`` holds."""
+    path = Path(path)
+    return path.with_name(f".{path.name}{LOCK_SUFFIX}")
+
+
+def lock_output(path: str | Path, field: str = "output") -> Path:
+    """Hold ``.NAME.lock`` (``fcntl.flock``, not blocking) until :func:`release_outputs` or the process
+    ends; InputError (exit 2) naming the lock when another process holds it. Re-entrant in one process.
+    Returns the lock file."""
+    path = Path(path)
+    key = path.resolve()
+    if key in _held_locks:
+        return _held_locks[key][1]
+    lock = lock_path(path)
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise InputError(
+                f"another process is writing this output (it holds the lock {lock}); wait for it or "
+                "choose another output",
+                file=path,
+                field=field,
+            ) from None
+        # the holder before us may have removed the lock file after we opened it: lock the file
+        # that is there now, or two writers would each hold a different one
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(lock))
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    os.write(fd, f"{os.getpid()}\n".encode())
+    _held_locks[key] = (fd, lock)
+    return lock
+
+
+def release_outputs() -> None:
+    """Release (and remove) every output lock this process holds."""
+    for fd, lock in _held_locks.values():
+        with contextlib.suppress(OSError):
+            lock.unlink()
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    _held_locks.clear()
+
+
+atexit.register(release_outputs)
+
+
+def set_aside_part(path: str | Path) -> Path | None:
+    """Move an existing ``NAME.part`` to ``NAME.part.N`` (the next free N) and name it on the console;
+    returns where it went (None: there was none). Call it holding the output's lock."""
+    part = part_path(path)
+    if not part.exists() and not part.is_symlink():
+        return None
+    n = 1
+    while (aside := part.with_name(f"{part.name}.{n}")).exists() or aside.is_symlink():
+        n += 1
+    os.rename(part, aside)
+    notice(
+        f"note: {part} of an earlier run kept as {aside} "
+        f"(a run log's is recovered by `rxcomm recover-log {aside}`)"
+    )
+    return aside
+
+
 def check_outputs(
     outputs: Mapping[str, str | Path | None], inputs: Mapping[str, str | Path | None] | None = None
 ) -> dict[str, Path]:
@@ -99,7 +190,9 @@ def check_outputs(
     itself and its summary ``NAME.yaml``. Refused: an output that is also an input (symlinks and hard
     links too) or that an output beside it would overwrite (the summary ``.yaml`` of an ``.mcap``);
     two outputs on one file; a directory; a path under a file; a place this process cannot write.
-    Returns the outputs as paths, by name.
+    List every file the stage writes beside its output too (the ``.csv`` of ``--mdh-out``, a ``.png``).
+    Then the policy of the module docstring: directories created, each output locked, an old
+    ``NAME.part`` moved aside. Returns the outputs as paths, by name.
     """
     outs = _with_siblings(outputs)
     ins = _with_siblings(inputs or {})
@@ -118,6 +211,11 @@ def check_outputs(
             if _same_file(out, other):
                 raise InputError(f"{what} is also the output {other_name}", file=given, field=name)
         _check_writable_place(out, name, directory=False)
+    for name, out, _ in outs:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        lock_output(out, name)
+    for _, out, _ in outs:
+        set_aside_part(out)
     return {name: out for name, out, given in outs if out == given}
 
 
@@ -130,6 +228,7 @@ def check_output_dir(
         if _same_file(path, inp):
             raise InputError(f"is also the input {in_name}", file=path, field=field)
     _check_writable_place(path, field, directory=True)
+    path.mkdir(parents=True, exist_ok=True)
     return path
 
 
@@ -150,7 +249,9 @@ def atomic_write_bytes(path: str | Path, data: bytes, *, part_suffix: str = PART
         os.replace(tmp, path)
     except BaseException as e:
         if isinstance(e, OSError) and e.errno is not None and e.filename is None:
-            e.filename = str(tmp)  # a full disk at write or fsync names no file by itself
+            # a full disk at write or fsync names no file by itself: name the .part, or for a file that
+            # is itself a .part (a campaign's poses so far) that file, not a NAME.part.part
+            e.filename = str(path if path.name.endswith(PART_SUFFIX) else tmp)
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
         raise

@@ -9,6 +9,8 @@ Layout of a file written here (the format is ``rxcomm.io.mcap_format``; the read
 - log times and stamps in epoch ns: ``time_origin_ns`` (default: when the writer opened) + sample time;
 - beside each all-numeric channel, a column channel (``/columns/TOPIC``) of protobuf blocks in chunks
   of their own, which readers load without parsing the per-sample JSON;
+- or, for a channel added with ``add_row_channel`` (the run log's), one fixed-layout protobuf message
+  per sample instead of both (``mcap_rows``): the one copy Foxglove plots and readers view as arrays;
 - the envelope as a metadata record ``rxcomm/envelope`` written right after the header (so a killed
   writer's file still says what it is) and, if the summary changed meanwhile, again at ``finish()``
   (the reader keeps the last one);
@@ -70,6 +72,14 @@ from rxcomm.io.mcap_read import (
     read_mcap_envelope,
     recover_mcap,
 )
+from rxcomm.io.mcap_rows import (
+    ROW_ENCODING,
+    ROWS,
+    add_fixed_messages,
+    encode_rows,
+    row_descriptor_set,
+    row_fields,
+)
 from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.plain import to_plain
 
@@ -99,8 +109,9 @@ class _Channel:
     dtypes: dict[str, str] | None  # column dtypes when the channel has a column channel
     columns_id: int = 0
     raw: bool = False  # a well-known schema: messages are written as given
+    rows: list[list[Any]] | None = None  # a row channel (protobuf per sample): its fields
     pending: list[tuple[np.ndarray, dict[str, np.ndarray]]] = field(default_factory=list)
-    rows: list[tuple[int, Mapping[str, Any]]] = field(default_factory=list)
+    written: list[tuple[int, Mapping[str, Any]]] = field(default_factory=list)
 
 
 def _constant_schema(value: Any) -> dict[str, Any]:
@@ -136,6 +147,7 @@ class McapWriter:
         self.time_origin_ns = time.time_ns() if time_origin_ns is None else int(time_origin_ns)
         self._file: IO[bytes] = open(self.part_path, "wb")  # noqa: SIM115 - closed in finish/abort
         self._w = Writer(self._file, chunk_size=chunk_bytes, compression=_COMPRESSIONS[compression])
+        self._chunk_bytes = chunk_bytes
         self._w.start(profile=PROFILE, library="rxcomm")
         self._w.add_metadata(ENVELOPE_RECORD, encode_metadata(self._envelope))
         self._w.add_metadata(TIME_RECORD, encode_metadata({"origin_ns": self.time_origin_ns}))
@@ -210,11 +222,41 @@ class McapWriter:
         self._channels[topic] = ch
         self._seq[channel_id] = 0
 
+    def add_row_channel(
+        self,
+        topic: str,
+        schema_title: str,
+        fields: Mapping[str, tuple[str, int]],
+        *,
+        constants: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Register ``topic`` as a row channel: one protobuf message ``schema_title`` per sample with
+        ``fields`` (name -> (dtype ``<f4``/``<f8``/``<i8``, k values; k = 0 a scalar)), the one copy
+        Foxglove plots and readers take (``mcap_format``, row messages). ``constants`` (joint names)
+        go once into the channel metadata. Write it with :meth:`write_arrays`."""
+        if topic in self._channels:
+            raise ValueError(f"channel {topic!r} already added")
+        rows = row_fields(fields)
+        schema_id = self._w.register_schema(
+            name=schema_title, encoding=ROW_ENCODING, data=row_descriptor_set(schema_title, rows)
+        )
+        meta = {ROWS: json.dumps(rows, separators=(",", ":"))}
+        if constants:
+            meta[CONSTANTS] = json.dumps(to_plain(dict(constants)), separators=(",", ":"))
+        channel_id = self._w.register_channel(
+            topic=topic, message_encoding=ROW_ENCODING, schema_id=schema_id, metadata=meta
+        )
+        self._channels[topic] = _Channel(channel_id, tuple(fields), "", None, rows=rows)
+        self._seq[channel_id] = 0
+
     def write(self, topic: str, t_s: float, msg: Mapping[str, Any]) -> None:
         """Write one message at time ``t_s`` (s from the origin, >= 0); numpy values are converted,
         NaN/inf become null. On a channel with a given ``schema`` the message is written as it is
         (its stamps are the caller's: ``time_origin_ns`` + t)."""
         ch = self._channel(topic)
+        if ch.rows is not None:
+            self.write_arrays(topic, np.array([t_s]), {k: np.asarray(v)[None] for k, v in msg.items()})
+            return
         if unknown := set(msg) - set(ch.names):
             raise ValueError(f"{topic}: fields {sorted(unknown)} are not in the channel schema")
         ns = self.time_origin_ns + time_ns(float(t_s))
@@ -235,7 +277,7 @@ class McapWriter:
         head = f'{{"timestamp":{{"sec":{ns // NS},"nsec":{ns % NS}}}' + ch.constants_json
         body = head + ("," + data[1:] if len(data) > 2 else "}")
         if ch.dtypes is not None:
-            ch.rows.append((ns, plain))
+            ch.written.append((ns, plain))
         self._add(ch.id, ns, body.encode())
 
     def write_json(self, topic: str, t_s: float, data: bytes) -> None:
@@ -275,6 +317,9 @@ class McapWriter:
         if not (np.all(np.isfinite(t)) and np.all(t >= 0)):
             raise ValueError(f"{topic}: time stamps must be finite and >= 0 s")
         ns = self.time_origin_ns + np.round(t * NS).astype(np.int64)
+        if ch.rows is not None:
+            self._write_rows(ch, ns, cols)
+            return
         fast = all(
             c.dtype.kind in "iu" or (c.dtype.kind == "f" and np.all(np.isfinite(c))) for c in cols.values()
         )
@@ -301,6 +346,17 @@ class McapWriter:
         tmpl += "}"
         for log_ns, row in zip(ns.tolist(), zip(*flat, strict=True), strict=True):
             self._add(ch.id, log_ns, (tmpl % row).encode())
+
+    def _write_rows(self, ch: _Channel, ns: np.ndarray, cols: Mapping[str, np.ndarray]) -> None:
+        """Messages of a row channel, in chunks of their own (readers view them in one go)."""
+        assert ch.rows is not None
+        if self._done:
+            raise ValueError("writer already finished")
+        add_fixed_messages(
+            self._w, ch.id, ns, encode_rows(ch.rows, cols), self._seq[ch.id], self._chunk_bytes
+        )
+        self._seq[ch.id] += len(ns)
+        self.flush()
 
     def _channel(self, topic: str) -> _Channel:
         try:
@@ -331,11 +387,11 @@ class McapWriter:
             if ch.dtypes is None:
                 continue
             pieces = ch.pending
-            if ch.rows:  # rows from write(): None (null) -> NaN in float columns
-                ns = np.array([r[0] for r in ch.rows], dtype=np.int64)
+            if ch.written:  # rows from write(): None (null) -> NaN in float columns
+                ns = np.array([r[0] for r in ch.written], dtype=np.int64)
                 cols = {}
                 for k, dt in ch.dtypes.items():
-                    vals = [r[1].get(k) for r in ch.rows]
+                    vals = [r[1].get(k) for r in ch.written]
                     cols[k] = np.asarray(finite_or_nan(vals) if dt == "<f8" else vals, dtype=dt)
                 pieces = [*pieces, (ns, cols)]
             if not pieces:
@@ -350,7 +406,7 @@ class McapWriter:
                     encode_block(ns[sl], {k: c[sl] for k, c in cols.items()}),
                     timed=False,
                 )
-            ch.pending, ch.rows, wrote = [], [], True
+            ch.pending, ch.written, wrote = [], [], True
         return wrote
 
     # -- metadata and end

@@ -1,10 +1,11 @@
 """Reading rxcomm MCAP files (format: ``rxcomm.io.mcap_format``): whole, by topic, or what a killed
 writer left.
 
-A finished file is read through its index: a topic with a complete column channel comes from its
-blocks (protobuf, arrays as bytes, no per-sample JSON parsed), any other from its messages. A file without a
-usable index (a ``.part`` of a killed writer, through :func:`recover_mcap`) is read record by record
-in file order, from the per-sample messages, which are never behind the blocks.
+A finished file is read through its index: a row channel (run logs since issue 32, ``mcap_rows``)
+with one np.frombuffer per chunk; a topic with a complete column channel from its blocks (protobuf,
+arrays as bytes, no per-sample JSON parsed); any other from its messages. A file without a usable
+index (a ``.part`` of a killed writer, through :func:`recover_mcap`) is read record by record in file
+order, from the per-sample messages, which are never behind the blocks.
 """
 
 from __future__ import annotations
@@ -12,7 +13,6 @@ from __future__ import annotations
 import contextlib
 import json
 import struct
-import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from io import BytesIO
@@ -22,9 +22,9 @@ from typing import IO, Any
 import numpy as np
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Metadata, Schema
+from mcap.records import Channel, Metadata, Schema
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
@@ -39,6 +39,17 @@ from rxcomm.io.mcap_format import (
     RECOVERED_RECORD,
     TIME_RECORD,
     decode_block,
+)
+from rxcomm.io.mcap_rows import (
+    _MESSAGE_HEAD,
+    _OP_MESSAGE,
+    _RECORD_HEAD,
+    ROWS,
+    chunk_records,
+    chunk_rows,
+    decode_rows,
+    parse_rows,
+    row_dtype,
 )
 
 
@@ -55,6 +66,7 @@ class TopicData:
     t: np.ndarray
     fields: dict[str, np.ndarray]
     constants: dict[str, Any] = field(default_factory=dict)
+    backwards_at_s: float | None = None  # the first log time that went backwards in file order (re-sorted)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.fields[name]
@@ -214,11 +226,16 @@ def _constants(ch: Channel, path: Path) -> dict[str, Any]:
 def _messages_topic(
     ch: Channel, schema: Schema | None, msgs: list[McapMessage], path: Path, origin: int
 ) -> TopicData:
-    """A topic from its per-sample JSON messages."""
+    """A topic from its per-sample messages (JSON, or the protobuf messages of a row channel)."""
+    if ROWS in ch.metadata:
+        return _rows_topic(
+            ch, schema, [m.log_time for m in msgs], b"".join(m.data for m in msgs), path, origin
+        )
     if ch.message_encoding != "json":
         raise InputError(f"message encoding {ch.message_encoding!r} is not json", file=path, field=ch.topic)
     log_ns = np.fromiter((m.log_time for m in msgs), dtype=np.int64, count=len(msgs))
-    if np.any(np.diff(log_ns) < 0):  # file order is write order; present in time order
+    back = _backwards_at(log_ns, origin)
+    if back is not None:  # file order is write order; present in time order
         order = np.argsort(log_ns, kind="stable")
         msgs = [msgs[i] for i in order]
         log_ns = log_ns[order]
@@ -236,7 +253,34 @@ def _messages_topic(
     numbers = _number_fields(schema)
     fields = {k: _column([d.get(k) for d in decoded], path, f"{ch.topic}.{k}", k in numbers) for k in names}
     t = (log_ns - origin) / NS
-    return TopicData(ch.topic, schema.name if schema else "", t, fields, constants)
+    return TopicData(ch.topic, schema.name if schema else "", t, fields, constants, back)
+
+
+def _backwards_at(log_ns: np.ndarray, origin: int) -> float | None:
+    """The first log time (s from the origin) smaller than the one before it, None if in order."""
+    back = np.flatnonzero(np.diff(log_ns) < 0)
+    return float((log_ns[back[0] + 1] - origin) / NS) if back.size else None
+
+
+def _row_layout(ch: Channel, path: Path) -> list[list[Any]]:
+    try:
+        return parse_rows(ch.metadata[ROWS])
+    except ValueError as e:
+        raise InputError(f"row layout {ROWS} unreadable: {e}", file=path, field=ch.topic) from e
+
+
+def _rows_topic(
+    ch: Channel, schema: Schema | None, log_ns: Iterable[int], data: bytes, path: Path, origin: int
+) -> TopicData:
+    """A row channel's topic from its messages' bytes, concatenated in file order: one np.frombuffer."""
+    ns = np.fromiter(log_ns, dtype=np.int64) if not isinstance(log_ns, np.ndarray) else log_ns
+    back = _backwards_at(ns, origin)
+    try:
+        ns, fields = decode_rows(_row_layout(ch, path), ns, data)  # in time order
+    except ValueError as e:
+        raise InputError(str(e), file=path, field=ch.topic) from e
+    title = schema.name if schema else ""
+    return TopicData(ch.topic, title, (ns - origin) / NS, fields, _constants(ch, path), backwards_at_s=back)
 
 
 def _block_topic(
@@ -250,11 +294,12 @@ def _block_topic(
     log_ns = np.concatenate([d[0] for d in decoded]) if decoded else np.zeros(0, dtype=np.int64)
     names = list(decoded[0][1]) if decoded else []
     fields = {k: np.concatenate([d[1][k] for d in decoded]).astype(_native(decoded[0][1][k])) for k in names}
-    if np.any(np.diff(log_ns) < 0):
+    back = _backwards_at(log_ns, origin)
+    if back is not None:
         order = np.argsort(log_ns, kind="stable")
         log_ns, fields = log_ns[order], {k: v[order] for k, v in fields.items()}
     t = (log_ns - origin) / NS
-    return TopicData(ch.topic, schema.name if schema else "", t, fields, _constants(ch, path))
+    return TopicData(ch.topic, schema.name if schema else "", t, fields, _constants(ch, path), back)
 
 
 def _native(a: np.ndarray) -> np.dtype:
@@ -289,46 +334,10 @@ def _summary(f: IO[bytes]) -> tuple[SeekingReader, Summary] | None:
     return reader, summary
 
 
-_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
-_RECORD_HEAD = struct.Struct("<BQ")  # opcode, length
-_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
-_OP_CHUNK, _OP_MESSAGE = 0x06, 0x05
-
-
 def _chunk_messages(f: IO[bytes], offset: int, channel_ids: set[int]) -> list[tuple[int, int, memoryview]]:
-    """(channel id, log time, data) of the messages of ``channel_ids`` in the chunk at ``offset``;
-    an uncompressed chunk (column blocks) is sliced from one read, with no per-record copies.
-    CRC-checked."""
-    f.seek(offset)
-    op, length = _RECORD_HEAD.unpack(f.read(_RECORD_HEAD.size))
-    if op != _OP_CHUNK:
-        raise McapError(f"no chunk record at byte {offset}")
-    body = memoryview(f.read(length))
-    if len(body) != length:
-        raise EndOfFile()
-    _, _, size, crc, clen = _CHUNK_HEAD.unpack_from(body)
-    i = _CHUNK_HEAD.size
-    compression = bytes(body[i : i + clen]).decode()
-    i += clen
-    (n,) = struct.unpack_from("<Q", body, i)
-    records = body[i + 8 : i + 8 + n]
-    if compression:  # zstd/lz4 (per-sample chunks, files of other writers): through the mcap package
-        start, end, size, crc, _ = _CHUNK_HEAD.unpack_from(body)
-        chunk = Chunk(
-            compression=compression,
-            data=bytes(records),
-            message_end_time=end,
-            message_start_time=start,
-            uncompressed_crc=crc,
-            uncompressed_size=size,
-        )
-        return [
-            (r.channel_id, r.log_time, memoryview(r.data))
-            for r in breakup_chunk(chunk, validate_crc=True)
-            if isinstance(r, McapMessage) and r.channel_id in channel_ids
-        ]
-    if crc and zlib.crc32(records) != crc:
-        raise McapError(f"chunk at byte {offset}: CRC mismatch")
+    """(channel id, log time, data) of the messages of ``channel_ids`` in the chunk at ``offset``,
+    sliced from the chunk's records (decompressed and CRC-checked by ``chunk_records``)."""
+    records = chunk_records(f, offset)
     out = []
     j = 0
     while j < len(records):
@@ -364,9 +373,20 @@ def _read_indexed(
         return got
 
     out: dict[str, TopicData] = {}
-    by_blocks = [t for t in want if t in columns]
+    for t in [t for t in want if ROWS in plain[t].metadata]:
+        ch = plain[t]
+        size = row_dtype(_row_layout(ch, path)).itemsize
+        parts = [
+            chunk_rows(f, ci.chunk_start_offset, ch.id, size)
+            for ci in summary.chunk_indexes
+            if ch.id in ci.message_index_offsets or not ci.message_index_offsets
+        ]
+        ns = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, dtype=np.int64)
+        data = b"".join(b for p in parts for b in p[1])
+        out[t] = _rows_topic(ch, summary.schemas.get(ch.schema_id), ns, data, path, origin)
+    by_blocks = [t for t in want if t in columns and t not in out]
     blocks = messages([columns[t].topic for t in by_blocks])
-    rest = [t for t in want if t not in columns]
+    rest = [t for t in want if t not in columns and t not in out]
     for t in by_blocks:
         ch = plain[t]
         td = _block_topic(ch, summary.schemas.get(ch.schema_id), blocks[columns[t].topic], path, origin)

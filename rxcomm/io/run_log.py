@@ -11,6 +11,7 @@ from typing import Any
 from rxcomm.errors import InputError
 from rxcomm.io.mcap_io import TopicData, read_mcap
 from rxcomm.io.validate import check_kind, validate_model
+from rxcomm.io.yaml_io import check_mcap_summary
 from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.run_log import (
     FOXGLOVE_VIEW_TOPICS,
@@ -40,6 +41,7 @@ def read_run_log(path: str | Path, fields: Iterable[str] = tuple(JOINT_FIELDS)) 
     """Read a finished run log MCAP (also a stopped run's ``.mcap.part``) that has the joint `fields`
     (default: all the contract lists); InputError names file and field."""
     path = Path(path)
+    check_mcap_summary(path)
     contents = read_mcap(path, exclude=FOXGLOVE_VIEW_TOPICS)  # the data, not the 3D panel's channels
     env = contents.envelope
     if env.get("kind") != RunLog.KIND:

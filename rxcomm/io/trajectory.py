@@ -8,7 +8,7 @@ stamped in epoch time from the plan's creation) with ``NAME.yaml`` beside it
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -19,7 +19,7 @@ import numpy as np
 from rxcomm.errors import InputError
 from rxcomm.io.mcap_io import McapWriter, field_for, read_mcap
 from rxcomm.io.validate import check_kind, validate_model
-from rxcomm.io.yaml_io import mcap_summary, summary_yaml_path, write_mcap_summary
+from rxcomm.io.yaml_io import check_mcap_summary, mcap_summary, summary_yaml_path, write_mcap_summary
 from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -110,9 +110,11 @@ def save_trajectory_mcap(
     traj: Trajectory,
     envelope: Mapping[str, Any] | Artefact,
     joint_names: Sequence[str] | None = None,
+    views: Callable[[McapWriter, Trajectory], None] | None = None,
 ) -> TrajectorySummary:
     """Write ``traj`` to ``NAME.mcap`` and its summary to ``NAME.yaml``; return the summary.
-    ``joint_names`` go into every message (a channel constant) so Foxglove shows which joint is which.
+    ``joint_names`` go into every message (a channel constant) so Foxglove shows which joint is which;
+    ``views`` (e.g. `rxcomm.execution.plan_views.plan_views`) writes Foxglove's 3D channels beside.
 
     ``envelope`` comes from ``TrajectorySummary.envelope(inputs, settings, summary)`` and must carry
     the summary keys architecture §9 requires. Order: finished ``NAME.mcap.part`` -> hash -> ``NAME.yaml``
@@ -138,6 +140,8 @@ def save_trajectory_mcap(
             fields = {k: field_for(c) for k, c in columns.items()}
             w.add_channel(TOPIC, SCHEMA_TITLE, fields, constants={"joint_names": list(joint_names)})
         w.write_arrays(TOPIC, traj.t, columns, schema_title=SCHEMA_TITLE)
+        if views is not None:
+            views(w, traj)
         w.finish(before_rename=write_yaml)
     return summary[0]
 
@@ -147,8 +151,15 @@ def load_trajectory_mcap(path: str | Path) -> tuple[Trajectory, dict[str, Any]]:
 
     Raises InputError naming the file and field if it is not an rxcomm trajectory.
     """
+    traj, env, _ = load_trajectory_named(path)
+    return traj, env
+
+
+def load_trajectory_named(path: str | Path) -> tuple[Trajectory, dict[str, Any], list[str] | None]:
+    """:func:`load_trajectory_mcap` and the joint names the file carries (None: a file without)."""
     path = Path(path)
-    contents = read_mcap(path)
+    check_mcap_summary(path)
+    contents = read_mcap(path, topics=[TOPIC])  # the samples, not a plan's 3D view channels
     env = contents.envelope
     check_kind(env, TrajectorySummary, file=path, prefix="envelope")
     validate_model(Artefact, env, file=path, prefix="envelope")
@@ -159,8 +170,34 @@ def load_trajectory_mcap(path: str | Path) -> tuple[Trajectory, dict[str, Any]]:
         if name not in td.fields:
             raise InputError("field missing", file=path, field=f"{TOPIC}.{name}")
     extra = {k: v for k, v in td.fields.items() if k not in CORE_FIELDS}
+    if td.backwards_at_s is not None:
+        raise InputError(
+            f"log time goes backwards at t = {td.backwards_at_s:.6f} s: the samples are out of order",
+            file=path,
+            field=f"{TOPIC}.log_time",
+        )
+    check_sample_period(td.t, path)
     try:
         traj = Trajectory(td.t, td["q"], td["qd"], td["qdd"], td["tau_ff"], extra)
     except InvalidTrajectory as e:
         raise InputError(e.reason, file=path, field=f"{TOPIC}.{e.field}") from e
-    return traj, env
+    names = td.constants.get("joint_names")
+    return traj, env, (list(names) if isinstance(names, list) else None)
+
+
+def check_sample_period(t: np.ndarray, path: Path) -> None:
+    """Every planner samples its trajectory at one period (the drive cycle): refuse a hole or a
+    repeated sample (InputError naming the time) instead of interpolating across it."""
+    if t.size < 3:
+        return
+    dt = np.diff(t)
+    period = float(np.median(dt))
+    bad = np.flatnonzero(np.abs(dt - period) > max(1e-6, 1e-3 * period))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(
+            f"log time steps from {t[k]:.6f} s to {t[k + 1]:.6f} s ({dt[k]:.6g} s) where the trajectory "
+            f"is sampled every {period:.6g} s: a hole or a repeated sample",
+            file=path,
+            field=f"{TOPIC}.log_time",
+        )

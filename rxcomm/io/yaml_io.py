@@ -135,3 +135,25 @@ def write_mcap_summary(cls: type[S], data: Mapping[str, Any], mcap_path: str | P
     summary = mcap_summary(cls, data, mcap_path, part)
     write_summary_yaml(mcap_path, summary)
     return summary
+
+
+def check_mcap_summary(mcap_path: str | Path) -> None:
+    """The summary ``NAME.yaml`` beside ``NAME.mcap`` must name this MCAP's sha256: a replaced MCAP
+    (or summary) is refused (InputError, exit 2) instead of read as the artefact the summary
+    describes. Nothing to check without a summary (a stopped run's ``.part``, a recovered log)."""
+    mcap_path = Path(mcap_path)
+    summary = mcap_summary_path(mcap_path)
+    if mcap_path.suffix != ".mcap" or not summary.is_file():
+        return
+    doc = load_yaml(summary)
+    want = doc.get("mcap_sha256") if isinstance(doc, dict) else None
+    if not isinstance(want, str) or doc.get("mcap_file") != mcap_path.name:
+        return
+    got = sha256_file(mcap_path)
+    if got != want:
+        raise InputError(
+            f"its summary {summary.name} was written for an MCAP with sha256 {want[:12]}…, this one has "
+            f"{got[:12]}…: the MCAP or its summary was replaced; re-run the stage that wrote them",
+            file=mcap_path,
+            field="mcap_sha256",
+        )

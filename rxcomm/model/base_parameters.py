@@ -302,11 +302,16 @@ def dynamics_from_artefact(artefact: Dynamics, robot: Robot) -> DynamicParameter
 
 def load_dynamics(path: str | Path, robot: Robot) -> DynamicParameters:
     """Read `dynamics.yaml` (kind rxcomm/Dynamics) into parameters usable by τ(q, q̇, q̈) on `robot`."""
+    from rxcomm.model.artefact_checks import check_consistent, check_same_robot
+
     art = read_yaml_artefact(path, Dynamics)
+    check_same_robot(robot, art.inputs, path)
     try:
-        return dynamics_from_artefact(art, robot)
+        params = dynamics_from_artefact(art, robot)
     except InputError as e:
         raise InputError(e.reason, file=path, field=e.field) from e
+    check_consistent(robot, params, path)
+    return params
 
 
 def dynamics_artefact_fields(

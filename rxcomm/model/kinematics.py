@@ -9,10 +9,14 @@ Orientation. Internally rotation matrices; for reports the paper's Cardan angles
 intrinsic): R = Rx(α)·Ry(β)·Rz(γ), β ∈ [−π/2, π/2] (`cardan_xyz`, `cardan_xyz_matrix`). Not to be
 confused with URDF rpy, which is R = Rz(y)·Ry(p)·Rx(r).
 
-Inverse kinematics. `inverse_kinematics` is a projected Levenberg–Marquardt on the pose error
-(position in m, orientation as log3 in rad scaled by `orientation_length_m`): each step is bounded
-(`max_step_rad`), so the iterate moves continuously from the seed and stays on the seed's branch
-(elbow up/down, wrist flip, shoulder left/right); joint limits are enforced by clipping every step.
+Inverse kinematics. The one IK is `rxcomm.model.ik.solve_ik` (closed form for spherical-wrist arms,
+Newton on the given model, multi-start only without a closed form); `solve_branch_ik` (a branch
+selector) and `inverse_kinematics` (an `IkResult` with errors) are its two front ends. Without a
+closed-form solution near the seed, or for `position_only` / another `frame_id`,
+`inverse_kinematics` runs a projected Levenberg–Marquardt on the pose error (position in m,
+orientation as log3 in rad scaled by `orientation_length_m`): each step is bounded (`max_step_rad`),
+so the iterate moves continuously from the seed and stays on the seed's branch (elbow up/down, wrist
+flip, shoulder left/right); joint limits are enforced by clipping every step.
 Expected failure is a *returned status* (toppra style), not an exception: an unreachable target gives
 `IkResult(converged=False, status=IkStatus.STALLED, ...)` with the remaining error; callers that must
 stop call `result.raise_if_failed()` (→ `InfeasibleError`, exit 3).
@@ -33,6 +37,7 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.errors import InfeasibleError, InputError
+from rxcomm.model.ik import scratch_data, solve_ik
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.path import Branch
 
@@ -188,10 +193,18 @@ def inverse_kinematics(
     Returns an `IkResult`; failure is a status, not an exception (see the module docstring).
     """
     r = _robot_with(robot, errors)
-    model, data = r.model, r.create_data()
+    model, data = r.model, scratch_data(r)
     fid = r.tcp_frame_id if frame_id is None else frame_id
     target = _as_se3(target_pose)
-    q = np.clip(np.asarray(q_seed, dtype=float).copy(), r.q_min, r.q_max)
+    q = np.minimum(np.maximum(np.asarray(q_seed, dtype=float), r.q_min), r.q_max)  # np.clip: 10 µs
+    if fid == r.tcp_frame_id and not position_only:  # the one IK: Newton from the seed, else closed form
+        sol = solve_ik(r, target, data, seed=q)
+        if sol is not None:
+            ep, eo = _pose_error(frame_placement(r, data, sol, fid), target)
+            pe, oe = float(np.linalg.norm(ep)), float(np.linalg.norm(eo))
+            if pe <= position_tol_m and oe <= orientation_tol_rad:
+                return IkResult(sol, True, pe, oe, 0, IkStatus.CONVERGED)
+            q = sol  # polished below
     w = np.array([1.0, 1.0, 1.0] + [orientation_length_m] * 3)
     rows = slice(0, 3) if position_only else slice(0, 6)
 
@@ -344,9 +357,6 @@ def tcp_sigma_min(
     return float(np.linalg.svd(jac, compute_uv=False)[-1])
 
 
-NEWTON_TOL = 1e-11  # ‖log6 error‖ (m, rad) accepted as a solution
-
-
 class BranchSelector:
     """Tests a configuration against a `Branch` and measures its distance to singularities.
 
@@ -385,44 +395,6 @@ class BranchSelector:
         return tcp_sigma_min(self.robot, q, data)
 
 
-def newton_pose(robot: Robot, data: pin.Data, target: pin.SE3, q: np.ndarray, iters: int = 12):
-    """Newton on the SE(3) error in the TCP frame from `q`, in the caller's scratch `data`; returns
-    (q, error norm). Fast and branch-keeping (steps ≤ 0.5 rad), for continuation and multi-start."""
-    m, fid = robot.model, robot.tcp_frame_id
-    err = np.inf
-    for _ in range(iters):
-        pin.framesForwardKinematics(m, data, q)
-        e = pin.log6(data.oMf[fid].actInv(target)).vector
-        err = float(np.linalg.norm(e))
-        if err < NEWTON_TOL:
-            break
-        jac = pin.computeFrameJacobian(m, data, q, fid, pin.LOCAL)
-        try:
-            dq = np.linalg.solve(jac, e)
-        except np.linalg.LinAlgError:
-            return q, np.inf
-        step = np.max(np.abs(dq))
-        if step > 0.5:  # keep the iterate near its seed (and on its branch)
-            dq *= 0.5 / step
-        q = q + dq
-    return q, err
-
-
-def within_limits(robot: Robot, q: np.ndarray) -> bool:
-    return bool(np.all(q >= robot.q_min - 1e-9) and np.all(q <= robot.q_max + 1e-9))
-
-
-def wrap_redundant(robot: Robot, q: np.ndarray) -> np.ndarray:
-    """Shift joints with more than ±180° of travel by 2π towards 0 where the limits allow."""
-    q = q.copy()
-    for j in range(robot.n):
-        for shift in (-2 * np.pi, 2 * np.pi):
-            cand = q[j] + shift
-            if abs(cand) < abs(q[j]) and robot.q_min[j] <= cand <= robot.q_max[j]:
-                q[j] = cand
-    return q
-
-
 def solve_branch_ik(
     robot: Robot,
     data: pin.Data,
@@ -432,37 +404,11 @@ def solve_branch_ik(
     near: np.ndarray | None = None,
     n_starts: int = 64,
 ) -> np.ndarray | None:
-    """The IK: a solution of `target` (TCP, base frame) on the selector's branch within the joint
-    limits, or None. Scratch `data` is the caller's, reused across calls.
-
-    With `seed`: Newton from it only (fast, for neighbouring poses). Otherwise deterministic
-    multi-start; among the solutions found, the one nearest `near` (default: smallest |q|).
-    """
-    if seed is not None:
-        q, err = newton_pose(robot, data, target, np.asarray(seed, dtype=float))
-        if err < NEWTON_TOL * 100 and within_limits(robot, q) and selector.matches(data, q):
-            return q
-        return None
-    rng = np.random.default_rng(0)
-    lo, hi = robot.q_min, robot.q_max
-    p = target.translation
-    q1 = np.arctan2(p[1], p[0])
-    found: list[np.ndarray] = []
-    for k in range(n_starts):
-        q0 = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi))
-        if k % 2 == 0:  # half the starts face the target
-            q0[0] = q1 if k % 4 == 0 else q1 + np.pi
-            q0[0] = (q0[0] + np.pi) % (2 * np.pi) - np.pi
-        q, err = newton_pose(robot, data, target, q0, iters=40)
-        if err > NEWTON_TOL * 100:
-            continue
-        q = wrap_redundant(robot, q)
-        if within_limits(robot, q) and selector.matches(data, q):
-            found.append(q)
-    if not found:
-        return None
-    ref = np.zeros(robot.n) if near is None else np.asarray(near, dtype=float)
-    return min(found, key=lambda q: float(np.sum((q - ref) ** 2)))
+    """The IK on the selector's branch (`rxcomm.model.ik.solve_ik`): a solution of `target` (TCP, base
+    frame) within the joint limits, or None. With `seed`: Newton from it, else the closed form's
+    solution nearest it; without: the solution nearest `near` (default: smallest |q|). `n_starts`
+    serves the numeric fallback of an arm without a closed form."""
+    return solve_ik(robot, target, data, seed=seed, near=near, accept=selector.matches, n_starts=n_starts)
 
 
 def solve_pose_ik(

@@ -24,14 +24,8 @@ import pinocchio as pin
 from scipy.interpolate import CubicSpline
 
 from rxcomm.errors import InfeasibleError
-from rxcomm.model.kinematics import (
-    NEWTON_TOL,
-    ORIENTATION_LENGTH_M,
-    BranchSelector,
-    newton_pose,
-    solve_branch_ik,
-    within_limits,
-)
+from rxcomm.model.ik import NEWTON_TOL, newton, within_limits
+from rxcomm.model.kinematics import ORIENTATION_LENGTH_M, BranchSelector, solve_branch_ik
 from rxcomm.model.robot import Robot
 from rxcomm.planning.paths import CartesianPath
 from rxcomm.schemas.path import Branch
@@ -155,7 +149,7 @@ def solve_path_ik(
         except np.linalg.LinAlgError:
             qd = np.zeros(robot.n)
         target = path.poses([s + h])[0]
-        q_new, err = newton_pose(robot, data, target, q + qd * h)
+        q_new, err = newton(robot, data, target, q + qd * h)
         jump = float(np.max(np.abs(q_new - q)))
         if err > NEWTON_TOL * 100 or jump > max_step_rad:
             if h > 1e-6:

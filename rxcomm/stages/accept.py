@@ -50,6 +50,46 @@ def print_verdict(summary: dict, rows) -> None:
         )
 
 
+SAME_TASK_RAD = 0.05  # end states of one task in both states: the calibration moves them by mrad
+
+
+def check_same_task(f_files: list[Path], c_files: list[Path]) -> None:
+    """Each factory / commissioned pair executed the same task: two different logs whose first and
+    last setpoints agree within ``SAME_TASK_RAD`` per joint (the calibration and the compliance
+    compensation move them by milliradians; another task by far more). InputError otherwise."""
+    from rxcomm.io.run_log import read_run_log
+    from rxcomm.schemas.plain import sha256_file
+
+    for i, (f, c) in enumerate(zip(f_files, c_files, strict=True)):
+        if sha256_file(f) == sha256_file(c):
+            raise InputError(
+                f"factory log {i + 1} is the same run log as commissioned log {i + 1} ({f.name}): compare "
+                "the factory run with the commissioned run of the same task",
+                file=c,
+                field="commissioned-log",
+            )
+        mcaps = [p.with_name(read_yaml_artefact(p, RunLog).mcap_file) for p in (f, c)]
+        if not all(m.is_file() for m in mcaps):
+            console.err.print(
+                f"warning: pair {i + 1}: end states not compared (no MCAP beside {f.name} / {c.name})"
+            )
+            continue
+        ends = []
+        for p, mcap in zip((f, c), mcaps, strict=True):
+            q = read_run_log(mcap, fields=("q_demand",)).joints["q_demand"]
+            if len(q) == 0:
+                raise InputError("the run log holds no setpoints", file=p, field="n_records")
+            ends.append((q[0], q[-1]))
+        gap = max(float(abs(a - b).max()) for a, b in zip(ends[0], ends[1], strict=True))
+        if gap > SAME_TASK_RAD:
+            raise InputError(
+                f"factory log {f.name} and commissioned log {c.name} did not execute the same task: their "
+                f"start or end setpoints differ by up to {gap:.3f} rad (> {SAME_TASK_RAD} rad)",
+                file=c,
+                field="commissioned-log",
+            )
+
+
 @console.stage_command
 def command(
     thresholds: Annotated[
@@ -106,6 +146,7 @@ def command(
             "same moves in both states",
             field="commissioned-log",
         )
+    check_same_task(f_files, c_files)
     spec = read_yaml_model(thresholds, AcceptanceThresholds)
     f_runs = [read_yaml_artefact(p, RunLog).summary for p in f_files]
     c_runs = [read_yaml_artefact(p, RunLog).summary for p in c_files]

@@ -216,8 +216,13 @@ def command(
 
     output = Path(output)
     check_outputs(
-        {"output": output, "urdf-out": urdf_out, "mdh-out": mdh_out},
-        {"measurements": measurements, "cell": cell, **robot_files(robot_dir)},
+        {
+            "output": output,
+            "urdf-out": urdf_out,
+            "mdh-out": mdh_out,
+            "mdh-out CSV": Path(mdh_out).with_suffix(".csv") if mdh_out is not None else None,
+        },
+        {"measurements": measurements, "dynamics": dynamics, "cell": cell, **robot_files(robot_dir)},
     )
     robot = load_robot(robot_dir)
     ms = read_measurements(measurements, robot)

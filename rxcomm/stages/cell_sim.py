@@ -19,7 +19,7 @@ import typer
 
 from rxcomm import console
 from rxcomm.errors import InputError
-from rxcomm.options import parse_numbers, radians_text
+from rxcomm.options import Plant, parse_numbers, radians_text
 
 if TYPE_CHECKING:  # the cell (pinocchio, the plant) is imported where used: `--help` stays fast
     from rxcomm.cell.server import CellServer
@@ -60,6 +60,7 @@ def command(
         bool,
         typer.Option(help="Allow listening on a non-loopback address (anyone there can move the robot)."),
     ] = False,
+    plant: Plant = "own",
 ) -> None:
     """Serve the simulated robot cell (drives, true dynamics, tracker) as a Modbus TCP drive gateway."""
     q0 = console.checked(radians_text, q0, q0_deg, "start")
@@ -73,6 +74,7 @@ def command(
         seed=seed,
         duration_s=duration_s,
         allow_remote=allow_remote,
+        plant=plant,
     )
 
 
@@ -88,13 +90,14 @@ def run(
     seed: int | None = None,
     duration_s: float | None = None,
     allow_remote: bool = False,
+    plant: str = "own",
     on_ready: Callable[[dict[str, object]], None] | None = None,
     stop: threading.Event | None = None,
 ) -> dict[str, object]:
     """The stage as a function: serve until `stop` is set, Ctrl-C/SIGTERM, or `duration_s`; returns the
     facts printed at start-up, which `on_ready` also receives once the server listens."""
     from rxcomm.cell.server import CellServer, ServerConfig, TimeMode
-    from rxcomm.cell.sim import SimSettings, SimulatedCell
+    from rxcomm.cell.sim import SimSettings, cell_class
     from rxcomm.cell.truth import load_truth
     from rxcomm.gateway.net import is_loopback
 
@@ -102,12 +105,13 @@ def run(
         raise InputError(f"{host} is not a loopback address: pass --allow-remote to serve it", field="--host")
     if duration_s is not None and not duration_s > 0:
         raise InputError("must be positive", field="--duration-s")
+    backend_class = cell_class(plant)  # an unknown plant fails before the truth is read
     sim_truth = load_truth(truth, cell)
     settings = SimSettings(
         q0_rad=None if q0 is None else tuple(parse_numbers(q0, sim_truth.robot.n, "--start", "rad")),
         seed=seed,
     )
-    backend = SimulatedCell(sim_truth, settings)
+    backend = backend_class(sim_truth, settings)
     config = ServerConfig(
         host=host,
         port=port,
@@ -150,6 +154,8 @@ def _facts(server: CellServer, cell: SimulatedCell) -> dict[str, object]:
         "address": f"{server.host}:{server.port}",
         "time_mode": str(server.config.time_mode),
         "robot": t.robot.name,
+        "plant": cell.plant_name,
+        "plant_notes": list(cell.plant_notes),
         "truth": str(t.path),
         "cell": None if t.cell_path is None else str(t.cell_path),
         "n_axes": cell.n_axes,
@@ -171,6 +177,9 @@ def _print_facts(f: dict[str, object]) -> None:
     out = console.out
     out.print(f"[bold]simulated cell[/] listening on {f['address']}  (Modbus TCP, register map v1)")
     out.print(f"  robot        {f['robot']}  (truth {f['truth']})")
+    out.print(f"  plant        {f['plant']}")
+    for note in f["plant_notes"]:  # what this plant cannot model faithfully, never dropped silently
+        out.print(f"    not faithful: {note}")
     out.print(f"  tracker view {f['cell'] or 'unrestricted (no cell file)'}")
     out.print(f"  time         {f['time_mode']}, drive cycle {f['cycle_us']} µs")
     out.print(

@@ -260,7 +260,9 @@ def _write(
     output.parent.mkdir(parents=True, exist_ok=True)
     traj_path.parent.mkdir(parents=True, exist_ok=True)
     env = TrajectorySummary.envelope(inputs, opts, traj_summary)
-    save_trajectory_mcap(traj_path, samples, env, robot.joint_names)
+    from rxcomm.execution.plan_views import plan_views
+
+    save_trajectory_mcap(traj_path, samples, env, robot.joint_names, plan_views(robot))
     summary = design_summary(design)
     art = excitation_artefact(
         robot, design, opts.periods, Excitation.envelope(inputs, opts, summary), traj_path, output

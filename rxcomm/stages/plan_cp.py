@@ -24,7 +24,16 @@ from rxcomm.errors import InputError
 from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs, trajectory_output
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_artefact, read_yaml_model
-from rxcomm.options import TRAJECTORY_OUTPUT, IdentifiedDynamics, RobotDir, TimeWeight, Timing, parse_numbers
+from rxcomm.options import (
+    TRAJECTORY_OUTPUT,
+    AllowInconsistent,
+    IdentifiedDynamics,
+    OtherRobot,
+    RobotDir,
+    TimeWeight,
+    Timing,
+    parse_numbers,
+)
 from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -235,15 +244,19 @@ def command(
     cell: CellOption = None,
     iso_rpy_deg: IsoRpyOption = "180,0,0",
     timing: TimingOption = "optimal",
+    other_robot: OtherRobot = False,
+    allow_inconsistent: AllowInconsistent = False,
 ) -> dict[str, object]:
     """Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`."""
     from rxcomm.calibration.loading import load_calibrated_robot
+    from rxcomm.model.artefact_checks import accept_artefacts
     from rxcomm.model.catalogue import catalogue_limits
     from rxcomm.model.robot import load_robot, robot_files
     from rxcomm.planning.cp import CpSettings
     from rxcomm.planning.paths import load_path
     from rxcomm.planning.timing import PlanDynamics
 
+    accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     if iso9283 is not None:
         return iso_paths(robot_dir, iso9283, cell=cell, rpy_deg=iso_rpy_deg)
     t_all = time.perf_counter()
@@ -304,6 +317,7 @@ def _write(
     robot, plan, cpath, catalogue, inputs, settings, output: Path, t_all: float, plot: bool, name: str
 ):
     """The trajectory MCAP + YAML (and with `plot` the PNG); returns the summary."""
+    from rxcomm.execution.plan_views import plan_views
     from rxcomm.io.trajectory import save_trajectory_mcap
     from rxcomm.planning.catalogue_timing import filtered_path_deviation_m
 
@@ -315,7 +329,7 @@ def _write(
     summary["seconds"] = time.perf_counter() - t_all
     env = TrajectorySummary.envelope(inputs, settings, summary)
     output.parent.mkdir(parents=True, exist_ok=True)
-    save_trajectory_mcap(output, trajectory_of(plan), env, robot.joint_names)
+    save_trajectory_mcap(output, trajectory_of(plan), env, robot.joint_names, plan_views(robot))
     console.summary_table(f"plan-cp → {output}", summary)
     _print_active(plan)
     if plot:

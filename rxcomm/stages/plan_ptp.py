@@ -22,7 +22,9 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.options import (
     POSE_PREFIX,
     TRAJECTORY_OUTPUT,
+    AllowInconsistent,
     IdentifiedDynamics,
+    OtherRobot,
     RobotDir,
     TimeWeight,
     Timing,
@@ -215,11 +217,15 @@ def command(
     fallback: FallbackOption = False,
     plot: PlotOption = False,
     timing: TimingOption = "optimal",
+    other_robot: OtherRobot = False,
+    allow_inconsistent: AllowInconsistent = False,
 ) -> dict[str, object]:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
+    from rxcomm.model.artefact_checks import accept_artefacts
     from rxcomm.model.robot import robot_files
     from rxcomm.planning.ptp_problem import PtpOptions
 
+    accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     start, goal = state_text(start, start_deg, "start"), state_text(goal, goal_deg, "goal")
     t_all, output = time.perf_counter(), trajectory_output(output)
     check_outputs(
@@ -293,13 +299,18 @@ class _Target:
     settings: dict[str, object]
     t_all: float  # time.perf_counter() when the stage started
 
-    def save(self, traj, summary: dict[str, object], joint_names=None, **settings: object) -> None:
-        """The MCAP and its summary YAML; `settings` adds to the recorded settings."""
+    def save(
+        self, traj, summary: dict[str, object], joint_names=None, robot=None, **settings: object
+    ) -> None:
+        """The MCAP and its summary YAML (with `robot`, the plan's 3D view); `settings` adds to the
+        recorded settings."""
+        from rxcomm.execution.plan_views import plan_views
         from rxcomm.io.trajectory import save_trajectory_mcap
 
         env = TrajectorySummary.envelope(self.inputs, {**self.settings, **settings}, summary)
         self.output.parent.mkdir(parents=True, exist_ok=True)
-        save_trajectory_mcap(self.output, traj, env, joint_names)
+        views = None if robot is None else plan_views(robot)
+        save_trajectory_mcap(self.output, traj, env, joint_names, views)
 
 
 def _write_optimal(robot, dyn, q_start, q_goal, options, target: _Target, *, fallback: bool, plot: bool):
@@ -316,7 +327,7 @@ def _write_optimal(robot, dyn, q_start, q_goal, options, target: _Target, *, fal
             raise
     summary = summary_of(result, q_start, q_goal, options.margin)
     summary["seconds"] = time.perf_counter() - target.t_all
-    target.save(result.trajectory, summary, robot.joint_names)
+    target.save(result.trajectory, summary, robot.joint_names, robot)
     if plot:
         limits = PtpLimits.from_robot(robot, acceleration=options.acceleration_limits)
         title = f"PtP {result.duration_s:.3f} s (k1 = {options.k1:g}, k2 = {options.k2_per_nm2:g}): "
@@ -347,7 +358,7 @@ def _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, target: _Target) ->
         **{f"max_{k}_ratio": v for k, v in report.max_by_limit().items()},
         "seconds": time.perf_counter() - target.t_all,
     }
-    target.save(traj, summary, catalogue=catalogue.as_dict())
+    target.save(traj, summary, robot.joint_names, robot, catalogue=catalogue.as_dict())
     console.summary_table(f"plan-ptp (catalogue timing) → {target.output}", summary)
     return summary
 
@@ -358,7 +369,7 @@ def _write_fallback(robot, dyn, q_start, q_goal, options, target: _Target, error
     traj, report = kinematic_fallback(robot, dyn, q_start, q_goal, options)
     summary = motion_summary(traj.duration_s, error.solution.solve_seconds, report, q_start, q_goal)
     summary |= {"solver_status": error.status, "fallback": True}
-    target.save(traj, summary, robot.joint_names)
+    target.save(traj, summary, robot.joint_names, robot)
     console.err.print(
         f"[yellow]fallback[/]: wrote the kinematic (ruckig) profile, {traj.duration_s:.3f} s, "
         f"max limit ratio {report.max_ratio:.3f}, to {target.output}"

@@ -17,8 +17,11 @@ from rxcomm import console
 
 
 def execute(part: Path, output: Path | None = None) -> Path:
-    from rxcomm.execution.log import recover_run_log  # here, not at the top: `--help` stays fast
+    from rxcomm.execution.log import recover_run_log, recovered_path  # here: `--help` stays fast
+    from rxcomm.io.files import check_outputs
 
+    output = Path(output) if output is not None else recovered_path(part)
+    check_outputs({"output": output}, {"part": part})
     rec = recover_run_log(part, output)
     console.err.print(f"warning: {rec.warning()}")
     console.out.print(f"recovered run log → {rec.written}")

@@ -31,6 +31,7 @@ from rxcomm.reporting.document import (
     VerdictRow,
     missing_section,
 )
+from rxcomm.reporting.exports import exports_section
 from rxcomm.reporting.identification import dynamics_section, excitation_section
 from rxcomm.reporting.iso9283 import iso9283_sections
 from rxcomm.reporting.runs import (
@@ -157,6 +158,8 @@ def build_report(
         f"{Path(n).stem}.png" for n in runs if n != "run-ff.yaml" and (build / n).with_suffix(".png").exists()
     ]
     sections.append(runs_section(runs, run_images))
+    parity = build / "exports" / "parity.yaml"
+    sections.append(exports_section(load_yaml(parity) if parity.is_file() else None))
     keys = {"calibration": "calibration.yaml", "dynamics": "dynamics.yaml", "excitation": "excitation.yaml"}
     keys |= {"cp": "cp.yaml", "ptp": "ptp.yaml", "run-ff": "run-ff.yaml", "run-noff": "run-noff.yaml"}
     summaries = {k: (a.get(name) or {}).get("summary") for k, name in keys.items()}
@@ -181,6 +184,8 @@ def build_report(
     )
     if missing:
         preamble += f"\n\nNot produced in this build: {', '.join(missing)}."
+    if stale := stale_artefacts(build):
+        preamble += "\n\n**Built on replaced inputs** (re-run `make commission`): " + "; ".join(stale) + "."
     report = Report(
         "rxcomm commissioning report",
         preamble,
@@ -193,6 +198,37 @@ def build_report(
         acceptance_sections=[*iso, energy_section(runs)],
     )
     return report, missing
+
+
+def stale_artefacts(build: Path) -> list[str]:
+    """Artefacts of ``build`` made from a file of ``build`` that has been replaced since: an input
+    named NAME in the envelope whose NAME.yaml here has another sha256, and a summary whose MCAP is
+    not the one it was written for."""
+    from rxcomm.schemas.plain import sha256_file
+
+    hashes: dict[str, str] = {}
+
+    def sha(path: Path) -> str:
+        if path.name not in hashes:
+            hashes[path.name] = sha256_file(path)
+        return hashes[path.name]
+
+    out = []
+    for path in sorted(build.glob("*.yaml")):
+        try:
+            doc = load_yaml(path)
+        except InputError:
+            continue
+        if not isinstance(doc, dict):
+            continue
+        for name, made in (doc.get("inputs") or {}).items():
+            source = build / f"{name}.yaml"
+            if isinstance(made, str) and source.is_file() and source != path and sha(source) != made:
+                out.append(f"{path.name} was made from an older {source.name}")
+        mcap = doc.get("mcap_file")
+        if isinstance(mcap, str) and (build / mcap).is_file() and sha(build / mcap) != doc.get("mcap_sha256"):
+            out.append(f"{mcap} is not the MCAP its summary {path.name} was written for")
+    return out
 
 
 def _image_loader(build: Path):

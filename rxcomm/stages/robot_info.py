@@ -45,8 +45,7 @@ def stretched_pose(robot: Robot) -> np.ndarray:
 
 
 def robot_facts(robot: Robot) -> dict[str, object]:
-    """The figures `robot-info` prints, as a flat mapping (SI units)."""
-    from rxcomm.model.catalogue import catalogue_limits
+    """The figures `robot-info` prints before the catalogue limits, as a flat mapping (SI units)."""
     from rxcomm.model.dynamics import RobotDynamics, prior_parameters
     from rxcomm.model.geometric_errors import identifiable_count
 
@@ -70,7 +69,16 @@ def robot_facts(robot: Robot) -> dict[str, object]:
         ),
         "identifiable_geometric_tcp_position_only": identifiable_count(robot, position_only=True),
     }
-    if robot.drives.rated_payload is not None:  # what a generic controller may use (model.catalogue)
+    return facts
+
+
+def catalogue_facts(robot: Robot) -> dict[str, object]:
+    """The catalogue limits a generic controller may use at the rated payload (model.catalogue); {}
+    without a rated payload. InfeasibleError (exit 3) for a robot too weak to hold its payload."""
+    from rxcomm.model.catalogue import catalogue_limits
+
+    facts: dict[str, object] = {}
+    if robot.drives.rated_payload is not None:
         cat = catalogue_limits(robot)
         facts |= {
             "rated_payload_kg": cat.payload_kg,
@@ -127,6 +135,7 @@ def command(robot_dir: RobotDir) -> dict[str, object]:
         f"measurement, {facts['identifiable_geometric_position_only']} with the position of an off-axis "
         f"point ({facts['identifiable_geometric_tcp_position_only']} with the TCP position), of 48 modelled"
     )
+    facts |= catalogue_facts(robot)  # after the figures: a robot too weak for its payload is exit 3
     if "catalogue_velocity_rad_s" in facts:
         out.print(
             f"  catalogue limits (rated payload {facts['rated_payload_kg']:g} kg, worst case of the prior "

@@ -18,11 +18,12 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from rxcomm import console, plotting
-from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
+from rxcomm.errors import GatewayError, InputError, LocatedError, RxcommError, SafetyStop
 from rxcomm.io.files import check_outputs
+from rxcomm.io.plan_files import plan_kind
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.options import RobotDir
+from rxcomm.options import AllowInconsistent, OtherRobot, Plant, RobotDir, embedded_plant
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -37,22 +38,19 @@ if TYPE_CHECKING:
 
 
 # --- inputs ---------------------------------------------------------------------------------------
-def plan_kind(plan: Path) -> str:
-    """'trajectory' for NAME.mcap, 'poses' for a YAML pose list."""
-    suffix = plan.suffix.lower()
-    if suffix == ".mcap":
-        return "trajectory"
-    if suffix in (".yaml", ".yml"):
-        return "poses"
-    raise InputError("PLAN must be a trajectory NAME.mcap or a pose list NAME.yaml", file=plan)
-
-
-def load_model(robot: Robot, dynamics: Path | None) -> tuple[DynamicParameters, str]:
+def load_model(
+    robot: Robot, dynamics: Path | None, plan: Path | None = None
+) -> tuple[DynamicParameters, str]:
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.dynamics import prior_parameters
 
     if dynamics is not None:
-        return load_dynamics(dynamics, robot), "identified"
+        params = load_dynamics(dynamics, robot)
+        from rxcomm.execution.guards import other_model_warning
+
+        if plan is not None and (warning := other_model_warning(plan, dynamics)):
+            console.err.print(f"warning: {warning}")
+        return params, "identified"
     return prior_parameters(robot), "prior"
 
 
@@ -73,7 +71,7 @@ def check_joint_names(cfg: Configs, path: Path, robot: Robot) -> Configs:
 # --- the cell -------------------------------------------------------------------------------------
 @contextlib.contextmanager
 def connect(
-    gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool
+    gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool, plant: str
 ) -> Iterator[tuple[GatewayClient, Any]]:
     """A connected client and the embedded cell's server (None: a gateway); stops an embedded cell on exit."""
     from rxcomm.execution.session import REQUEST_TIMEOUT_S, VIRTUAL_CELL_REQUEST_TIMEOUT_S
@@ -92,10 +90,11 @@ def connect(
             raise InputError(
                 "no truth file for the embedded simulated cell (pass --truth or --gateway)", file=truth
             )
-        server = start_embedded_cell(truth, port=0, realtime=realtime)
+        server = start_embedded_cell(truth, port=0, realtime=realtime, plant=plant)
         host, port = server.host, server.port
         pacing = "realtime" if realtime else "virtual time"
-        console.err.print(f"embedded simulated cell on {host}:{port} ({pacing}, truth {truth})")
+        notes = "".join(f"\n  not faithful: {n}" for n in server.core.backend.plant_notes)
+        console.err.print(f"embedded simulated cell on {host}:{port} ({pacing}, {truth}, {plant}){notes}")
     else:
         host, port = parse_gateway_address(gateway, allow_remote)
     try:
@@ -112,19 +111,6 @@ def connect(
             server.stop()
 
 
-def _progress() -> tuple[Callable[[str, float], None], Callable[[], None]]:
-    bar = console.progress()
-    bar.start()
-    tasks: dict[str, Any] = {}
-
-    def update(what: str, fraction: float) -> None:
-        if what not in tasks:
-            tasks[what] = bar.add_task(what, total=1000)
-        bar.update(tasks[what], completed=int(1000 * fraction))
-
-    return update, bar.stop
-
-
 def _with_context(error: RxcommError, note: str, written: Path | None) -> RxcommError:
     """The stop, one line, with what became of the drives and where the log is."""
     extra = "; ".join(p for p in (note, f"log kept in {written}" if written else "") if p)
@@ -133,6 +119,8 @@ def _with_context(error: RxcommError, note: str, written: Path | None) -> Rxcomm
         return GatewayError(text)
     if isinstance(error, SafetyStop):
         return SafetyStop(text)
+    if isinstance(error, LocatedError) and extra:
+        return type(error)(f"{error.reason}; {extra}", file=error.file, field=error.field)
     return error
 
 
@@ -189,25 +177,23 @@ def execute(
     plot: bool = False,
     compare: Path | None = None,
     show_progress: bool = True,
+    plant: str = "own",
 ) -> dict[str, Any]:
     """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
     from rxcomm.execution.campaign import CampaignSettings
+    from rxcomm.execution.guards import check_output_kind, check_run_options, sigterm_as_interrupt
     from rxcomm.execution.session import VIRTUAL_CELL_WATCHDOG_MS, RunSettings, StreamSettings
     from rxcomm.io.mcap_io import read_mcap_envelope
     from rxcomm.model.robot import load_robot, robot_files
 
     plan, output = Path(plan), Path(output)
+    check_run_options(interpolation_ratio, speed)  # exit 2 before anything is read
     kind = plan_kind(plan)
     # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
     cfg = load_poses(plan) if kind == "poses" else None
-    if kind == "trajectory":
+    if kind == "trajectory" and plan.suffix.lower() == ".mcap":
         check_kind(read_mcap_envelope(plan), TrajectorySummary, file=plan, prefix="envelope")
-    want = ".mcap" if kind == "trajectory" else ".yaml"
-    if output.suffix != want:
-        what = (
-            "a run log NAME.mcap (NAME.yaml beside it)" if kind == "trajectory" else "measurements NAME.yaml"
-        )
-        raise InputError(f"a {kind} plan writes {what}", file=output, field="output")
+    check_output_kind(kind, output)
     if compare is not None and not plot:
         raise InputError("--compare draws into the --plot figure: pass --plot too", field="compare")
     embedded_truth = None if gateway is not None else (truth or Path(robot_dir) / "truth.yaml")
@@ -222,17 +208,18 @@ def execute(
         },
     )
     robot = load_robot(robot_dir)
-    params, model_name = load_model(robot, dynamics)
+    params, model_name = load_model(robot, dynamics, plan)
     inputs: dict[str, Path] = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
     if dynamics is not None:
         inputs["dynamics"] = Path(dynamics)
     virtual = gateway is None and not realtime  # the embedded cell's clock waits for the master
     lease = {"watchdog_ms": VIRTUAL_CELL_WATCHDOG_MS} if virtual else {}
     stream = StreamSettings(interpolation_ratio=interpolation_ratio, **lease)
-    update, stop_bar = _progress() if show_progress else (None, lambda: None)
+    update, stop_bar = console.named_progress() if show_progress else (None, lambda: None)
+    restore_sigterm = sigterm_as_interrupt()
     job = _Job(
         plan, output, robot, params, model_name, inputs,
-        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime), update,
+        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant), update,
     )  # fmt: skip
     try:
         if cfg is None:
@@ -249,6 +236,7 @@ def execute(
         )
         return _campaign(job, cfg, settings_c, stop_bar)
     finally:
+        restore_sigterm()
         stop_bar()
 
 
@@ -263,23 +251,26 @@ def _trajectory(
     """A trajectory plan: prepared and limit-checked, run with the log written while the robot moves
     (a killed run leaves NAME.mcap.part), the log finished, printed and plotted."""
     from rxcomm.acceptance.alignment import CORRELATE_S
+    from rxcomm.execution.guards import deferred_termination
     from rxcomm.execution.log import RunLogWriter
     from rxcomm.execution.plan import prepare_plan
     from rxcomm.execution.trajectory_run import execute_trajectory
-    from rxcomm.io.trajectory import load_trajectory_mcap
+    from rxcomm.io.plan_files import load_plan_file
 
     robot, params = job.robot, job.params
-    traj, _ = load_trajectory_mcap(job.plan)
+    plan = load_plan_file(job.plan, robot.joint_names)
     cycle_s = robot.drives.cycle_s
     prepared = prepare_plan(
         robot,
-        traj,
+        plan.trajectory,
         params,
         cycle_s,
         feedforward=settings.feedforward,
         limit_tolerance=settings.limit_tolerance,
+        what=f"plan {job.plan.name}",
+        sample_label=plan.label,
     )
-    with job.connect() as (client, server):
+    with deferred_termination(), job.connect() as (client, server):
         embedded = server is not None
         sink = RunLogWriter(
             job.output,
@@ -298,7 +289,14 @@ def _trajectory(
         tracker = functools.partial(record_tracker, server, robot) if embedded else None
         result = execute_trajectory(client, robot, prepared, params, settings, sink, job.progress, tracker)
     stop_bar()
-    written, summary = sink.close(result)
+    try:
+        written, summary = sink.close(result)
+    except OSError as e:  # a full disk: the stop is controlled, the log is what reached the disk
+        raise _with_context(
+            result.error or console.os_error(e),
+            result.stop_note,
+            sink.part_path if sink.part_path.exists() else None,
+        ) from e
     _print_run(summary, written, robot)
     if plot:
         figure = plot_lags(written, compare, job.output.with_suffix(".png"), robot)
@@ -314,11 +312,12 @@ def _campaign(
     """A pose list: checked before touching the cell, measured pose by pose (each on disk as it is
     taken), the measurements written."""
     from rxcomm.execution.campaign import CampaignLog, check_poses, execute_campaign
+    from rxcomm.execution.guards import deferred_termination
 
     robot = job.robot
     check_joint_names(cfg, job.plan, robot)
     check_poses(robot, [p.q_rad for p in cfg.poses])  # refused before touching the cell
-    with job.connect() as (client, server):
+    with deferred_termination(), job.connect() as (client, server):
         env_settings = {
             **settings.model_dump(mode="json"),
             "model": job.model_name,
@@ -328,7 +327,12 @@ def _campaign(
         poses = [p.q_rad for p in cfg.poses]
         camp = execute_campaign(client, robot, poses, job.params, settings, log, job.progress)
     stop_bar()
-    written, summary = log.write(camp)
+    try:
+        written, summary = log.write(camp)
+    except OSError as e:  # a full disk: the poses so far are in the .part written with the last one
+        raise _with_context(
+            camp.run.error or console.os_error(e), camp.run.stop_note, log.part if log.part.exists() else None
+        ) from e
     console.summary_table(
         f"run: {summary['n_valid']}/{summary['n_poses']} poses measured → {written}", summary
     )
@@ -339,21 +343,10 @@ def _campaign(
 
 def _print_run(summary: dict[str, Any], written: Path, robot: Robot) -> None:
     keys = (
-        "outcome",
-        "duration_s",
-        "underruns",
-        "cell_overruns",
-        "max_lag_rad",
-        "rms_lag_rad",
-        "max_tcp_error_m",
-        "interpolation_ratio",
-        "n_records",
-        "lost_records",
-        "min_lead_s",
-        "round_trip_p50_s",
-        "round_trip_p99_s",
-        "approach_s",
-    )
+        "outcome", "duration_s", "underruns", "cell_overruns", "max_lag_rad", "rms_lag_rad",
+        "max_tcp_error_m", "interpolation_ratio", "n_records", "lost_records", "min_lead_s",
+        "round_trip_p50_s", "round_trip_p99_s", "approach_s",
+    )  # fmt: skip
     console.summary_table(f"run → {written}", {k: summary[k] for k in keys if k in summary})
 
 
@@ -472,10 +465,16 @@ def command(
     fault_reset: _FaultReset = False,
     plot: _Plot = False,
     compare: _Compare = None,
+    other_robot: OtherRobot = False,
+    allow_inconsistent: AllowInconsistent = False,
+    plant: Plant = "own",
 ) -> None:
     """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque, record,
     report lag errors. Exit 2 bad input, 4 communication fault, 5 safety stop or a plan outside the
     limits / not at its start."""
+    from rxcomm.model.artefact_checks import accept_artefacts
+
+    accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     console.stage_command(execute)(
         plan,
         robot_dir,
@@ -492,4 +491,5 @@ def command(
         fault_reset=fault_reset,
         plot=plot,
         compare=compare,
+        plant=console.checked(embedded_plant, plant, gateway),
     )

@@ -1,0 +1,297 @@
+"""A robot directory from a MuJoCo model (MJCF or URDF): what `rxcomm import-robot` writes.
+
+MuJoCo compiles the model (default classes, body quaternions or Euler angles, inertias given with a
+rotation or as `fullinertia`, meshes present or absent) and this module reads the COMPILED model, so
+whatever MJCF spelling was used, the numbers are MuJoCo's own:
+
+- kinematics at q = 0 (MuJoCo's joint zero, not `ref`): each hinge's link frame is its body frame moved
+  to the joint anchor (`jnt_pos`), the URDF joint origin is the parent link → child link transform and
+  the axis is `jnt_axis` (same rotation as the body); jointless bodies become fixed links;
+- inertials: `body_mass`, `body_ipos`, `body_iquat`·diag(`body_inertia`) rotated into the link frame;
+- drives: `armature` → rotor inertia (armature / N², N the gear ratio), `damping` → viscous prior,
+  `frictionloss` → Coulomb prior, `actuatorfrcrange` (or the force range of an actuator on the joint,
+  × its gear) → peak torque, `range` → position limits.
+
+What a MuJoCo model cannot know is written with the stated default of `ASSUMED` and listed in
+`ImportedRobot.assumed` (the stage prints it). Anything but a serial chain of six hinges is refused,
+naming the joint or body that breaks it (exit 2).
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from rxcomm.errors import InputError
+
+N_JOINTS = 6
+ROOT_LINK = "mujoco_world"
+# Stated defaults for what a MuJoCo model does not hold (drives.yaml fields, per joint unless noted).
+ASSUMED = {
+    "gear_ratio": 100.0,
+    "torque_constant_nm_per_a": 0.5,
+    "velocity_limit_rad_s": 3.0,
+    "acceleration_max_rad_per_s2": 10.0,
+    "torque_rate_per_s": 20.0,  # torque rate limit = this × peak torque, N·m/s
+    "continuous_fraction": 0.5,  # continuous torque = this × peak torque
+    "peak_over_gravity": 2.5,  # peak torque = this × the largest holding torque over random poses
+    "peak_min_nm": 5.0,
+    "range_rad": float(np.pi),  # an unlimited hinge: ±this
+    "cycle_s": 0.0004,
+}
+
+
+@dataclass
+class ImportedRobot:
+    """The files of a robot directory, as text, and what was assumed."""
+
+    name: str
+    urdf: str
+    drives: dict
+    assumed: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def compile_model(path: Path) -> tuple[mujoco.MjModel, list[str]]:
+    """MuJoCo's compiled model of `path`; mesh files that are absent drop their geoms (a note says so)."""
+    try:
+        spec = mujoco.MjSpec.from_file(str(path))
+    except ValueError as e:
+        raise InputError(f"MuJoCo cannot read it: {e}", file=path) from e
+    try:
+        return spec.compile(), []
+    except ValueError as e:
+        if "mesh" not in str(e).lower() and "file" not in str(e).lower():
+            raise InputError(f"MuJoCo cannot compile it: {e}", file=path) from e
+    for geom in [g for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH]:
+        spec.delete(geom)
+    for mesh in list(spec.meshes):
+        spec.delete(mesh)
+    try:
+        model = spec.compile()
+    except ValueError as e:
+        raise InputError(f"MuJoCo cannot compile it without its meshes: {e}", file=path) from e
+    return model, ["mesh files absent: their geoms dropped; inertias from the bodies' <inertial>"]
+
+
+def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, i: int, prefix: str) -> str:
+    return mujoco.mj_id2name(model, obj, i) or f"{prefix}{i}"
+
+
+def serial_hinges(model: mujoco.MjModel, path: Path) -> list[int]:
+    """The six hinge ids in chain order, or InputError naming the joint or body that breaks the chain."""
+    jname = lambda j: _name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint")  # noqa: E731
+    bname = lambda b: _name(model, mujoco.mjtObj.mjOBJ_BODY, b, "body")  # noqa: E731
+    for j in range(model.njnt):
+        if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
+            kind = mujoco.mjtJoint(model.jnt_type[j]).name.removeprefix("mjJNT_").lower()
+            raise InputError(
+                f"joint {jname(j)!r} is a {kind} joint: a serial 6R arm has hinges only", file=path
+            )
+    if model.njnt != N_JOINTS:
+        raise InputError(
+            f"{model.njnt} hinges ({[jname(j) for j in range(model.njnt)]}): a 6R arm has 6", file=path
+        )
+    bodies = [int(model.jnt_bodyid[j]) for j in range(N_JOINTS)]
+    for b in set(bodies):
+        if bodies.count(b) > 1:
+            raise InputError(f"body {bname(b)!r} has {bodies.count(b)} joints: one per link", file=path)
+    order = sorted(range(N_JOINTS), key=lambda j: _depth(model, bodies[j]))
+    for k, j in enumerate(order):
+        b = int(model.body_parentid[bodies[j]])
+        while b != 0 and model.body_jntnum[b] == 0:
+            b = int(model.body_parentid[b])
+        want = 0 if k == 0 else bodies[order[k - 1]]
+        if b != want:
+            raise InputError(
+                f"joint {jname(j)!r} (body {bname(bodies[j])!r}) hangs off {bname(b)!r}, "
+                f"not off the previous joint's body {bname(want)!r}: not a serial chain",
+                file=path,
+            )
+    return order
+
+
+def _depth(model: mujoco.MjModel, b: int) -> int:
+    d = 0
+    while b != 0:
+        b, d = int(model.body_parentid[b]), d + 1
+    return d
+
+
+def _rpy(r: np.ndarray) -> tuple[float, float, float]:
+    """URDF roll-pitch-yaw of R = Rz(y)·Ry(p)·Rx(r)."""
+    pitch = float(np.arcsin(-np.clip(r[2, 0], -1.0, 1.0)))
+    if abs(r[2, 0]) < 1 - 1e-12:
+        return float(np.arctan2(r[2, 1], r[2, 2])), pitch, float(np.arctan2(r[1, 0], r[0, 0]))
+    return 0.0, pitch, float(np.arctan2(-r[0, 1], r[1, 1]))
+
+
+def _fmt(v) -> str:
+    return " ".join(f"{float(x):.12g}" for x in v)
+
+
+def _frames(model: mujoco.MjModel) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """World pose (R, p) of every body's link frame at q = 0 (hinge bodies at their anchor)."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = 0.0
+    mujoco.mj_kinematics(model, data)
+    frames = {}
+    for b in range(1, model.nbody):
+        r = data.xmat[b].reshape(3, 3).copy()
+        p = data.xpos[b].copy()
+        if model.body_jntnum[b]:
+            p = p + r @ model.jnt_pos[model.body_jntadr[b]]
+        frames[b] = (r, p)
+    frames[0] = (np.eye(3), np.zeros(3))
+    return frames
+
+
+def _urdf(model: mujoco.MjModel, name: str, limits: list[tuple[float, float, float, float]]) -> str:
+    frames = _frames(model)
+    bname = lambda b: ROOT_LINK if b == 0 else _name(model, mujoco.mjtObj.mjOBJ_BODY, b, "body")  # noqa: E731
+    robot = ET.Element("robot", name=name)
+    ET.SubElement(robot, "link", name=ROOT_LINK)
+    for b in range(1, model.nbody):
+        link = ET.SubElement(robot, "link", name=bname(b))
+        if model.body_mass[b] > 0:
+            anchor = model.jnt_pos[model.body_jntadr[b]] if model.body_jntnum[b] else np.zeros(3)
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, model.body_iquat[b])
+            rot = rot.reshape(3, 3)
+            tensor = rot @ np.diag(model.body_inertia[b]) @ rot.T
+            inertial = ET.SubElement(link, "inertial")
+            ET.SubElement(inertial, "origin", xyz=_fmt(model.body_ipos[b] - anchor), rpy="0 0 0")
+            ET.SubElement(inertial, "mass", value=f"{model.body_mass[b]:.12g}")
+            ET.SubElement(
+                inertial,
+                "inertia",
+                **{k: f"{tensor[i, j]:.12g}" for k, (i, j) in _TENSOR.items()},
+            )
+    for b in range(1, model.nbody):
+        parent = int(model.body_parentid[b])
+        rp, pp = frames[parent]
+        rc, pc = frames[b]
+        hinge = model.body_jntnum[b] > 0
+        jid = int(model.body_jntadr[b]) if hinge else -1
+        jn = _name(model, mujoco.mjtObj.mjOBJ_JOINT, jid, "joint") if hinge else f"{bname(b)}_fixed"
+        joint = ET.SubElement(robot, "joint", name=jn, type="revolute" if hinge else "fixed")
+        ET.SubElement(joint, "parent", link=bname(parent))
+        ET.SubElement(joint, "child", link=bname(b))
+        rel = rp.T @ rc
+        ET.SubElement(joint, "origin", xyz=_fmt(rp.T @ (pc - pp)), rpy=_fmt(_rpy(rel)))
+        if hinge:
+            ET.SubElement(joint, "axis", xyz=_fmt(model.jnt_axis[jid]))
+            lo, hi, vel, effort = limits[jid]
+            ET.SubElement(
+                joint,
+                "limit",
+                lower=f"{lo:.12g}",
+                upper=f"{hi:.12g}",
+                velocity=f"{vel:.12g}",
+                effort=f"{effort:.6g}",
+            )
+    ET.indent(robot)
+    return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
+
+
+_TENSOR = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2), "izz": (2, 2)}
+
+
+def _peak_torques(model: mujoco.MjModel, order: list[int], assumed: list[str]) -> np.ndarray:
+    """actuatorfrcrange, an actuator's forcerange × gear, else the stated default (module docstring)."""
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    held = np.zeros(model.nv)
+    for _ in range(200):  # the largest holding torque over random poses within the limits
+        for j in range(model.njnt):
+            lo, hi = model.jnt_range[j] if model.jnt_limited[j] else (-np.pi, np.pi)
+            data.qpos[model.jnt_qposadr[j]] = rng.uniform(lo, hi)
+        data.qvel[:] = 0.0
+        mujoco.mj_forward(model, data)
+        held = np.maximum(held, np.abs(data.qfrc_bias))
+    peaks = np.zeros(len(order))
+    for k, j in enumerate(order):
+        if model.jnt_actfrclimited[j]:
+            peaks[k] = float(np.max(np.abs(model.jnt_actfrcrange[j])))
+            continue
+        acts = [
+            a
+            for a in range(model.nu)
+            if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT
+            and model.actuator_trnid[a, 0] == j
+            and model.actuator_forcelimited[a]
+        ]
+        if acts:
+            a = acts[0]
+            peaks[k] = float(np.max(np.abs(model.actuator_forcerange[a])) * abs(model.actuator_gear[a, 0]))
+            continue
+        g = held[model.jnt_dofadr[j]]
+        peaks[k] = max(ASSUMED["peak_over_gravity"] * g, ASSUMED["peak_min_nm"])
+        assumed.append(
+            f"{_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, 'joint')}.peak_torque_nm = {peaks[k]:.4g} "
+            f"({ASSUMED['peak_over_gravity']} × its largest holding torque, ≥ {ASSUMED['peak_min_nm']})"
+        )
+    return peaks
+
+
+def import_model(path: str | Path) -> ImportedRobot:
+    """The robot directory's contents from a MuJoCo model file (see the module docstring)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such model file", file=path)
+    model, notes = compile_model(path)
+    order = serial_hinges(model, path)
+    assumed: list[str] = []
+    a = ASSUMED
+    peaks = _peak_torques(model, order, assumed)
+    limits: dict[int, tuple[float, float, float, float]] = {}
+    joints = []
+    for k, j in enumerate(order):
+        jn = _name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint")
+        if model.jnt_limited[j]:
+            lo, hi = (float(v) for v in model.jnt_range[j])
+        else:
+            lo, hi = -a["range_rad"], a["range_rad"]
+            assumed.append(f"{jn}: unlimited hinge, limits ±{a['range_rad']:.4g} rad")
+        limits[j] = (lo, hi, a["velocity_limit_rad_s"], peaks[k])
+        dof = model.jnt_dofadr[j]
+        n = a["gear_ratio"]
+        joints.append(
+            {
+                "name": jn,
+                "gear_ratio": n,
+                "rotor_inertia_kgm2": float(model.dof_armature[dof]) / n**2,
+                "torque_constant_nm_per_a": a["torque_constant_nm_per_a"],
+                "peak_torque_nm": float(peaks[k]),
+                "continuous_torque_nm": float(a["continuous_fraction"] * peaks[k]),
+                "torque_rate_max_nm_per_s": float(a["torque_rate_per_s"] * peaks[k]),
+                "acceleration_max_rad_per_s2": a["acceleration_max_rad_per_s2"],
+                "coulomb_friction_nm": float(model.dof_frictionloss[dof]),
+                "viscous_friction_nm_s_per_rad": float(model.dof_damping[dof]),
+            }
+        )
+    assumed += [
+        f"gear_ratio = {a['gear_ratio']:g} on every joint (rotor inertia = armature / N²)",
+        f"torque_constant_nm_per_a = {a['torque_constant_nm_per_a']:g}",
+        f"velocity limit {a['velocity_limit_rad_s']:g} rad/s, acceleration limit "
+        f"{a['acceleration_max_rad_per_s2']:g} rad/s², torque rate {a['torque_rate_per_s']:g} × peak /s",
+        f"continuous torque = {a['continuous_fraction']:g} × peak; drive cycle {a['cycle_s'] * 1e6:.0f} µs",
+    ]
+    last = _name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.jnt_bodyid[order[-1]]), "body")
+    assumed.append(f"TCP = the last link's frame ({last}), no tool offset")
+    name = Path(path).stem
+    drives = {
+        "kind": "rxcomm/Drives",
+        "schema_version": 1,
+        "urdf": f"{name}.urdf",
+        "cycle_s": a["cycle_s"],
+        "tcp": {"parent_frame": last, "xyz_m": [0.0, 0.0, 0.0], "rpy_rad": [0.0, 0.0, 0.0]},
+        "joints": joints,
+    }
+    return ImportedRobot(
+        name=name, urdf=_urdf(model, name, limits), drives=drives, assumed=assumed, notes=notes
+    )

@@ -1,0 +1,172 @@
+"""`rxcomm import-robot` and `rxcomm truth` on a hand-made MJCF (tests/data/handmade_arm.xml: default
+classes, quaternions and an Euler angle, inertias rotated and as fullinertia, no meshes, a fixed tool
+plate): the robot directory it writes has MuJoCo's kinematics and dynamics to round-off, what MuJoCo
+cannot know is marked assumed, and anything but a serial 6R arm is refused naming what breaks it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from rxcomm.cli import app
+from rxcomm.model.dynamics import RobotDynamics, prior_parameters, random_states
+from rxcomm.model.kinematics import tcp_pose
+from rxcomm.model.robot import load_robot
+
+ARM = Path(__file__).parent / "data" / "handmade_arm.xml"
+INERTIAL = '<inertial mass="1" pos="0 0 0" diaginertia="1e-2 1e-2 1e-2"/>'
+GRIPPER = f'<body name="gripper"><joint name="g"/>{INERTIAL}</body>'
+SIDE = '<body name="side" pos="0 0 0.1"><joint {joint}/>' + INERTIAL + "</body>"
+
+
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("arm")
+    r = CliRunner().invoke(app, ["import-robot", str(ARM), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "assumed" in r.output and "gear_ratio = 100" in r.output
+    return out
+
+
+def _mujoco(n_states: int = 60):
+    model = mujoco.MjModel.from_xml_path(str(ARM))
+    # MuJoCo's dry friction is a soft constraint: in mj_inverse it slides at exactly F_c once
+    # |q̇| ≫ |q̈|·τ_ref/2; with the model's default 20 ms that fails for slow joints (2·F_c off), with
+    # the plant's 0.8 ms (rxcomm.cell.mujoco_model) it holds on these states. No contacts either.
+    model.dof_solref[:] = [0.0008, 1.0]
+    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    order = [model.joint(f"a{i}").id for i in range(1, 7)]
+    return (
+        model,
+        mujoco.MjData(model),
+        [model.jnt_qposadr[j] for j in order],
+        [model.jnt_dofadr[j] for j in order],
+    )
+
+
+def test_imported_kinematics_and_dynamics_are_mujocos(imported):
+    robot = load_robot(imported)
+    model, data, qadr, dadr = _mujoco()
+    flange = model.body("flange").id
+    q, qd, qdd = random_states(robot, 60, seed=7)
+    tau_rx = RobotDynamics(robot, prior_parameters(robot)).inverse_dynamics(q, qd, qdd)
+    worst_p = worst_tau = 0.0
+    for i in range(len(q)):
+        data.qpos[qadr], data.qvel[dadr], data.qacc[dadr] = q[i], qd[i], qdd[i]
+        mujoco.mj_inverse(model, data)
+        p, r = tcp_pose(robot, q[i])  # the TCP is the flange frame (assumed, no tool offset)
+        worst_p = max(worst_p, float(np.linalg.norm(data.xpos[flange] - p)))
+        assert np.abs(data.xmat[flange].reshape(3, 3) - r).max() < 1e-9
+        worst_tau = max(worst_tau, float(np.abs(data.qfrc_inverse[dadr] - tau_rx[i]).max()))
+    assert worst_p <= 1e-6
+    assert worst_tau <= 1e-6 * np.abs(tau_rx).max()
+
+
+def test_drives_from_the_model_and_assumed_marked(imported):
+    text = (imported / "drives.yaml").read_text()
+    assert "ASSUMED" in text.splitlines()[1]
+    robot = load_robot(imported)
+    by = {j.name: j for j in robot.drives.joints}
+    assert by["a1"].peak_torque_nm == 300  # actuatorfrcrange
+    assert by["a3"].peak_torque_nm == pytest.approx(160)  # motor forcerange 1.6 × gear 100
+    assert by["a6"].peak_torque_nm == pytest.approx(15)  # actuatorfrcrange 0 0 is no limit: the motor's
+    assert by["a4"].coulomb_friction_nm == 0.25 and by["a4"].viscous_friction_nm_s_per_rad == 0.3  # class
+    assert by["a1"].rotor_inertia_kgm2 == pytest.approx(0.4 / 100**2)  # armature / N²
+    assert robot.q_min[1] == pytest.approx(-2.2) and robot.q_max[1] == pytest.approx(1.9)
+    assert (imported / "handmade_arm.mujoco.xml").read_text() == ARM.read_text()
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle"),
+    [
+        (
+            ('<joint name="a4" class="wrist" axis="0 0 1"/>', '<joint name="a4" type="ball"/>'),
+            "'a4' is a ball",
+        ),
+        (('<joint name="a1" axis="0 0 1" range="-2.9 2.9" actuatorfrcrange="-300 300"/>', ""), "5 hinges"),
+        (('<body name="tool_plate"', GRIPPER + '<body name="tool_plate"'), "7 hinges"),
+        (
+            ('<body name="wrist_1"', SIDE.format(joint='name="s" axis="1 0 0"') + '<body name="wrist_1"'),
+            "7 hinges",
+        ),
+    ],
+)
+def test_not_a_serial_6r_is_refused_naming_it(tmp_path, edit, needle):
+    bad = tmp_path / "bad.xml"
+    text = ARM.read_text()
+    assert edit[0] in text
+    bad.write_text(text.replace(edit[0], edit[1]))
+    r = CliRunner().invoke(app, ["import-robot", str(bad), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 2, r.output
+    assert needle in r.output
+    assert not (tmp_path / "out" / "drives.yaml").exists()
+
+
+def test_branch_with_six_hinges_is_refused_naming_the_joint(tmp_path):
+    """Six hinges, but a5 hangs off the forearm beside the wrist: not a chain."""
+    text = ARM.read_text()
+    a5 = '<joint name="a5" class="wrist" axis="0 0 1" range="-2.1 2.1"/>'
+    side = SIDE.format(joint='name="a5" class="wrist" axis="1 0 0"')
+    text = text.replace(a5, "").replace('<body name="wrist_1"', side + '<body name="wrist_1"')
+    bad = tmp_path / "branch.xml"
+    bad.write_text(text)
+    r = CliRunner().invoke(app, ["import-robot", str(bad), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 2, r.output
+    assert "not a serial chain" in r.output and "'a" in r.output
+
+
+def test_truth_for_the_imported_robot_runs_on_both_plants(imported):
+    from rxcomm.cell.sim import simulated_cell
+
+    truth = imported / "truth.yaml"
+    r = CliRunner().invoke(
+        app, ["truth", "--robot", str(imported), "--seed", "5", "-o", str(truth), "--compliance"]
+    )
+    assert r.exit_code == 0, r.output
+    data = yaml.safe_load(truth.read_text())
+    assert len(data["geometry"]["error_parameters"]) == 48 and data["robot"] == "."
+    assert set(data["geometry"]["joint_stiffness_nm_per_rad"]) == {"a2", "a3"}
+    q0 = [0.0, -0.3, 0.5, 0.0, 0.4, 0.0]
+    for plant in ("own", "mujoco"):
+        cell = simulated_cell(truth, plant=plant, q0=q0)
+        for _ in range(1000):  # enabled and holding: the drives (tuned on the imported robot) hold it
+            fb = cell.cycle(np.array(q0), np.zeros(6), np.ones(6, bool))
+        assert np.all(np.abs(fb.following_error_rad) < 0.1 * cell.following_error_limit_rad), plant
+
+
+def test_the_kept_mjcf_is_the_mujoco_plants_source(imported):
+    """The plant parses the kept MJCF (not the URDF written from it): with the truth's errors its TCP
+    site is rxcomm's FK of the imported robot to < 1 µm, without errors mj_inverse is rxcomm's inverse
+    dynamics of the truth to 1e-6."""
+    from rxcomm.cell.mujoco_model import build_mujoco_model
+    from rxcomm.cell.truth import load_truth
+    from rxcomm.model.geometric_errors import ErrorModel
+
+    truth_path = imported / "truth-kept.yaml"
+    r = CliRunner().invoke(app, ["truth", "--robot", str(imported), "--seed", "9", "-o", str(truth_path)])
+    assert r.exit_code == 0, r.output
+    truth = load_truth(truth_path)
+    built = build_mujoco_model(truth, compliance=False)
+    assert built.notes[0] == "model source: handmade_arm.mujoco.xml (MuJoCo's parser)"
+    errors = ErrorModel.from_mapping(truth.robot, truth.truth.geometry.error_parameters)
+    m, d = built.model, mujoco.MjData(built.model)
+    q, qd, qdd = random_states(truth.robot, 40, seed=2)
+    for qi in q:
+        d.qpos[built.motor_qpos] = qi
+        mujoco.mj_kinematics(m, d)
+        p, rot = tcp_pose(truth.robot, qi, errors)
+        assert np.linalg.norm(d.site_xpos[built.tcp_site] - p) < 1e-6
+        assert np.abs(d.site_xmat[built.tcp_site].reshape(3, 3) - rot).max() < 1e-9
+    nominal = build_mujoco_model(truth, errors=False, compliance=False)
+    m, d = nominal.model, mujoco.MjData(nominal.model)
+    tau_rx = RobotDynamics(truth.robot, truth.params).inverse_dynamics(q, qd, qdd)
+    for i in range(len(q)):
+        d.qpos[nominal.motor_qpos], d.qvel[nominal.motor_dof], d.qacc[nominal.motor_dof] = q[i], qd[i], qdd[i]
+        mujoco.mj_inverse(m, d)
+        tau = d.qfrc_inverse[nominal.motor_dof] + np.array(truth.params.offset_nm)
+        assert np.abs(tau - tau_rx[i]).max() <= 1e-6 * np.abs(tau_rx).max()

@@ -1,0 +1,198 @@
+"""Run logs in the row layout (issue 32): one protobuf message per sample, the copy Foxglove plots and
+rxcomm reads; the layout before (per-sample JSON + column blocks) still reads with the same figures."""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+import rxcomm
+from bench.logs import synthetic_result
+from rxcomm.errors import InputError
+from rxcomm.execution.log import recover_run_log, write_run_log
+from rxcomm.execution.summary import tcp_error_and_speed
+from rxcomm.io.mcap_io import McapWriter, read_mcap
+from rxcomm.io.mcap_rows import check_rows, row_fields, row_header
+from rxcomm.io.run_log import read_run_log
+from rxcomm.model.batch_kinematics import serial_chain, tcp_positions, tcp_positions_pinocchio
+from rxcomm.schemas.run_log import GATEWAY_TOPIC, JOINT_FIELDS, JOINTS_TOPIC
+
+DURATION_S = 4.0
+
+
+def _env() -> dict:
+    return {
+        "kind": "rxcomm/Test",
+        "schema_version": 1,
+        "created": datetime.now(UTC),
+        "rxcomm_version": rxcomm.__version__,
+        "inputs": {},
+        "settings": {},
+        "summary": {},
+    }
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory, rx130l) -> dict[str, Path]:
+    """The same synthetic 4 s stream (2.5 kHz) written in both layouts."""
+    tmp = tmp_path_factory.mktemp("layouts")
+    result = synthetic_result(DURATION_S)
+    out = {}
+    for layout in ("rows", "json-columns"):
+        path = tmp / f"{layout}.mcap"
+        write_run_log(
+            path,
+            rx130l,
+            result,
+            inputs={},
+            settings={},
+            feedforward="prior",
+            embedded_cell=True,
+            layout=layout,
+        )
+        out[layout] = path
+    return out
+
+
+def _figures(path: Path) -> dict[str, np.ndarray]:
+    """What rxcomm takes from a run log: the following error's RMS and peak per joint, the TCP error's
+    peak, the torque RMS, the time span, the gateway's lead."""
+    log = read_run_log(path)
+    j = log.joints
+    assert log.gateway is not None
+    return {
+        "rms_lag_rad": np.sqrt(np.mean(j.following_error**2, axis=0)),
+        "max_lag_rad": np.max(np.abs(j.following_error), axis=0),
+        "max_tcp_error_m": np.max(j.tcp_error_m),
+        "rms_tau_nm": np.sqrt(np.mean(j.tau_actual**2, axis=0)),
+        "duration_s": j.t[-1] - j.t[0],
+        "min_lead_s": np.min(log.gateway.lead_s),
+    }
+
+
+def test_old_and_new_layout_read_with_the_same_figures(logs):
+    old, new = read_run_log(logs["json-columns"]), read_run_log(logs["rows"])
+    assert len(new.joints) == len(old.joints) == int(DURATION_S * 2500) + 1
+    np.testing.assert_array_equal(new.joints.t, old.joints.t)
+    assert new.joints.constants == old.joints.constants
+    assert set(new.joints.fields) == set(old.joints.fields) == set(JOINT_FIELDS)
+    for k, v in old.joints.fields.items():  # float32 per sample: 6e-8 relative, 2.4e-7 rad at 4 rad
+        assert new.joints[k].dtype == np.float64
+        np.testing.assert_allclose(new.joints[k], v, rtol=1.2e-7, atol=1e-30, err_msg=k)
+    assert old.gateway is not None and new.gateway is not None
+    for k, v in old.gateway.fields.items():  # counters and times exact
+        np.testing.assert_array_equal(new.gateway[k], v, err_msg=k)
+    a, b = _figures(logs["json-columns"]), _figures(logs["rows"])
+    for k in a:
+        np.testing.assert_allclose(b[k], a[k], rtol=1e-6, err_msg=k)
+    assert new.summary == old.summary  # computed by the writer from the same float64 records
+
+
+def test_new_layout_is_a_third_of_the_old_or_less(logs):
+    old, new = logs["json-columns"].stat().st_size, logs["rows"].stat().st_size
+    assert new < old / 3, (new, old)
+
+
+def test_the_mcap_reader_decodes_every_message_with_its_protobuf_schema(logs):
+    """The mcap package (CRCs checked) and its protobuf decoder read the file as Foxglove would: the
+    schema is a valid FileDescriptorSet and every message decodes to rxcomm's values."""
+    log = read_run_log(logs["rows"])
+    got: dict[str, list] = {JOINTS_TOPIC: [], GATEWAY_TOPIC: []}
+    with open(logs["rows"], "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()], validate_crcs=True)
+        for schema, channel, _, msg in reader.iter_decoded_messages(topics=list(got)):
+            assert schema.encoding == "protobuf" and channel.message_encoding == "protobuf"
+            got[channel.topic].append(msg)
+    assert len(got[JOINTS_TOPIC]) == len(log.joints) and len(got[GATEWAY_TOPIC]) == len(log.gateway)
+    for i in (0, 1234, len(log.joints) - 1):
+        m = got[JOINTS_TOPIC][i]
+        np.testing.assert_array_equal(np.array(m.q_actual), log.joints.q_actual[i])
+        np.testing.assert_array_equal(np.array(m.following_error), log.joints.following_error[i])
+        assert m.tcp_speed_m_s == log.joints.tcp_speed_m_s[i]
+    assert [m.execute_index for m in got[GATEWAY_TOPIC]] == log.gateway.execute_index.tolist()
+
+
+def test_a_message_of_another_layout_is_refused(tmp_path):
+    rows = row_fields({"a": ("<f4", 3), "b": ("<i8", 0)})
+    good = row_header(rows, 4)
+    check_rows(good, rows)
+    bad = good.copy()
+    bad["_len1"][2] = 8  # two floats claimed where the schema has three
+    with pytest.raises(ValueError, match="_len1"):
+        check_rows(bad, rows)
+    with pytest.raises(ValueError, match="1..15 fields"):
+        row_fields({f"f{i}": ("<f8", 0) for i in range(16)})
+    with pytest.raises(ValueError, match="dtype"):
+        row_fields({"x": ("<f2", 0)})
+    path = tmp_path / "bad.mcap"  # a file whose row bytes were damaged: the reader names the topic
+    env = _env()
+    with McapWriter(path, env, compression="none") as w:
+        w.add_row_channel("/x", "rxcomm.X", {"a": ("<f4", 3)})
+        w.write_arrays("/x", np.arange(3) * 0.1, {"a": np.ones((3, 3))})
+    data = bytearray(path.read_bytes())
+    marker = bytes(row_header(row_fields({"a": ("<f4", 3)}), 1).tobytes()[:2])  # tag, length
+    i = data.index(marker + np.ones(3, dtype="<f4").tobytes())
+    data[i + 1] = 8
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match="CRC mismatch"):  # the chunk CRC catches it first
+        read_mcap(path)
+
+
+def test_rows_mixed_with_other_messages_and_a_recovered_log_read_alike(logs, tmp_path):
+    """A row channel written message by message between other channels (a chunk of mixed records),
+    and a killed run's .part recovered, give the rows the fast path gives."""
+    env = _env()
+    path = tmp_path / "mixed.mcap"
+    values = np.arange(12.0).reshape(4, 3)
+    with McapWriter(path, env) as w:
+        w.add_row_channel("/x", "rxcomm.X", {"a": ("<f8", 3)})
+        w.add_channel("/y", "rxcomm.Y", {"b": {"type": "number"}})
+        for i in range(4):
+            w.write("/x", 0.1 * i, {"a": values[i]})
+            w.write("/y", 0.1 * i + 0.05, {"b": float(i)})
+    td = read_mcap(path).topics["/x"]
+    np.testing.assert_array_equal(td.a, values)
+    np.testing.assert_allclose(td.t, 0.1 * np.arange(4))
+    # a killed writer: cut the finished log inside its last chunks, recover, read the rows back
+    part = tmp_path / "cut.mcap.part"
+    data = logs["rows"].read_bytes()
+    part.write_bytes(data[: len(data) * 2 // 3])
+    rec = recover_run_log(part, tmp_path / "cut.recovered.mcap")
+    back = read_run_log(rec.written)
+    full = read_run_log(logs["rows"])
+    n = len(back.joints)
+    assert 0 < n < len(full.joints) and rec.n_records == n
+    np.testing.assert_array_equal(back.joints.q_actual, full.joints.q_actual[:n])
+
+
+def test_batch_forward_kinematics_equals_pinocchio(robot):
+    """The writer's numpy FK (TCP position and J_v·qd) against Pinocchio, on both sample robots."""
+    chain = serial_chain(robot)
+    assert chain is not None
+    rng = np.random.default_rng(7)
+    q = rng.uniform(-2.5, 2.5, (300, robot.n))
+    qd = rng.uniform(-2.0, 2.0, (300, robot.n))
+    p, v = tcp_positions(chain, q, qd)
+    np.testing.assert_allclose(p, tcp_positions_pinocchio(robot, q), atol=1e-12)
+    # velocity by finite differences of the Pinocchio positions along qd
+    h = 1e-6
+    fd = (tcp_positions_pinocchio(robot, q + h * qd) - tcp_positions_pinocchio(robot, q - h * qd)) / (2 * h)
+    np.testing.assert_allclose(v, fd, atol=1e-7)
+    err, speed = tcp_error_and_speed(robot, q, qd, q + 1e-3)
+    assert np.all(err > 0) and np.allclose(speed, np.linalg.norm(fd, axis=1), atol=1e-7)
+
+
+def test_row_channel_metadata_names_the_fields(logs):
+    with open(logs["rows"], "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    ch = next(c for c in summary.channels.values() if c.topic == JOINTS_TOPIC)
+    rows = json.loads(ch.metadata["rxcomm/rows"])
+    assert [r[0] for r in rows] == list(JOINT_FIELDS) and rows[0][1:] == ["<f4", 6]
+    assert not any(c.topic.startswith("/columns/") for c in summary.channels.values())
