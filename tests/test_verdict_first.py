@@ -105,7 +105,7 @@ def _accept(build: Path, thresholds: Path) -> str:
     assert res.exit_code == 0, res.output  # a verdict is a result: 0 whether accepted or not
     res2 = runner.invoke(app, ["report", str(build)])
     assert res2.exit_code == 0, res2.output
-    return res.output
+    return res.stdout  # stderr holds the warning that these synthetic logs have no MCAP to compare
 
 
 def _stricter(tmp: Path, criterion: str, bound: float) -> Path:
