@@ -299,3 +299,44 @@ def test_settle_drift_is_the_motion_across_the_measuring_window():
     noise = np.random.default_rng(0).normal(0.0, 50e-6, (n, 3))  # the cell's tracker σ, per axis
     assert settle_drift_m(noise + 1.0) < 20e-6  # σ of the difference of two 100-sample means: 7 µm per axis
     assert settle_drift_m(np.ones((n, 3))) == 0.0
+
+
+def test_pose_dwells_are_the_still_runs_of_the_demand_long_enough():
+    from rxcomm.acceptance.campaign import EvaluationSettings, TrackedLog, pose_dwells_s
+
+    dt = 0.004
+    # still 0.6 s, move 0.2 s, still 0.1 s (shorter than min_dwell_s: no dwell), move, still 1.5 s
+    q = np.concatenate(
+        [np.zeros(150), np.linspace(0, 1, 50), np.ones(25), np.linspace(1, 2, 50), 2 * np.ones(376)]
+    )
+    log = TrackedLog("x", np.arange(len(q)) * dt, q[:, None], np.zeros(2), np.zeros((2, 3)), None)
+    got = pose_dwells_s(log, EvaluationSettings(min_dwell_s=0.2))
+    # each linspace starts on the value held before it, so the dwells are 150 and 376 zero steps of dt
+    assert got == pytest.approx([150 * dt, 376 * dt], abs=1e-9)
+
+
+def test_path_cycles_are_grouped_by_command_speed_fastest_first():
+    from rxcomm.acceptance.campaign import speed_groups
+
+    # 100 %, 50 % and 10 % of 1 m/s, each cycle's plateau a little off (±2 %): three groups
+    speeds = [0.5, 1.0, 0.1, 0.99, 0.51, 0.102, 1.01, 0.49]
+    assert speed_groups(speeds) == [[6, 1, 3], [4, 0, 7], [5, 2]]
+    assert speed_groups([0.4]) == [[0]]
+    assert speed_groups([1.0, 0.94]) == [[0], [1]]  # 6 % apart: two speeds
+
+
+def test_time_scaling_keeps_the_path_and_divides_speeds_by_k():
+    from rxcomm.io.trajectory import Trajectory
+    from rxcomm.planning.iso9283 import time_scaled
+
+    dt = 0.001
+    t = np.arange(1001) * dt  # 1 s of q = sin(π t) on one joint
+    q = np.sin(np.pi * t)[:, None]
+    traj = Trajectory(t, q, np.pi * np.cos(np.pi * t)[:, None], -(np.pi**2) * np.sin(np.pi * t)[:, None])
+    slow = time_scaled(traj, 2.5, dt)  # k = 2.5
+    assert slow.duration_s == pytest.approx(2.5) and slow.t[1] - slow.t[0] == pytest.approx(dt)
+    ts = slow.t
+    # linear interpolation between the 1 ms samples: error ≤ h²/8·max|q̈| = 1.2e-6 rad
+    np.testing.assert_allclose(slow.q[:, 0], np.sin(np.pi * ts / 2.5), atol=1.3e-6)
+    np.testing.assert_allclose(slow.qd[:, 0], np.pi / 2.5 * np.cos(np.pi * ts / 2.5), atol=1e-5)
+    np.testing.assert_allclose(slow.qdd[:, 0], -(np.pi**2) / 6.25 * np.sin(np.pi * ts / 2.5), atol=1e-5)

@@ -88,4 +88,7 @@ def test_pose_cycles_on_the_cell_give_ap_rp_at_p1_to_p5(tmp_path, rx130l):
     assert art.cube.side_m == pytest.approx(0.76, abs=1e-6) and art.base_frame.source == "cell"
     summary = yaml.safe_load(out.read_text())["summary"]
     assert summary["n_measured"] == 40 and summary["AT_p_iso9283-line"] == "not measured"
+    # the test conditions: 0.5 s dwells, measured over their last half
+    assert summary["pose_dwell_s"] == pytest.approx(0.5, abs=0.01)
+    assert summary["measuring_window_s"] == pytest.approx(0.25, abs=0.005)
     assert (tmp_path / "iso9283.png").stat().st_size > 10_000

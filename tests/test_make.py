@@ -66,7 +66,14 @@ ALL = {
     "verdict.yaml",
     "exports/parity.yaml",
     "report.md",
+    "cp-at-factory-time.mcap",
+    "ptp-at-factory-time.mcap",
+    "run-cp-at-factory-time.mcap",
+    "run-ptp-at-factory-time.mcap",
 }
+# The commissioned reference task slowed to the factory's cycle time and its runs (issue 29).
+EQ_PLANS = {"cp-at-factory-time.mcap", "ptp-at-factory-time.mcap"}
+EQ_RUNS = {"run-cp-at-factory-time.mcap", "run-ptp-at-factory-time.mcap"}
 # The factory state (issue 17): catalogue timing of the CP path and the PtP move, run without feed-forward.
 FACTORY_PLANS = {"factory-cp.mcap", "factory-ptp.mcap"}
 FACTORY_RUNS = {"run-factory-cp.mcap", "run-factory-ptp.mcap"}
@@ -87,6 +94,7 @@ ON_CELL = {
     "run-ptp.mcap",
     *FACTORY_RUNS,
     *ISO_RUNS,
+    *EQ_RUNS,
 }
 # ... and those downstream of their outputs. select-configs, excite, the validation plan and robot-info
 # never see the cell.
@@ -101,7 +109,7 @@ AFTER_CELL = {
     "report.md",
 }
 AFTER_CELL |= {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "iso9283-factory.yaml", "iso9283.yaml"}
-AFTER_CELL |= {"iso-circle.mcap", "iso-circle-cycles.mcap"}
+AFTER_CELL |= {"iso-circle.mcap", "iso-circle-cycles.mcap", *EQ_PLANS}
 # select-configs and what follows the pose set: measurement, calibration, the planners on the
 # calibrated robot, their runs, the report. Excitation, identification's logs and robot-info do not.
 AFTER_POSES = {
@@ -119,6 +127,8 @@ AFTER_POSES = {
     "report.md",
     *ISO_ON_MODEL,
     "iso9283-factory.yaml",  # the tracker's base frame is the calibration's
+    *EQ_PLANS,
+    *EQ_RUNS,
 }
 # The commissioned plans on the identified, calibrated model and their runs, the verdict, the report.
 AFTER_MODEL = {
@@ -131,6 +141,8 @@ AFTER_MODEL = {
     "exports/parity.yaml",  # the controller files of the calibration, the plans and the FF run
     "report.md",
     *ISO_ON_MODEL,
+    *EQ_PLANS,
+    *EQ_RUNS,
 }
 # The CP path feeds plan-cp (both states); plan-ptp starts from its end states.
 AFTER_CP_PATH = AFTER_MODEL - ISO_ON_MODEL | FACTORY_PLANS | FACTORY_RUNS
@@ -204,7 +216,12 @@ def test_the_report_reads_the_ptp_run(built):
     # `report` shows every run of the build; the PtP run feeds the verdict (the reference task) and the
     # report, nothing else; a factory run likewise.
     assert _remade(built, "-W", "build/run-ptp.mcap") == ({"verdict.yaml", "report.md"}, set())
-    assert _remade(built, "-W", "build/run-factory-ptp.mcap") == ({"verdict.yaml", "report.md"}, set())
+    # a factory run also sets the cycle time the commissioned task is slowed to (energy at equal time)
+    eq_ptp = {"ptp-at-factory-time.mcap", "run-ptp-at-factory-time.mcap"}
+    assert _remade(built, "-W", "build/run-factory-ptp.mcap") == (
+        {"verdict.yaml", "report.md"} | eq_ptp,
+        set(),
+    )
 
 
 def test_touching_the_urdf_or_drives_rebuilds_every_rule(built):
@@ -299,6 +316,7 @@ def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(bu
         "run-iso-circle.mcap",
     }
     after_cal |= {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml", "exports/parity.yaml"}
+    after_cal |= {*EQ_PLANS, *EQ_RUNS}
     assert _remade(built, "-W", "build/calibration.yaml")[0] == after_cal
     assert _remade(built, "-W", "build/calibration-prior.yaml")[0] == {"report.md"}
     assert _remade(built, "-W", "build/dynamics.yaml")[0] == after_cal | {"calibration.yaml"}

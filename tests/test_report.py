@@ -245,14 +245,14 @@ def test_html_is_self_contained_opens_with_the_verdict_and_embeds_every_figure()
     report = Report("r", "made `here`", verdict, sections, verdict_note(verdict))
     png = PNG
     page = html.render(report, lambda name: png if name == "a.png" else None)
-    assert page.index('id="verdict"') < page.index("Stage A") < page.index('id="paper"')
+    assert page.index('id="checks"') < page.index("Stage A") < page.index('id="paper"')
     assert page.count("data:image/png;base64,") == 1
     assert base64.b64encode(png).decode() in page
     assert "figure gone.png: not produced in this build" in page
     assert not re.search(r"(src|href)=\"(?!data:)", page) and "<script" not in page
     assert '<td class="fail">fail</td>' in page and "<code>here</code>" in page
     md = markdown.render(report, "../build/")
-    assert "](../build/a.png)" in md and md.index("## Verdict") < md.index("## Stage A")
+    assert "](../build/a.png)" in md and md.index("## Commissioning checks") < md.index("## Stage A")
 
 
 def test_report_of_an_empty_build_says_not_measured_and_writes_both_files(tmp_path):
@@ -268,8 +268,12 @@ def test_report_of_an_empty_build_says_not_measured_and_writes_both_files(tmp_pa
     md = (tmp_path / "out" / "report.md").read_text()
     page = (tmp_path / "out" / "report.html").read_text()
     # the stage targets and the acceptance of the robot as a whole (no verdict.yaml: not measured)
-    assert "0 of 9 criteria pass, 0 fail, 9 not measured." in md and 'id="verdict"' in page
+    assert md.splitlines()[2] == (
+        "**NOT ACCEPTED — not measured: no verdict.yaml in this build (`rxcomm accept`)**"
+    )
+    assert "0 of 8 checks pass, 0 fail, 8 not measured." in md and 'id="checks"' in page
     assert "| acceptance: factory vs commissioned | not measured |" in md
+    assert md.index("## Acceptance: factory vs commissioned") < md.index("## Commissioning checks")
     for title in ("Geometric calibration", "Dynamic identification", "Every executed run"):
         assert title in md and title in page
     assert "| calibration.yaml in this build | not measured |" in md

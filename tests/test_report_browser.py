@@ -31,8 +31,9 @@ window.addEventListener("load", () => {
   const b = document.body;
   b.setAttribute("data-images", imgs.length);
   b.setAttribute("data-images-loaded", ok.length);
-  b.setAttribute("data-verdict-rows", document.querySelectorAll("#verdict tr").length - 1);
+  b.setAttribute("data-verdict-rows", document.querySelectorAll("#checks tr").length - 1);
   b.setAttribute("data-first-h2", document.querySelector("h2").textContent);
+  b.setAttribute("data-headline", document.querySelector("h1").nextElementSibling.textContent);
 });
 </script>"""
 
@@ -87,11 +88,14 @@ def test_every_figure_loads_in_chromium_and_the_verdict_opens_the_report(build, 
     dom = res.stdout
     assert _attr(dom, "data-images") == "2"
     assert _attr(dom, "data-images-loaded") == "2"  # decoded: a broken data URL has naturalWidth 0
-    # as many verdict rows as the Markdown rendering of the same report has (a new target adds one to both)
-    md = (build / "report.md").read_text().split("## Verdict", 1)[1].split("\n## ", 1)[0]
+    # as many check rows as the Markdown rendering of the same report has (a new target adds one to both)
+    md = (build / "report.md").read_text().split("## Commissioning checks", 1)[1].split("\n## ", 1)[0]
     md_rows = [ln for ln in md.splitlines() if ln.startswith("| ")][1:]  # less the header
     assert int(_attr(dom, "data-verdict-rows")) == len(md_rows) >= 8
-    assert _attr(dom, "data-first-h2") == "Verdict"
+    # the verdict line right under the title (no verdict.yaml here: not accepted, and why), then the
+    # acceptance table
+    assert _attr(dom, "data-headline").startswith("NOT ACCEPTED — not measured: no verdict.yaml")
+    assert _attr(dom, "data-first-h2") == "Acceptance: factory vs commissioned"
     assert "point-to-point plan: max limit ratio" in dom and "not measured" in dom
     assert "run-ptp.yaml" in dom  # the PtP run is shown
 

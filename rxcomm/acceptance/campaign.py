@@ -122,6 +122,15 @@ def settle_drift_m(position_m: np.ndarray) -> float:
     return float(np.linalg.norm(p[-n:].mean(axis=0) - p[:n].mean(axis=0)))
 
 
+def pose_dwells_s(log: TrackedLog, s: EvaluationSettings) -> list[float]:
+    """The durations of a pose-cycle log's dwells (zero commanded velocity ≥ `min_dwell_s`), s: the
+    test condition ISO 9283 asks a report to state (the measuring window is their last
+    `measure_fraction`). The plan's first dwell counts too: it is a dwell at P1 like the others."""
+    dt = float(np.median(np.diff(log.t_joint)))
+    still = np.all(np.abs(np.diff(log.q_demand, axis=0)) < 1e-12, axis=1)
+    return [(b - a) * dt for a, b in _runs(still) if (b - a) * dt >= s.min_dwell_s]
+
+
 def attained_poses(
     robot: Robot, log: TrackedLog, points_m: Mapping[str, np.ndarray], s: EvaluationSettings
 ) -> dict[str, tuple[np.ndarray, np.ndarray | None, np.ndarray]]:
@@ -267,10 +276,33 @@ def pose_entries(
 _POSE_KEYS = ("AP_p", "AP_a", "AP_b", "AP_c", "RP_l", "RP_a", "RP_b", "RP_c")
 
 
+SPEED_GROUP_TOLERANCE = 0.05  # cycles whose command speeds differ by less are one speed of a path test
+
+
+def speed_groups(speeds: Sequence[float]) -> list[list[int]]:
+    """Indices of cycles grouped by command speed (ISO 9283 tests a path at 100, 50 and 10 % of the
+    rated speed): sorted, a new group where a speed exceeds the group's first by more than
+    `SPEED_GROUP_TOLERANCE`; fastest group first."""
+    order = sorted(range(len(speeds)), key=lambda i: -speeds[i])
+    groups: list[list[int]] = []
+    for i in order:
+        if groups and speeds[groups[-1][0]] - speeds[i] <= SPEED_GROUP_TOLERANCE * speeds[groups[-1][0]]:
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    return groups
+
+
+def _plateau_speed(c: PathCycle, plateau: float = 0.98) -> float:
+    v = c.command_speed_m_per_s
+    return float(np.median(v[v >= plateau * np.max(v)]))
+
+
 def path_entries(
     robot: Robot, target: str, spec: PathSpec | None, logs: Sequence[TrackedLog], s: EvaluationSettings
 ) -> list[Criterion]:
-    """AT_p, RT_p, AV, RV (and CO on the rectangle) of one test path from its cycles' logs."""
+    """AT_p, RT_p, AV, RV (and CO on the rectangle) of one test path from its cycles' logs, one set
+    per command speed the cycles ran at (`speed_groups`)."""
     keys = ["AT_p", "RT_p", "AV", "RV"] + (["CO"] if target == "iso9283-rectangle" else [])
     names = ",".join(lg.name for lg in logs) or None
     if not logs or spec is None:
@@ -281,25 +313,37 @@ def path_entries(
         why = f"no move from the path's start to its end (within {s.match_m} m) in the logs"
         return [_criterion(k, target, None, None, None, names, why) for k in keys]
     pts, tan, dense, _ = command_path(spec, s.n_points)
-    pc = path_criteria(pts, tan, [c.position_m for c in cycles])
-    vc = velocity_criteria([c.speed_m_per_s for c in cycles], [c.command_speed_m_per_s for c in cycles])
-    n, v = len(cycles), vc.command_speed_m_per_s
-    few = "one cycle: no standard deviation"
-    out = [
-        _criterion("AT_p", target, pc.AT_p, n, v, names),
-        _criterion("RT_p", target, pc.RT_p, n, v, names, few if pc.RT_p is None else ""),
-        _criterion("AV", target, vc.AV, n, v, names),
-        _criterion("RV", target, vc.RV, n, v, names, few if vc.RV is None else ""),
-    ]
-    if "CO" in keys:
-        corners = np.asarray(spec.geometry.points_m[1:-1], dtype=float)  # P3, P4, P5
-        nxt = np.diff(np.asarray(spec.geometry.points_m[1:], dtype=float), axis=0)
-        co, _ = corner_overshoot(dense, corners, nxt, [c.position_m for c in cycles], s.corner_zone_m)
-        out.append(_criterion("CO", target, co, n, v, names))
+    out = []
+    for group in speed_groups([_plateau_speed(c) for c in cycles]):
+        cyc = [cycles[i] for i in group]
+        pc = path_criteria(pts, tan, [c.position_m for c in cyc])
+        vc = velocity_criteria([c.speed_m_per_s for c in cyc], [c.command_speed_m_per_s for c in cyc])
+        n, v = len(cyc), vc.command_speed_m_per_s
+        few = "one cycle: no standard deviation"
+        out += [
+            _criterion("AT_p", target, pc.AT_p, n, v, names),
+            _criterion("RT_p", target, pc.RT_p, n, v, names, few if pc.RT_p is None else ""),
+            _criterion("AV", target, vc.AV, n, v, names),
+            _criterion("RV", target, vc.RV, n, v, names, few if vc.RV is None else ""),
+        ]
+        if "CO" in keys:
+            corners = np.asarray(spec.geometry.points_m[1:-1], dtype=float)  # P3, P4, P5
+            nxt = np.diff(np.asarray(spec.geometry.points_m[1:], dtype=float), axis=0)
+            co, _ = corner_overshoot(dense, corners, nxt, [c.position_m for c in cyc], s.corner_zone_m)
+            out.append(_criterion("CO", target, co, n, v, names))
     return out
 
 
 PATH_TARGETS = ("iso9283-line", "iso9283-circle-large", "iso9283-circle-small", "iso9283-rectangle")
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """What the logs say about how the tests ran: the pose test's median dwell and measuring window
+    (None without a pose log)."""
+
+    pose_dwell_s: float | None
+    measuring_window_s: float | None
 
 
 def evaluate(
@@ -309,9 +353,10 @@ def evaluate(
     pose_logs: Sequence[str | Path],
     path_logs: Mapping[str, Sequence[str | Path]],
     settings: EvaluationSettings | None = None,
-) -> tuple[Iso9283Cube, list[Criterion]]:
-    """Every criterion of one robot state: the test cube (from the `iso9283-rectangle` spec) and
-    the entries at P1–P5 and on each test path; logs not given are "not measured"."""
+) -> tuple[Iso9283Cube, list[Criterion], Conditions]:
+    """Every criterion of one robot state: the test cube (from the `iso9283-rectangle` spec), the
+    entries at P1–P5 and on each test path (logs not given are "not measured") and the test
+    conditions the logs show."""
     s = settings or EvaluationSettings()
     if "iso9283-rectangle" not in specs:
         raise InputError(
@@ -324,4 +369,7 @@ def evaluate(
     for target in PATH_TARGETS:
         logs = [tracked_log(p, base_in_tracker) for p in path_logs.get(target, ())]
         out += path_entries(robot, target, specs.get(target), logs, s)
-    return cube, out
+    dwells = [d for lg in poses for d in pose_dwells_s(lg, s)]
+    dwell = float(np.median(dwells)) if dwells else None
+    window = None if dwell is None else s.measure_fraction * dwell
+    return cube, out, Conditions(dwell, window)

@@ -19,7 +19,9 @@ TASK_SUMMARY_KEYS = {
     "cycle_time": "duration_s",
     "tau_squared_integral": "tau_squared_integral_nm2_s",
     "electrical_energy": "electrical_energy_j",
+    "electrical_energy_at_factory_time": "electrical_energy_j",
 }
+EQUAL_TIME_TOLERANCE = 0.02  # the equal-time runs' cycle time within 2 % of the factory's
 
 
 @dataclass(frozen=True)
@@ -131,17 +133,37 @@ def verdict_row(t: Threshold, factory: Measured, commissioned: Measured) -> Verd
     )
 
 
+def equal_time_value(factory_runs: Sequence[Mapping], equal_time_runs: Sequence[Mapping]) -> Measured:
+    """The commissioned task's electrical energy at the factory's cycle time: the sum over its
+    slowed runs, "not measured" when there are none or their cycle time is not the factory's."""
+    if not equal_time_runs:
+        return Measured(None, "no run of the commissioned task at the factory's cycle time")
+    t_f = task_value("cycle_time", factory_runs)
+    t_c = task_value("cycle_time", equal_time_runs)
+    if t_f.value is None or t_c.value is None:
+        return Measured(None, t_f.note if t_f.value is None else t_c.note)
+    if abs(t_c.value - t_f.value) > EQUAL_TIME_TOLERANCE * t_f.value:
+        return Measured(None, f"run at {t_c.value:.4g} s, not the factory's {t_f.value:.4g} s")
+    e = task_value("electrical_energy_at_factory_time", equal_time_runs)
+    return Measured(e.value, f"{e.note} at {t_c.value:.4g} s (factory {t_f.value:.4g} s)")
+
+
 def acceptance_rows(
     thresholds: Sequence[Threshold],
     factory_runs: Sequence[Mapping],
     commissioned_runs: Sequence[Mapping],
     factory_iso: Iso9283 | None,
     commissioned_iso: Iso9283 | None,
+    equal_time_runs: Sequence[Mapping] = (),
 ) -> list[VerdictRow]:
-    """One verdict row per threshold, in the thresholds' order."""
+    """One verdict row per threshold, in the thresholds' order. `equal_time_runs`: the commissioned
+    reference task slowed to the factory's cycle time (electrical_energy_at_factory_time)."""
     rows = []
     for t in thresholds:
-        if t.criterion in TASK_CRITERIA:
+        if t.criterion == "electrical_energy_at_factory_time":
+            f = task_value("electrical_energy", factory_runs)
+            c = equal_time_value(factory_runs, equal_time_runs)
+        elif t.criterion in TASK_CRITERIA:
             f, c = task_value(t.criterion, factory_runs), task_value(t.criterion, commissioned_runs)
         else:
             f, c = iso_value(t, factory_iso), iso_value(t, commissioned_iso)
@@ -149,10 +171,40 @@ def acceptance_rows(
     return rows
 
 
+ACCEPTED = "ACCEPTED"
+NOT_ACCEPTED = "NOT ACCEPTED"
+
+
+def verdict_line(rows: Sequence[VerdictRow]) -> str:
+    """The one line a report and `accept`'s console open with: ``ACCEPTED`` when every acceptance
+    criterion passes, else ``NOT ACCEPTED — n of m acceptance criteria failed: …`` naming the failed
+    ones (and the unmeasured ones, which cannot accept a robot either)."""
+    failed = [r.criterion for r in rows if r.verdict == "FAIL"]
+    unmeasured = [r.criterion for r in rows if r.verdict == "not measured"]
+    if not rows:
+        return f"{NOT_ACCEPTED} — no acceptance criterion was judged"
+    if not failed and not unmeasured:
+        return ACCEPTED
+    line = f"{NOT_ACCEPTED} — {len(failed)} of {len(rows)} acceptance criteria failed"
+    line += f": {', '.join(failed)}" if failed else ""
+    if unmeasured:
+        line += f"; {len(unmeasured)} not measured: {', '.join(unmeasured)}"
+    return line
+
+
 def overall(rows: Sequence[VerdictRow]) -> dict[str, object]:
-    """The summary: FAIL if any row fails, PASS if all pass, else incomplete (some not measured)."""
+    """The summary: FAIL if any row fails, PASS if all pass, else incomplete (some not measured);
+    `accepted` (true only when all pass) and the verdict line make and CI gate on."""
     n_pass = sum(r.verdict == "PASS" for r in rows)
     n_fail = sum(r.verdict == "FAIL" for r in rows)
     n_nm = len(rows) - n_pass - n_fail
-    verdict = "FAIL" if n_fail else ("PASS" if n_nm == 0 else "incomplete")
-    return {"verdict": verdict, "n_pass": n_pass, "n_fail": n_fail, "n_not_measured": n_nm}
+    verdict = "FAIL" if n_fail else ("PASS" if n_nm == 0 and rows else "incomplete")
+    return {
+        "verdict": verdict,
+        "accepted": verdict == "PASS",
+        "verdict_line": verdict_line(rows),
+        "n_criteria": len(rows),
+        "n_pass": n_pass,
+        "n_fail": n_fail,
+        "n_not_measured": n_nm,
+    }

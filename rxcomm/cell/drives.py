@@ -48,22 +48,31 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import Field
 
-from rxcomm.model.dynamics import RobotDynamics, prior_parameters
 from rxcomm.model.robot import Robot
+from rxcomm.model.servo import nominal_axis_inertia
+from rxcomm.schemas.drives import ServoLoops
 from rxcomm.schemas.strict import Strict
+
+_LOOPS = ServoLoops()  # the defaults a maker's data sheet (drives.yaml `servo`) states
 
 
 class DriveTuning(Strict):
     """How the drives are tuned (all axes alike; per-axis gains follow from the prior inertias)."""
 
     velocity_bandwidth_rad_s: float = Field(
-        60.0, gt=0, description="velocity loop bandwidth ω_v (K_p = J·ω_v), rad/s"
+        _LOOPS.velocity_bandwidth_rad_s, gt=0, description="velocity loop bandwidth ω_v (K_p = J·ω_v), rad/s"
     )
-    position_gain_ratio: float = Field(4.0, gt=1, description="γ: position gain K_v = ω_v/γ, 1/s")
-    integral_time_ratio: float = Field(4.0, gt=0, description="β: integral time T_i = β/ω_v")
+    position_gain_ratio: float = Field(
+        _LOOPS.position_gain_ratio, gt=1, description="γ: position gain K_v = ω_v/γ, 1/s"
+    )
+    integral_time_ratio: float = Field(
+        _LOOPS.integral_time_ratio, gt=0, description="β: integral time T_i = β/ω_v"
+    )
     velocity_filter_s: float = Field(0.5e-3, ge=0, description="T_f of the velocity estimate, s")
     following_error_limit_rad: float = Field(
-        0.035, gt=0, description="|demand − actual| above this trips the axis (0x8611), rad"
+        _LOOPS.following_error_limit_rad,
+        gt=0,
+        description="|demand − actual| above this trips the axis (0x8611), rad",
     )
     quick_stop_decel_ratio: float = Field(
         1.5, gt=0, description="quick-stop deceleration = this × drives.yaml acceleration_max"
@@ -91,14 +100,6 @@ class DriveGains:
     @property
     def n(self) -> int:
         return len(self.kv_per_s)
-
-
-def nominal_axis_inertia(robot: Robot, samples: int = 64, seed: int = 0) -> np.ndarray:
-    """Mean diagonal of the prior mass matrix (links + reflected rotors) over random poses, kg·m²."""
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(robot.q_min, robot.q_max, (samples, robot.n))
-    m = RobotDynamics(robot, prior_parameters(robot)).mass_matrix(q)
-    return np.diagonal(m, axis1=1, axis2=2).mean(axis=0)
 
 
 def drive_gains(robot: Robot, tuning: DriveTuning | None = None) -> DriveGains:

@@ -19,7 +19,11 @@ limits):
 1. k_v the largest ≤ 1 for which the speed terms (Coriolis, friction) take at most
    1 − `ACCELERATION_RESERVE` of the headroom τ_peak,j − |g_j + τ_s,j| at every pose and joint: the
    bound at zero acceleration leaves that reserve of every pose's headroom for accelerating;
-2. k_a the largest ≤ 1 for which the whole bound at v stays within τ_peak: acceleration fills the rest.
+2. k_a the largest ≤ 1 for which the whole bound at v stays within τ_peak: acceleration fills the rest;
+3. then each joint's acceleration cut, where needed, to what the drives follow without a torque
+   feed-forward: its own following error (drives.yaml `servo` loops, its largest inertia, friction,
+   the jerk ramp) peaking within 60 % of the following-error window (`rxcomm.model.servo`).
+   `acceleration_binding` says per joint which bound binds: torque, following error or the drive.
 
 Each by progressive filling: all joints' scale grows together until a torque row binds (tight: that
 pose's bound equals its limit); the joints loading that row (through its speed terms in step 1,
@@ -43,8 +47,10 @@ import pinocchio as pin
 from rxcomm.errors import InfeasibleError
 from rxcomm.model.dynamics import DynamicParameters, RobotDynamics, prior_parameters
 from rxcomm.model.robot import Robot
+from rxcomm.model.servo import tracking_bound
 
 DEFAULT_POSES = 2000
+JERK_RAMP_S = 0.05  # the generic controller's jerk: each joint reaches its acceleration in 50 ms
 ACCELERATION_RESERVE = 0.5  # of every pose's torque headroom (peak − holding) kept for accelerating
 
 
@@ -69,6 +75,17 @@ class CatalogueLimits:
     payload_kg: float
     n_poses: int
     seed: int
+    following_error_peak_rad: np.ndarray  # per joint, the own-axis peak following error at a_max
+    following_error_allowed_rad: float  # the stated fraction of the drives' window
+    acceleration_binding: tuple[str, ...]  # per joint: "torque", "following error" or "drive"
+
+    def binding_text(self) -> str:
+        """Which bound binds each joint's acceleration, e.g. 'torque: joint_1, joint_2; following
+        error: joint_6' (the plans' summaries state it)."""
+        by: dict[str, list[str]] = {}
+        for name, b in zip(self.joint_names, self.acceleration_binding, strict=True):
+            by.setdefault(b, []).append(name)
+        return "; ".join(f"{b}: {', '.join(names)}" for b, names in by.items())
 
     @property
     def bound_by(self) -> tuple[str, ...]:
@@ -92,6 +109,10 @@ class CatalogueLimits:
             "n_poses": self.n_poses,
             "seed": self.seed,
             "payload_kg": self.payload_kg,
+            "following_error": "and a = the largest whose own-axis following error, without torque "
+            "feed-forward (drives.yaml servo loops on the axis' largest inertia, friction, the jerk "
+            "ramp), peaks within the allowed fraction of the window (rxcomm.model.servo)",
+            "following_error_allowed_rad": self.following_error_allowed_rad,
             "joints": [
                 {
                     "name": name,
@@ -101,6 +122,8 @@ class CatalogueLimits:
                     "acceleration_scale": float(self.acceleration_scale[k]),
                     "velocity_bound_by": self.velocity_bound_by[k],
                     "acceleration_bound_by": self.acceleration_bound_by[k],
+                    "acceleration_binding": self.acceleration_binding[k],
+                    "following_error_peak_rad": float(self.following_error_peak_rad[k]),
                     "velocity_worst_pose_rad": pose(
                         self.velocity_bound_by[k], self.velocity_worst_pose_rad[k]
                     ),
@@ -275,21 +298,42 @@ def catalogue_limits(
         n_poses,
     )
 
+    # what the drives follow without torque feed-forward: the own-axis following error (servo.py)
+    a_torque = acc.scale * a_ref
+    track = tracking_bound(
+        robot,
+        np.diagonal(wc.mass, axis1=1, axis2=2).max(axis=0),
+        a_torque,
+        v_max,
+        JERK_RAMP_S,
+        wc.friction_0,
+        np.diag(wc.friction_per_speed),
+    )
+    binding = tuple(
+        "following error" if track.binds[k] else ("drive" if acc.bound_by[k] == "drive" else "torque")
+        for k in range(n)
+    )
+    bound_by = tuple(robot.joint_names[k] if track.binds[k] else acc.bound_by[k] for k in range(n))
+    worst_acc = np.where(track.binds, -1, acc.worst)
+
     def poses(worst: np.ndarray) -> np.ndarray:
         return np.where((worst >= 0)[:, None], q[np.maximum(worst, 0)], np.nan)
 
     return CatalogueLimits(
         joint_names=robot.joint_names,
         v_max=v_max,
-        a_max=acc.scale * a_ref,
+        a_max=track.a_max,
         velocity_scale=vel.scale,
-        acceleration_scale=acc.scale,
+        acceleration_scale=track.a_max / a_ref,
         velocity_bound_by=tuple(vel.bound_by),
-        acceleration_bound_by=tuple(acc.bound_by),
+        acceleration_bound_by=bound_by,
         velocity_worst_pose_rad=poses(vel.worst),
-        acceleration_worst_pose_rad=poses(acc.worst),
+        acceleration_worst_pose_rad=poses(worst_acc),
         acceleration_reserve=acceleration_reserve,
         payload_kg=0.0 if robot.drives.rated_payload is None else robot.drives.rated_payload.mass_kg,
         n_poses=n_poses,
         seed=seed,
+        following_error_peak_rad=track.peak_rad,
+        following_error_allowed_rad=track.allowed_rad,
+        acceleration_binding=binding,
     )

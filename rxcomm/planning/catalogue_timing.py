@@ -40,7 +40,13 @@ import numpy as np
 
 from rxcomm.errors import InfeasibleError
 from rxcomm.io.trajectory import Trajectory
-from rxcomm.model.catalogue import DEFAULT_POSES, CatalogueLimits, payload_parameters, worst_case_terms
+from rxcomm.model.catalogue import (
+    DEFAULT_POSES,
+    JERK_RAMP_S,  # the generic controller's jerk: each joint reaches its acceleration in 50 ms
+    CatalogueLimits,
+    payload_parameters,
+    worst_case_terms,
+)
 from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.limits import AccelerationLimit, LimitReport, PositionLimit, VelocityLimit, check_limits
 from rxcomm.model.robot import Robot
@@ -62,8 +68,7 @@ from rxcomm.planning.topp import PlanLimits, time_optimal
 from rxcomm.planning.warm_start import ruckig_profile
 from rxcomm.schemas.path import PathSpec
 
-JERK_RAMP_S = 0.05  # the generic controller's jerk: each joint reaches its catalogue acceleration in 50 ms
-# (PtP: ruckig's jerk limit a/T; CP: a moving-average setpoint filter of length T)
+# JERK_RAMP_S: PtP uses ruckig's jerk limit a/T, CP a moving-average setpoint filter of length T
 
 
 def moving_average(x: np.ndarray, n: int, rest_ends: bool) -> np.ndarray:

@@ -326,6 +326,22 @@ def cube_from_rectangle(spec: PathSpec) -> Iso9283Cube:
     return Iso9283Cube(centre, side, tuple(float(a) for a in rpy), corners, points)
 
 
+def time_scaled(traj: Trajectory, duration_s: float, sample_s: float) -> Trajectory:
+    """`traj` slowed (or sped up) uniformly in time to `duration_s`: q(t/k), q̇(t/k)/k, q̈(t/k)/k² with
+    k = duration / its duration, resampled at `sample_s` (linear interpolation of the dense samples).
+    The same joint path, so the same geometry; torques are left to the caller's model."""
+    if duration_s <= 0:
+        raise InputError("needs a positive duration", field="duration-s")
+    k = duration_s / traj.duration_s
+    t = np.arange(int(round(duration_s / sample_s)) + 1) * sample_s
+    tau = np.minimum(t / k, traj.t[-1])
+
+    def at(x: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(tau, traj.t, x[:, j]) for j in range(x.shape[1])])
+
+    return Trajectory(t, at(traj.q), at(traj.qd) / k, at(traj.qdd) / k**2)
+
+
 def repeat_cycles(
     traj: Trajectory, n_cycles: int, dwell_s: float, move: MoveFn, sample_s: float
 ) -> Trajectory:

@@ -1,8 +1,11 @@
 """The report's document model: what both renderings (Markdown, HTML) draw, in reading order.
 
-A report opens with its verdict rows (criterion, measured, threshold, verdict), then one section per
-stage (headline figures, parameter tables, images), then the paper comparison, built from every
-figure that carries a paper value, so a stage section reads as a result and not as a comparison.
+A report opens with its headline, one line: ``ACCEPTED`` or ``NOT ACCEPTED — n of m acceptance criteria
+failed: …``; then the acceptance table (factory vs commissioned, the criteria that make the verdict)
+and the sections that detail it (ISO 9283 as the standard writes it); then rxcomm's own commissioning
+checks (criterion, measured, threshold, verdict), which never count toward the verdict; then one
+section per stage (headline figures, parameter tables, images), then the paper comparison, built from
+every figure that carries a paper value, so a stage section reads as a result and not as a comparison.
 """
 
 from __future__ import annotations
@@ -73,11 +76,19 @@ class VerdictRow:
 
 @dataclass(frozen=True)
 class Report:
+    """`verdict`: rxcomm's commissioning checks (stage targets; never the verdict); `headline` and
+    `acceptance`: the verdict line and the acceptance criteria it counts, `acceptance_sections` the
+    detail under them (the ISO 9283 tables)."""
+
     title: str
     preamble: str
     verdict: Sequence[VerdictRow]
     sections: Sequence[Section]
     verdict_note: str = ""
+    headline: str = ""
+    acceptance: Sequence[VerdictRow] = ()
+    acceptance_note: str = ""
+    acceptance_sections: Sequence[Section] = ()
     paper_note: str = field(
         default="The reference paper's figures are the Stäubli RX130L's, measured on the real robot; "
         "ours are this build's. They answer the same question, not under the same conditions."

@@ -9,8 +9,13 @@ import re
 from collections.abc import Callable, Sequence
 from html import escape
 
-from rxcomm.reporting.document import Report, Table, Verdict
-from rxcomm.reporting.markdown import verdict_columns
+from rxcomm.reporting.document import Report, Section, Table, Verdict, VerdictRow
+from rxcomm.reporting.markdown import (
+    ACCEPTANCE_TITLE,
+    CHECKS_INTRO,
+    CHECKS_TITLE,
+    verdict_columns,
+)
 
 _STYLE = """
 body { font-family: system-ui, sans-serif; max-width: 70rem; margin: 2rem auto; padding: 0 1rem;
@@ -23,6 +28,9 @@ td.pass { background: #dff3df; } td.fail { background: #f8d7d7; font-weight: 600
 td.not-measured { background: #eee; color: #666; font-style: italic; }
 figure { margin: 0.5rem 0 1.5rem; } figure img, figure svg { max-width: 100%; height: auto; }
 figcaption { font-size: 0.85rem; color: #555; } p.missing { color: #a00; font-style: italic; }
+p.headline { font-size: 1.5rem; font-weight: 700; padding: 0.4rem 0.8rem; margin: 0.5rem 0 1rem; }
+p.accepted { background: #dff3df; border-left: 0.4rem solid #2a7d2a; }
+p.not-accepted { background: #f8d7d7; border-left: 0.4rem solid #a00; }
 """
 
 ImageLoader = Callable[[str], bytes | None]
@@ -43,11 +51,11 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]], caption: str = 
     return "\n".join([*out, "</table>"])
 
 
-def _verdict_table(report: Report) -> str:
-    header, cells = verdict_columns(report.verdict)
+def _verdict_table(rows: Sequence[VerdictRow], table_id: str) -> str:
+    header, cells = verdict_columns(rows)
     col = header.index("verdict")
-    out = ['<table id="verdict">', "<tr>" + "".join(f"<th>{escape(h)}</th>" for h in header) + "</tr>"]
-    for row, r in zip(cells, report.verdict, strict=True):
+    out = [f'<table id="{table_id}">', "<tr>" + "".join(f"<th>{escape(h)}</th>" for h in header) + "</tr>"]
+    for row, r in zip(cells, rows, strict=True):
         tds = []
         for i, c in enumerate(row):
             cls = {Verdict.passed: "pass", Verdict.failed: "fail"}.get(r.verdict, "not-measured")
@@ -72,27 +80,41 @@ def _tables(tables: Sequence[Table]) -> list[str]:
     return [_table(t.header, t.rows, t.caption) for t in tables]
 
 
+def _section(sec: Section, load: ImageLoader) -> list[str]:
+    out = [f"<section><h2>{escape(sec.title)}</h2>"]
+    if sec.figures:
+        out.append(_table(["figure", "value"], [[f.what, f.ours] for f in sec.figures]))
+    out += _tables(sec.tables)
+    if sec.note:
+        out.append(f"<p>{_text(sec.note)}</p>")
+    out += [_figure(name, sec.title, load) for name in sec.all_images()]
+    return [*out, "</section>"]
+
+
 def render(report: Report, load: ImageLoader) -> str:
-    """HTML text; `load(name)` returns the bytes of a figure of the build (None: not there)."""
+    """HTML text; `load(name)` returns the bytes of a figure of the build (None: not there). The
+    headline (the verdict line, `p#headline`) is the first element after the title."""
     out = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>{escape(report.title)}</title><style>{_STYLE}</style></head><body>",
         f"<h1>{escape(report.title)}</h1>",
-        *(f"<p>{_text(p)}</p>" for p in report.preamble.split("\n\n")),
-        "<h2>Verdict</h2>",
-        _verdict_table(report),
-        *([f"<p>{_text(report.verdict_note)}</p>"] if report.verdict_note else []),
     ]
+    if report.headline:
+        cls = "accepted" if report.headline == "ACCEPTED" else "not-accepted"
+        out.append(f'<p id="headline" class="headline {cls}">{escape(report.headline)}</p>')
+    out += [f"<p>{_text(p)}</p>" for p in report.preamble.split("\n\n")]
+    if report.acceptance:
+        out += [f"<h2>{escape(ACCEPTANCE_TITLE)}</h2>", _verdict_table(report.acceptance, "acceptance")]
+        out += [f"<p>{_text(report.acceptance_note)}</p>"] if report.acceptance_note else []
+    for sec in report.acceptance_sections:
+        out += _section(sec, load)
+    if report.verdict:
+        out += [f"<h2>{escape(CHECKS_TITLE)}</h2>", f"<p>{_text(CHECKS_INTRO)}</p>"]
+        out.append(_verdict_table(report.verdict, "checks"))
+        out += [f"<p>{_text(report.verdict_note)}</p>"] if report.verdict_note else []
     for sec in report.sections:
-        out.append(f"<section><h2>{escape(sec.title)}</h2>")
-        if sec.figures:
-            out.append(_table(["figure", "value"], [[f.what, f.ours] for f in sec.figures]))
-        out += _tables(sec.tables)
-        if sec.note:
-            out.append(f"<p>{_text(sec.note)}</p>")
-        out += [_figure(name, sec.title, load) for name in sec.all_images()]
-        out.append("</section>")
+        out += _section(sec, load)
     out += [
         '<section><h2 id="paper">Comparison with the paper</h2>',
         f"<p>{escape(report.paper_note)}</p>",

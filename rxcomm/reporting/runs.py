@@ -120,3 +120,43 @@ def runs_section(runs: Mapping[str, Mapping], images: Sequence[str]) -> Section:
         note="Lags are following errors q_demand − q_actual; the TCP error is FK of demand vs actual joints "
         "through the nominal model (it cannot see the geometric errors calibration removes).",
     )
+
+
+# The reference task's runs in each state (the Makefile's names): the time–energy points of the report.
+TASK_RUNS = {
+    "factory (catalogue timing, no feed-forward)": ("run-factory-cp.yaml", "run-factory-ptp.yaml"),
+    "commissioned, time-optimal": ("run-ff.yaml", "run-ptp.yaml"),
+    "commissioned, slowed to the factory's cycle time": (
+        "run-cp-at-factory-time.yaml",
+        "run-ptp-at-factory-time.yaml",
+    ),
+}
+
+
+def energy_section(runs: Mapping[str, Mapping]) -> Section:
+    """The reference task's cycle time and electrical energy (bus, `model.energy`) and ∫τᵀτ in each
+    state: the commissioned time–energy points with the factory's beside them (issue 29). A state
+    whose runs the build lacks is "not measured"."""
+    rows = []
+    for what, names in TASK_RUNS.items():
+        got = [runs.get(n, {}).get("summary") for n in names]
+        if not all(got) or any(g.get("outcome") != "completed" for g in got):
+            rows.append([what, NOT_MEASURED, NOT_MEASURED, NOT_MEASURED])
+            continue
+        t = sum(g["duration_s"] for g in got)
+        e = [g.get("electrical_energy_j") for g in got]
+        tau2 = sum(g["tau_squared_integral_nm2_s"] for g in got)
+        rows.append(
+            [what, fmt(t, digits=4, unit="s"), fmt(None if None in e else sum(e), digits=4, unit="J"),
+             fmt(tau2, digits=4, unit="N²·m²·s")]
+        )  # fmt: skip
+    note = (
+        "The same path and PtP move in each row, CP path then PtP (run logs; the energy drawn from the bus "
+        "with copper losses, regeneration as drives.yaml says). The slowed row is the time-optimal plan "
+        "scaled uniformly in time (`plan-cycles --duration-s`), not an energy-optimal plan at that time: "
+        "an upper bound of what the commissioned state needs there."
+    )
+    table = Table(
+        "reference task: time–energy points", ["state", "cycle time", "electrical energy", "∫τᵀτ dt"], rows
+    )
+    return Section("Energy of the reference task at equal cycle time", [], note=note, tables=[table])

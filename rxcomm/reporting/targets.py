@@ -1,5 +1,7 @@
-"""The report's verdict rows: the acceptance criteria (`rxcomm accept`'s verdict.yaml: factory,
-commissioned, ratio, threshold) first, then one row per stage's headline against a stated target.
+"""The report's verdict: the headline (`ACCEPTED` / `NOT ACCEPTED — …`) and the acceptance criteria
+(`rxcomm accept`'s verdict.yaml: factory, commissioned, ratio, threshold) that make it; then rxcomm's
+commissioning checks, one row per stage's headline against a stated target, which never count toward
+the verdict.
 
 Inputs are artefact summaries (plain mappings); None is a stage the build lacks, and its row says
 "not measured".
@@ -12,6 +14,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from pydantic import Field
 
+from rxcomm.acceptance.verdict import NOT_ACCEPTED, verdict_line
 from rxcomm.reporting.document import (
     DEFAULT_TOLERANCE,
     NOT_MEASURED,
@@ -20,6 +23,7 @@ from rxcomm.reporting.document import (
     VerdictRow,
     ratio_verdict,
 )
+from rxcomm.schemas.acceptance import VerdictRow as AcceptanceRow
 from rxcomm.schemas.strict import Strict
 
 
@@ -140,13 +144,21 @@ def stage_verdicts(
     ]
 
 
-def verdict_note(rows: Sequence[VerdictRow]) -> str:
-    """One sentence under the table: how many criteria pass, fail, were not measured."""
+def verdict_note(rows: Sequence[VerdictRow], what: str = "criteria") -> str:
+    """One sentence under a table: how many rows pass, fail, were not measured."""
     n = {v: sum(r.verdict is v for r in rows) for v in Verdict}
     return (
-        f"{n[Verdict.passed]} of {len(rows)} criteria pass, {n[Verdict.failed]} fail, "
+        f"{n[Verdict.passed]} of {len(rows)} {what} pass, {n[Verdict.failed]} fail, "
         f"{n[Verdict.not_measured]} not measured."
     )
+
+
+def headline(acceptance: Mapping | None) -> str:
+    """The report's first line: the verdict of an `rxcomm/Acceptance` artefact (plain data) as
+    `rxcomm accept` prints it; a build without one is not accepted, and says why."""
+    if acceptance is None:
+        return f"{NOT_ACCEPTED} — not measured: no verdict.yaml in this build (`rxcomm accept`)"
+    return verdict_line([AcceptanceRow.model_validate(r) for r in acceptance["rows"]])
 
 
 def _accept_value(x: float | None, unit: str) -> str:

@@ -9,7 +9,9 @@ Criteria: the ISO 9283 ones of `rxcomm iso9283` (``rxcomm.schemas.iso9283``: AP_
 CO in m; AV, RV in 1) on a test pose or path (``target``; none: the worst over all of them) and at a
 command speed, and the reference task's figures from its run logs: ``cycle_time`` (s, the sum of the
 runs' durations), ``tau_squared_integral`` (N²·m²·s, ∫τᵀτ dt of the measured torques) and
-``electrical_energy`` (J, drawn from the bus, `rxcomm.model.energy`).
+``electrical_energy`` (J, drawn from the bus, `rxcomm.model.energy`), and
+``electrical_energy_at_factory_time`` (J): the commissioned reference task slowed uniformly in time to
+the factory's cycle time (`plan-cycles --duration-s`), run, against the factory's: energy at equal time.
 """
 
 from __future__ import annotations
@@ -21,7 +23,12 @@ from pydantic import Field, model_validator
 from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.strict import Strict
 
-TASK_CRITERIA: dict[str, str] = {"cycle_time": "s", "tau_squared_integral": "N2m2s", "electrical_energy": "J"}
+TASK_CRITERIA: dict[str, str] = {
+    "cycle_time": "s",
+    "tau_squared_integral": "N2m2s",
+    "electrical_energy": "J",
+    "electrical_energy_at_factory_time": "J",
+}
 ISO_CRITERIA: dict[str, str] = {
     "AP_p": "m",
     "RP_l": "m",
@@ -43,6 +50,7 @@ CriterionName = Literal[
     "cycle_time",
     "tau_squared_integral",
     "electrical_energy",
+    "electrical_energy_at_factory_time",
 ]
 Unit = Literal["m", "1", "s", "N2m2s", "J"]
 Verdict = Literal["PASS", "FAIL", "not measured"]

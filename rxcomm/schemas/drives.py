@@ -95,6 +95,21 @@ class RatedPayload(Strict):
     )
 
 
+class ServoLoops(Strict):
+    """The drives' position/velocity loops as their maker states them (all axes alike): what a generic
+    controller without torque feed-forward can follow (`rxcomm.model.servo`). The simulated cell's
+    drives are tuned with the same defaults (`rxcomm.cell.drives.DriveTuning`)."""
+
+    velocity_bandwidth_rad_s: float = Field(
+        60.0, gt=0, description="velocity loop bandwidth ω_v (K_p = J_nominal·ω_v), rad/s"
+    )
+    position_gain_ratio: float = Field(4.0, gt=1, description="γ: position gain K_v = ω_v/γ, 1/s")
+    integral_time_ratio: float = Field(4.0, gt=0, description="β: velocity integral time T_i = β/ω_v")
+    following_error_limit_rad: float = Field(
+        0.035, gt=0, description="the following-error window: |demand − actual| above it trips (0x8611), rad"
+    )
+
+
 class Drives(Strict):
     kind: Literal["rxcomm/Drives"]
     schema_version: Literal[1]
@@ -116,6 +131,9 @@ class Drives(Strict):
         description="where friction acts in the model: per joint (joint side), per motor (motor side, "
         "mapped to the joints by Rᵀ: a coupled motor loads every joint it turns with), or both; "
         "default both when motor_coupling couples axes, else joint",
+    )
+    servo: ServoLoops = Field(
+        default_factory=ServoLoops, description="the drives' loops and following-error window"
     )
 
     @model_validator(mode="after")

@@ -6,6 +6,10 @@ their ``NAME.yaml`` summaries give cycle time and energy) and optionally each st
 criteria (``--factory-iso9283``, ``--commissioned-iso9283``, kind `rxcomm/Iso9283`), and writes
 ``verdict.yaml`` (kind `rxcomm/Acceptance`): criterion, factory, commissioned, ratio, threshold,
 verdict. Anything not given is "not measured", and the summary's verdict is then "incomplete".
+
+The console opens with one line, ``ACCEPTED`` or ``NOT ACCEPTED — n of m acceptance criteria failed:
+…`` (`rxcomm.acceptance.verdict.verdict_line`); the exit code is 0 either way (a verdict is a result,
+not an error): make and CI gate on the summary's ``accepted``.
 """
 
 from __future__ import annotations
@@ -27,6 +31,23 @@ from rxcomm.schemas.run_log import RunLog
 def _summary_file(log: Path) -> Path:
     """A run log is named by its MCAP or its summary YAML; the summary is what is read."""
     return mcap_summary_path(log) if log.suffix == ".mcap" else log
+
+
+def print_verdict(summary: dict, rows) -> None:
+    """The verdict first, one line (make and CI gate on summary.accepted; the exit code is 0 either
+    way), then the criteria, factory → commissioned."""
+    console.out.print(str(summary["verdict_line"]), markup=False, highlight=False)
+    console.out.print("acceptance criteria, factory → commissioned:")
+    for r in rows:
+        ratio = "—" if r.ratio is None else f"{r.ratio:.3g}"
+        f = "not measured" if r.factory is None else f"{r.factory:.4g}"
+        c = "not measured" if r.commissioned is None else f"{r.commissioned:.4g}"
+        console.out.print(
+            f"  {r.criterion:32s} {f:>13s} → {c:>13s} {r.unit:5s} ratio {ratio:>6s}  "
+            f"{r.threshold:18s} {r.verdict}",
+            markup=False,
+            highlight=False,
+        )
 
 
 SAME_TASK_RAD = 0.05  # end states of one task in both states: the calibration moves them by mrad
@@ -86,6 +107,13 @@ def command(
         list[Path] | None,
         typer.Option(help="Run log of the reference task, commissioned state; repeat, same moves."),
     ] = None,
+    commissioned_equal_time_log: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Run log of the commissioned reference task slowed to the factory's cycle time "
+            "(plan-cycles --duration-s); repeat, same moves: the energy at equal time."
+        ),
+    ] = None,
     factory_iso9283: Annotated[
         Path | None, typer.Option(help="ISO 9283 criteria of the factory state (rxcomm/Iso9283).")
     ] = None,
@@ -99,10 +127,12 @@ def command(
     output = Path(output)
     f_files = [_summary_file(Path(p)) for p in factory_log or []]
     c_files = [_summary_file(Path(p)) for p in commissioned_log or []]
+    e_files = [_summary_file(Path(p)) for p in commissioned_equal_time_log or []]
     inputs = {
         "thresholds": Path(thresholds),
         **{f"factory_log_{i + 1}": p for i, p in enumerate(f_files)},
         **{f"commissioned_log_{i + 1}": p for i, p in enumerate(c_files)},
+        **{f"commissioned_equal_time_log_{i + 1}": p for i, p in enumerate(e_files)},
         "factory_iso9283": factory_iso9283,
         "commissioned_iso9283": commissioned_iso9283,
     }
@@ -120,21 +150,16 @@ def command(
     spec = read_yaml_model(thresholds, AcceptanceThresholds)
     f_runs = [read_yaml_artefact(p, RunLog).summary for p in f_files]
     c_runs = [read_yaml_artefact(p, RunLog).summary for p in c_files]
+    e_runs = [read_yaml_artefact(p, RunLog).summary for p in e_files]
     f_iso = read_yaml_artefact(factory_iso9283, Iso9283) if factory_iso9283 else None
     c_iso = read_yaml_artefact(commissioned_iso9283, Iso9283) if commissioned_iso9283 else None
-    rows = acceptance_rows(spec.criteria, f_runs, c_runs, f_iso, c_iso)
+    rows = acceptance_rows(spec.criteria, f_runs, c_runs, f_iso, c_iso, e_runs)
     summary = overall(rows)
     settings = {"factory_logs": [p.name for p in f_files], "commissioned_logs": [p.name for p in c_files]}
+    settings["commissioned_equal_time_logs"] = [p.name for p in e_files]
     used = {k: Path(v) for k, v in inputs.items() if v is not None}
     artefact = Acceptance(**Acceptance.envelope(used, settings, summary), rows=rows)
     write_yaml_artefact(output, artefact)
-    console.out.print(f"acceptance → {output}: {summary['verdict']}")
-    for r in rows:
-        ratio = "—" if r.ratio is None else f"{r.ratio:.3g}"
-        f = "not measured" if r.factory is None else f"{r.factory:.4g}"
-        c = "not measured" if r.commissioned is None else f"{r.commissioned:.4g}"
-        console.out.print(
-            f"  {r.criterion:32s} {f:>13s} → {c:>13s} {r.unit:5s} ratio {ratio:>6s}  "
-            f"{r.threshold:18s} {r.verdict}"
-        )
+    print_verdict(summary, rows)
+    console.out.print(f"verdict → {output}")
     return summary

@@ -324,6 +324,7 @@ def _write(
     summary = summary_of(plan, robot)
     if catalogue is not None:  # how the limits were found; what the setpoint filter rounds off
         settings["catalogue"] = catalogue.as_dict()
+        summary["catalogue_acceleration_bound"] = catalogue.binding_text()
         summary["max_filter_deviation_m"] = filtered_path_deviation_m(robot, plan, cpath)
     summary["seconds"] = time.perf_counter() - t_all
     env = TrajectorySummary.envelope(inputs, settings, summary)

@@ -5,6 +5,10 @@ in every fresh run, so the cycles go into one plan: PLAN (a trajectory MCAP, e.g
 line), then per further cycle a dwell, a return move to its start (cycloidal, at the catalogue
 limits of `model.catalogue`) and a dwell (`planning.iso9283.repeat_cycles`). Writes ``NAME.mcap``
 with ``NAME.yaml`` beside it for `run`; `rxcomm iso9283` splits the log into its cycles.
+
+``--duration-s`` first slows (or speeds up) the one cycle uniformly in time to that duration
+(`planning.iso9283.time_scaled`): with ``--cycles 1`` the commissioned reference task at the factory's
+cycle time, whose electrical energy `accept` compares at equal time (issue 29).
 """
 
 from __future__ import annotations
@@ -31,6 +35,10 @@ def command(
     cycles: Annotated[int, typer.Option(help="Cycles of the path (ISO 9283: 10).")] = 10,
     dwell_s: Annotated[float, typer.Option(help="Hold at each end of the path, s.")] = 0.3,
     dynamics: PlanDynamics = None,
+    duration_s: Annotated[
+        float | None,
+        typer.Option(help="Time-scale the cycle uniformly to this duration first, s (default: as planned)."),
+    ] = None,
 ) -> dict[str, object]:
     """Repeat a test path's plan for the ISO 9283 cycles, with return moves at the catalogue limits."""
     from rxcomm.io.trajectory import Trajectory, load_trajectory_mcap, save_trajectory_mcap
@@ -38,7 +46,7 @@ def command(
     from rxcomm.model.catalogue import catalogue_limits
     from rxcomm.model.limits import check_limits
     from rxcomm.model.robot import load_robot, robot_files
-    from rxcomm.planning.iso9283 import cycloidal_move, repeat_cycles
+    from rxcomm.planning.iso9283 import cycloidal_move, repeat_cycles, time_scaled
     from rxcomm.planning.ptp_problem import PtpDynamics
 
     t_all, plan, output = time.perf_counter(), Path(plan), trajectory_output(output)
@@ -47,6 +55,8 @@ def command(
     robot = load_robot(robot_dir)
     catalogue = catalogue_limits(robot)
     sample_s = float(np.median(np.diff(one.t)))
+    planned_s = one.duration_s
+    one = one if duration_s is None else time_scaled(one, duration_s, sample_s)
     rep = repeat_cycles(
         one, cycles, dwell_s, cycloidal_move(catalogue.v_max, catalogue.a_max, sample_s), sample_s
     )
@@ -58,11 +68,13 @@ def command(
     summary |= {
         "n_cycles": cycles,
         "cycle_duration_s": one.duration_s,
+        "time_scale": one.duration_s / planned_s,
         "seconds": time.perf_counter() - t_all,
     }
     inputs = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
     inputs |= {} if dynamics is None else {"dynamics": Path(dynamics)}
-    settings = {"cycles": cycles, "dwell_s": dwell_s, "return_moves": "cycloidal at the catalogue limits",
+    settings = {"cycles": cycles, "dwell_s": dwell_s, "duration_s": duration_s,
+                "return_moves": "cycloidal at the catalogue limits",
                 "plan_settings": env.get("settings", {})}  # fmt: skip
     output.parent.mkdir(parents=True, exist_ok=True)
     save_trajectory_mcap(output, traj, TrajectorySummary.envelope(inputs, settings, summary))

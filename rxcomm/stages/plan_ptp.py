@@ -354,6 +354,7 @@ def _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, target: _Target) ->
         "worst_limit": f"{limit} {joint} at {t_worst:.4f} s",
         "limits_checked": ", ".join(report.ratios),
         "fallback": False,
+        "catalogue_acceleration_bound": catalogue.binding_text(),
         **{f"max_{k}_ratio": v for k, v in report.max_by_limit().items()},
         "seconds": time.perf_counter() - target.t_all,
     }

@@ -1,8 +1,10 @@
 """`rxcomm report BUILD_DIR`: the commissioning report, report.md and a self-contained report.html.
 
 Reads the artefacts `make commission` writes under their conventional names, and every run log of the
-build; opens with the verdict, then each stage's figures, parameter tables and plots, every executed
-run, and the comparison with the paper. A missing artefact is a section "not measured".
+build; opens with the verdict line (``ACCEPTED`` / ``NOT ACCEPTED — …``, from verdict.yaml), the
+acceptance table (factory vs commissioned) and the ISO 9283 tables, then rxcomm's commissioning checks
+(never part of the verdict), each stage's figures, parameter tables and plots, every executed run,
+and the comparison with the paper. A missing artefact is a section "not measured".
 """
 
 from __future__ import annotations
@@ -31,20 +33,23 @@ from rxcomm.reporting.document import (
 )
 from rxcomm.reporting.exports import exports_section
 from rxcomm.reporting.identification import dynamics_section, excitation_section
+from rxcomm.reporting.iso9283 import iso9283_sections
 from rxcomm.reporting.runs import (
+    energy_section,
     execution_section,
     ptp_vs_cp_figure,
     ran_on,
     runs_section,
     trajectory_section,
 )
-from rxcomm.reporting.targets import acceptance_verdict, stage_verdicts, verdict_note
+from rxcomm.reporting.targets import acceptance_verdict, headline, stage_verdicts, verdict_note
 from rxcomm.schemas.acceptance import Acceptance
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.excitation import Excitation
+from rxcomm.schemas.iso9283 import Iso9283
 from rxcomm.schemas.run_log import RunLog
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -138,9 +143,12 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
     return [out.get(name) or missing_section(title, [name]) for name, (_, title) in ARTEFACTS.items()]
 
 
-def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Report, list[str]]:
+def build_report(
+    build: Path, acceptance: Sequence[VerdictRow] = (), headline_text: str = ""
+) -> tuple[Report, list[str]]:
     """(the report, names of the missing artefacts). `acceptance`: criteria measured on the robot as a
-    whole (factory vs commissioned, issue 17), which open the verdict before the stage targets."""
+    whole (factory vs commissioned, issue 17) that make the verdict `headline_text`, detailed by the
+    ISO 9283 tables of both states; the stage targets are the commissioning checks, apart from it."""
     a = {name: _load(build / name, model) for name, (model, _) in ARTEFACTS.items()}
     missing = [name for name, v in a.items() if v is None]
     runs = run_logs(build)
@@ -156,23 +164,41 @@ def build_report(build: Path, acceptance: Sequence[VerdictRow] = ()) -> tuple[Re
     keys = {"calibration": "calibration.yaml", "dynamics": "dynamics.yaml", "excitation": "excitation.yaml"}
     keys |= {"cp": "cp.yaml", "ptp": "ptp.yaml", "run-ff": "run-ff.yaml", "run-noff": "run-noff.yaml"}
     summaries = {k: (a.get(name) or {}).get("summary") for k, name in keys.items()}
-    verdict = [*acceptance, *stage_verdicts(summaries, runs, tol)]
+    checks = stage_verdicts(summaries, runs, tol)
+    iso = iso9283_sections(
+        _load(build / "iso9283-factory.yaml", Iso9283),
+        _load(build / "iso9283.yaml", Iso9283),
+        runs,
+        summaries["calibration"],
+    )
     robot = (a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"] or {}).get("robot")
     preamble = (
         ("The robot (named by no artefact here)" if robot is None else f"Robot `{robot}`")
         + f" commissioned against {ran_on(runs)} by rxcomm {__version__} on "
-        f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC. Every figure is read from the artefacts in this directory "
-        "(their envelopes hold the sha256 of every input). The verdict opens with the robot accepted as a "
-        "whole (factory vs commissioned state, `rxcomm accept` against acceptance.yaml; factory: nominal "
-        "kinematics, no feed-forward, a generic controller's timing from the catalogue limits), then the "
-        "stage targets (rxcomm/reporting/targets.py); the paper comparison closes the report."
+        f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC. The verdict above is `rxcomm accept`'s against "
+        "acceptance.yaml: the robot as a whole, factory state vs commissioned state (factory: nominal "
+        "kinematics, no feed-forward, a generic controller's timing from the catalogue limits), every "
+        "criterion in the acceptance table counting. rxcomm's own commissioning checks follow apart "
+        "and never count toward it; then each stage, every run, and the paper comparison last. Every "
+        "figure is read from the artefacts in this directory (their envelopes hold the sha256 of every "
+        "input)."
     )
     if missing:
         preamble += f"\n\nNot produced in this build: {', '.join(missing)}."
     if stale := stale_artefacts(build):
         preamble += "\n\n**Built on replaced inputs** (re-run `make commission`): " + "; ".join(stale) + "."
-    title = "rxcomm commissioning report"
-    return Report(title, preamble, verdict, sections, verdict_note(verdict)), missing
+    report = Report(
+        "rxcomm commissioning report",
+        preamble,
+        checks,
+        sections,
+        verdict_note(checks, "checks"),
+        headline=headline_text,
+        acceptance=acceptance,
+        acceptance_note="" if not acceptance else verdict_note(acceptance, "acceptance criteria"),
+        acceptance_sections=[*iso, energy_section(runs)],
+    )
+    return report, missing
 
 
 def stale_artefacts(build: Path) -> list[str]:
@@ -239,7 +265,7 @@ def command(
     artefacts = {p.name: p for p in sorted(build_dir.iterdir()) if p.suffix in (".yaml", ".mcap", ".png")}
     check_outputs({"output": output, "html": page}, artefacts)
     verdict = _load(build_dir / "verdict.yaml", Acceptance)  # factory vs commissioned (`rxcomm accept`)
-    report, missing = build_report(build_dir, acceptance_verdict(verdict))
+    report, missing = build_report(build_dir, acceptance_verdict(verdict), headline(verdict))
     output.parent.mkdir(parents=True, exist_ok=True)
     # Markdown links the figures where they are, relative to the report's own directory
     prefix = Path(os.path.relpath(build_dir.resolve(), output.resolve().parent))
