@@ -229,7 +229,8 @@ def test_factory_and_optimal_runs_on_the_cell_give_a_cycle_time_verdict(tmp_path
         j = read_run_log(tmp_path / log).joints
         t = np.arange(len(j)) * s["sample_s"]
         again = motion_energy(load_robot(robot_dir), t, j.q_actual, j.tau_actual)
-        assert again["electrical_energy_j"] == pytest.approx(s["electrical_energy_j"], rel=1e-9)
+        # the summary sums the float64 samples, the log stores float32 (docs/logs.md): ~1e-8 relative
+        assert again["electrical_energy_j"] == pytest.approx(s["electrical_energy_j"], rel=1e-6)
     th = tmp_path / "acceptance.yaml"
     th.write_text(
         "kind: rxcomm/AcceptanceThresholds\nschema_version: 1\ncriteria:\n"
