@@ -321,6 +321,9 @@ $(B)/run-factory-iso-line-$(1).mcap: $(B)/factory-iso-line-$(1)-cycles.mcap $(SI
 $(B)/run-iso-line-$(1).mcap: $(B)/iso-line-$(1)-cycles.mcap $(B)/dynamics.yaml $(SIM_FILES) \
 		$(call params,run-iso-line-$(1),$(PTPRUN_ARGS))
 	$(RX) run $$< $(PTPRUN_ARGS) -o $$@
+$(B)/factory-iso-line-$(1).mcap $(B)/iso-line-$(1).mcap: $(code_plan-cp)
+$(B)/factory-iso-line-$(1)-cycles.mcap $(B)/iso-line-$(1)-cycles.mcap: $(code_plan-cycles)
+$(B)/run-factory-iso-line-$(1).mcap $(B)/run-iso-line-$(1).mcap: $(code_run)
 endef
 $(foreach v,$(LINE_SPEEDS_EXTRA),$(eval $(call line_speed_rules,$(v))))
 F_LINE_EXTRA := $(foreach v,$(LINE_SPEEDS_EXTRA),$(B)/run-factory-iso-line-$(v).mcap)
@@ -408,11 +411,11 @@ $(B)/validation-plan.mcap $(B)/cp.mcap $(B)/factory-cp.mcap $(B)/factory-iso-lin
 $(B)/ptp.mcap $(B)/factory-ptp.mcap: $(code_plan-ptp)
 $(B)/factory-poses.mcap $(B)/poses.mcap: $(code_plan-poses)
 $(B)/factory-iso-line-cycles.mcap $(B)/iso-line-cycles.mcap $(B)/factory-iso-circle-cycles.mcap \
-	$(B)/iso-circle-cycles.mcap: $(code_plan-cycles)
+	$(B)/iso-circle-cycles.mcap $(B)/cp-at-factory-time.mcap $(B)/ptp-at-factory-time.mcap: $(code_plan-cycles)
 $(B)/calib-meas.yaml $(B)/excite-log.mcap $(B)/validation-log.mcap $(B)/run-noff.mcap $(B)/run-ff.mcap \
 	$(B)/run-ptp.mcap $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.mcap $(B)/run-factory-iso-circle.mcap \
 	$(B)/run-iso-circle.mcap $(B)/run-factory-poses.mcap $(B)/run-poses.mcap $(B)/run-factory-iso-line.mcap \
-	$(B)/run-iso-line.mcap: $(code_run)
+	$(B)/run-iso-line.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap: $(code_run)
 $(B)/iso9283-factory.yaml $(B)/iso9283.yaml: $(code_iso9283)
 $(B)/verdict.yaml: $(code_accept)
 $(B)/exports/parity.yaml: $(code_export)
