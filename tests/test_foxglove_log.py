@@ -160,7 +160,7 @@ def test_tracker_poses_are_pose_in_frame_in_the_tracker_frame(tmp_path, rx130l):
     wxyz = np.tile([np.cos(0.2), 0.0, 0.0, np.sin(0.2)], (5, 1))  # 0.4 rad about z
     with McapWriter(path, TrajectorySummary.envelope({}, {}, {})) as w:
         frames = FoxgloveFrames(w, rx130l, 0.0004)
-        frames.tracker(t, pos, wxyz)
+        frames.tracker(t, pos, wxyz, 50.0)  # at most 50 Hz: every sample
         origin = w.time_origin_ns
     assert frames.topics()[-1].topic == "/run/tracker_pose" and frames.topics()[-1].n_messages == 5
     with open(path, "rb") as f:

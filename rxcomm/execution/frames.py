@@ -111,6 +111,7 @@ class FoxgloveFrames:
         self.tree = link_tree(robot)
         self.n = 0
         self.n_tracker = 0
+        self.tracker_period_s: float | None = None
         self._templates: dict[str, str] = {}
         for topic in (TF_TOPIC, TF_DEMAND_TOPIC):
             w.add_channel(topic, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
@@ -147,14 +148,24 @@ class FoxgloveFrames:
                 self.w.write(tcp_topic, t[i], pose_in_frame(stamp_ns, root, pos[i], ori[i]))
         self.n += int(pick.sum())
 
-    def tracker(self, t_s: np.ndarray, position_m: np.ndarray, quaternion_wxyz: np.ndarray) -> None:
+    def tracker(
+        self, t_s: np.ndarray, position_m: np.ndarray, quaternion_wxyz: np.ndarray, rate_hz: float
+    ) -> None:
         """The tracker's TCP as ``/run/tracker_pose`` (foxglove.PoseInFrame in frame ``tracker``), at
-        log times ``t_s`` (s from the start, the joint log's axis), every sample. Once per log."""
+        log times ``t_s`` (s from the start, the joint log's axis): every k-th sample of a tracker
+        at ``rate_hz``, at most FOXGLOVE_RATE_HZ like the other 3D channels. Once per log."""
         if self.n_tracker:
             raise ValueError("tracker poses already written")
         fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
         self.w.add_channel(TRACKER_POSE_TOPIC, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
-        t = np.asarray(t_s, dtype=float)
+        self.tracker_stride = max(1, math.ceil(rate_hz / FOXGLOVE_RATE_HZ - 1e-9))
+        self.tracker_period_s = self.tracker_stride / rate_hz
+        k = self.tracker_stride
+        t, position_m, quaternion_wxyz = (
+            np.asarray(t_s, dtype=float)[::k],
+            position_m[::k],
+            quaternion_wxyz[::k],
+        )
         ns = self.w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
         xyzw = np.asarray(quaternion_wxyz, dtype=float)[:, [1, 2, 3, 0]]
         for i in range(len(t)):
@@ -179,7 +190,7 @@ class FoxgloveFrames:
             [
                 RunLogTopic(
                     topic=TRACKER_POSE_TOPIC,
-                    period_s=None,
+                    period_s=self.tracker_period_s,
                     n_messages=self.n_tracker,
                     fields={"pose": "the tracker's TCP pose in frame tracker (m, quaternion x-y-z-w)"},
                 )

@@ -195,13 +195,20 @@ class RunLogWriter:
         channel: TrackerChannel,
     ) -> None:
         """The ``/run/tracker`` channel: samples stamped on the tracker clock, put on the joint log's
-        time axis by ``channel.offset_s`` (samples before the stream start are dropped). Once, before
-        ``close``."""
+        time axis by ``channel.offset_s`` (samples before the stream start are dropped), and their
+        ``/run/tracker_pose`` view channel (at most FOXGLOVE_RATE_HZ). Once, before ``close``."""
         assert self._w is not None
         if self._tracker is not None:
             raise ValueError("tracker channel already written")
         self._tracker = write_tracker_channel(
             self._w, t_tracker_s, position_m, quaternion_wxyz, channel, rows=self.layout == "rows"
+        )
+        # the 3D view's copy: the same samples (those kept) as /run/tracker_pose
+        t = np.asarray(t_tracker_s) - channel.offset_s
+        keep = t >= 0
+        assert self._foxglove is not None
+        self._foxglove.tracker(
+            t[keep], np.asarray(position_m)[keep], np.asarray(quaternion_wxyz)[keep], channel.rate_hz
         )
 
     def close(self, result: RunResult) -> tuple[Path, dict[str, Any]]:
