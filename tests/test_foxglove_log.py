@@ -189,3 +189,48 @@ def test_frame_transforms_template_is_the_json_of_the_message():
     ns = 1_796_000_000_123_456_789
     text = frame_transforms_json(frame_transforms_template(pairs), ns, trans, rot)
     assert json.loads(text) == frame_transforms(ns, pairs, trans, rot)
+
+
+def test_run_with_a_calibration_has_the_tracker_frame(tmp_path, rx130l):
+    """`run --calibration`: the log's tree has `tracker` under the root link at the inverse of the
+    calibration's tracker_to_base (1e-12), and the summary lists /run/tf_tracker; a calibration of
+    other joints is exit 2 before anything moves."""
+    import pinocchio as pin
+    import yaml
+
+    from rxcomm.calibration.loading import parameter_names_from
+    from rxcomm.errors import InputError
+    from rxcomm.io.yaml_io import write_yaml_artefact
+    from rxcomm.model.geometric_errors import placement_to_se3
+    from rxcomm.schemas.cell import Placement
+
+    from .artefacts import synthetic_calibration
+
+    xyz, rpy = (2.5, -0.7, 0.2), (0.01, -0.03, 2.4)
+    names = list(parameter_names_from(rx130l.joint_names))  # all 48, as calibrate writes them
+    cal = synthetic_calibration(rx130l, {"base.tx": 1e-4}, names=names).model_copy(
+        update={"tracker_to_base": Placement(xyz_m=xyz, rpy_rad=rpy)}
+    )
+    cal_file = write_yaml_artefact(tmp_path / "calibration.yaml", cal)
+    plan = save_plan(tmp_path / "plan.mcap", cosine_plan(Q0, 0.25 * DQ, 0.4))
+    out = tmp_path / "log.mcap"
+    srv = start_cell(rx130l)
+    try:
+        run_stage.execute(plan, ROBOT_DIR, out, gateway=gw(srv), show_progress=False, calibration=cal_file)
+    finally:
+        srv.stop()
+    with open(out, "rb") as f:
+        msgs = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(["/run/tf_tracker"])]
+    assert len(msgs) == 1
+    (tf,) = msgs[0]["transforms"]
+    assert (tf["parent_frame_id"], tf["child_frame_id"]) == ("base_link", "tracker")
+    tr, r = tf["translation"], tf["rotation"]
+    got = pin.XYZQUATToSE3(np.array([tr["x"], tr["y"], tr["z"], r["x"], r["y"], r["z"], r["w"]]))
+    expected = placement_to_se3(xyz, rpy).inverse()
+    np.testing.assert_allclose(got.homogeneous, expected.homogeneous, rtol=0, atol=1e-12)
+    meta = yaml.safe_load(out.with_suffix(".yaml").read_text())
+    assert "/run/tf_tracker" in [t["topic"] for t in meta["topics"]] and "calibration" in meta["inputs"]
+    bad = cal.model_copy(update={"joint_names": [f"j{i}" for i in range(6)]})
+    bad_file = write_yaml_artefact(tmp_path / "bad.yaml", bad)
+    with pytest.raises(InputError, match="joint"):
+        run_stage.execute(plan, ROBOT_DIR, tmp_path / "b.mcap", show_progress=False, calibration=bad_file)

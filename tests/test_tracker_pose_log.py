@@ -73,3 +73,36 @@ def test_a_slow_tracker_gets_every_sample(tmp_path, rx130l):
     np.testing.assert_allclose(
         [[p["pose"]["position"][a] for a in "xyz"] for _, p in poses], rows.fields["position_m"], atol=1e-12
     )
+
+
+def test_a_calibration_puts_the_tracker_frame_in_the_tree(tmp_path, rx130l):
+    """run --calibration: /run/tf_tracker holds root link -> tracker once, the inverse of the
+    calibration's tracker_to_base (to 1e-12); without one there is no such channel."""
+    import pinocchio as pin
+
+    from rxcomm.model.geometric_errors import placement_to_se3
+
+    plan = prepare_plan(rx130l, cosine_plan(Q0, DQ, 1.0), prior_parameters(rx130l), CYCLE)
+    t2b = placement_to_se3([2.1, -0.4, 0.3], [0.02, -0.05, 1.3])
+    for name, given in (("with.mcap", t2b), ("without.mcap", None)):
+        writer = RunLogWriter(
+            tmp_path / name, rx130l, inputs={}, settings={}, feedforward="prior", embedded_cell=False,
+            tracker_to_base=given,
+        )  # fmt: skip
+        writer.begin(plan, 1, CYCLE)
+        writer.records(0, plan.q[:10], plan.tau_ff[:10])
+        topics = [t.topic for t in writer._foxglove.topics()]
+        part = writer.abandon()
+        with open(part, "rb") as f:
+            msgs = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(["/run/tf_tracker"])]
+        if given is None:
+            assert msgs == [] and "/run/tf_tracker" not in topics
+            continue
+        assert len(msgs) == 1 and "/run/tf_tracker" in topics
+        (tf,) = msgs[0]["transforms"]
+        assert (tf["parent_frame_id"], tf["child_frame_id"]) == ("base_link", "tracker")
+        tr, r = tf["translation"], tf["rotation"]
+        got = pin.XYZQUATToSE3(np.array([tr["x"], tr["y"], tr["z"], r["x"], r["y"], r["z"], r["w"]]))
+        expected = t2b.inverse()
+        np.testing.assert_allclose(got.homogeneous, expected.homogeneous, rtol=0, atol=1e-12)
+        assert not np.allclose(got.homogeneous, t2b.homogeneous, atol=1e-3)  # not tracker_to_base itself

@@ -34,6 +34,7 @@ from rxcomm.schemas.run_log import (
     TCP_TOPIC,
     TF_DEMAND_TOPIC,
     TF_TOPIC,
+    TF_TRACKER_TOPIC,
     TRACKER_POSE_TOPIC,
     RunLogTopic,
 )
@@ -105,7 +106,11 @@ def tcp_poses(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class FoxgloveFrames:
     """The 3D panel's channels of a run log: FK of every k-th sample (k: at most FOXGLOVE_RATE_HZ)."""
 
-    def __init__(self, w: McapWriter, robot: Robot, sample_s: float) -> None:
+    def __init__(
+        self, w: McapWriter, robot: Robot, sample_s: float, tracker_to_base: pin.SE3 | None = None
+    ) -> None:
+        """``tracker_to_base`` (a calibration's: the root link's pose in the tracker frame), if given,
+        puts the ``tracker`` frame into the tree: ``/run/tf_tracker`` once, root link → tracker."""
         self.w, self.robot, self.sample_s = w, robot, sample_s
         self.stride = max(1, math.ceil(1.0 / (FOXGLOVE_RATE_HZ * sample_s) - 1e-9))  # at most the rate
         self.tree = link_tree(robot)
@@ -121,6 +126,19 @@ class FoxgloveFrames:
         # The URDF itself, so the 3D panel's URDF layers (source: topic) need no file of their own.
         w.add_channel(ROBOT_DESCRIPTION_TOPIC, "std_msgs/String", {"data": {}}, schema=STRING_SCHEMA)
         w.write(ROBOT_DESCRIPTION_TOPIC, 0.0, {"data": robot.urdf_path.read_text()})
+        self.has_tracker_frame = tracker_to_base is not None
+        if tracker_to_base is not None:
+            inv = tracker_to_base.inverse()  # the tracker frame in the root link
+            w.add_channel(
+                TF_TRACKER_TOPIC, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA
+            )
+            text = frame_transforms_json(
+                frame_transforms_template([(self.tree.root, "tracker")]),
+                w.time_origin_ns,
+                inv.translation[None, :],
+                pin.Quaternion(inv.rotation).coeffs()[None, :],
+            )
+            w.write_json(TF_TRACKER_TOPIC, 0.0, text)
 
     def write(self, first: int, q_demand: np.ndarray, q_actual: np.ndarray) -> None:
         """Rows ``first…`` of the joint log; writes those whose index is a multiple of the stride."""
@@ -178,23 +196,43 @@ class FoxgloveFrames:
         period = self.stride * self.sample_s
         tf = {"transforms": "foxglove.FrameTransform per link in its parent link (m, quaternion x-y-z-w)"}
         tcp = {"pose": f"TCP pose in {self.tree.root} (m, quaternion x-y-z-w)"}
-        return [
-            RunLogTopic(topic=TF_TOPIC, period_s=period, n_messages=self.n, fields=tf),
-            RunLogTopic(topic=TF_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tf),
-            RunLogTopic(topic=TCP_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
-            RunLogTopic(topic=TCP_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
-            RunLogTopic(
-                topic=ROBOT_DESCRIPTION_TOPIC, period_s=None, n_messages=1, fields={"data": "the URDF (XML)"}
-            ),
-        ] + (
+        return (
             [
+                RunLogTopic(topic=TF_TOPIC, period_s=period, n_messages=self.n, fields=tf),
+                RunLogTopic(topic=TF_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tf),
+                RunLogTopic(topic=TCP_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
+                RunLogTopic(topic=TCP_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
                 RunLogTopic(
-                    topic=TRACKER_POSE_TOPIC,
-                    period_s=self.tracker_period_s,
-                    n_messages=self.n_tracker,
-                    fields={"pose": "the tracker's TCP pose in frame tracker (m, quaternion x-y-z-w)"},
-                )
+                    topic=ROBOT_DESCRIPTION_TOPIC,
+                    period_s=None,
+                    n_messages=1,
+                    fields={"data": "the URDF (XML)"},
+                ),
             ]
-            if self.n_tracker
-            else []
+            + (
+                [
+                    RunLogTopic(
+                        topic=TF_TRACKER_TOPIC,
+                        period_s=None,
+                        n_messages=1,
+                        fields={
+                            "transforms": f"the tracker frame in {self.tree.root} (m, quaternion x-y-z-w)"
+                        },
+                    )
+                ]
+                if self.has_tracker_frame
+                else []
+            )
+            + (
+                [
+                    RunLogTopic(
+                        topic=TRACKER_POSE_TOPIC,
+                        period_s=self.tracker_period_s,
+                        n_messages=self.n_tracker,
+                        fields={"pose": "the tracker's TCP pose in frame tracker (m, quaternion x-y-z-w)"},
+                    )
+                ]
+                if self.n_tracker
+                else []
+            )
         )

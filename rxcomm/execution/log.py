@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from rxcomm.errors import InputError
 from rxcomm.execution.frames import FoxgloveFrames
@@ -75,8 +76,11 @@ class RunLogWriter:
         period_s: float = FLUSH_PERIOD_S,
         keep_encoder_s: float = 0.0,
         layout: str = "rows",
+        tracker_to_base: pin.SE3 | None = None,
     ) -> None:
+        """``tracker_to_base`` (run --calibration): the tracker frame joins the log's 3D view."""
         self.path = Path(path)
+        self.tracker_to_base = tracker_to_base
         summary_yaml_path(self.path)  # refuses a name not ending in .mcap before anything is written
         self.robot = robot
         self.inputs, self.settings = dict(inputs), dict(settings)
@@ -130,7 +134,7 @@ class RunLogWriter:
             else:  # the layout before issue 32 (per-sample JSON + column blocks): benches and tests
                 w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n), constants=names)
                 w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
-            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s)
+            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s, self.tracker_to_base)
             w.flush()
         except BaseException:
             w.abort()

@@ -4,6 +4,9 @@ PLAN is a trajectory MCAP (excite / plan-cp / plan-ptp) or a pose list (`configs
 select-configs: a measurement campaign). Trajectory → ``-o NAME.mcap`` (+ ``NAME.yaml``, kind
 `rxcomm/RunLog`); pose list → ``-o NAME.yaml`` (kind `rxcomm/Measurements`, what `calibrate` reads).
 Without ``--gateway`` an embedded simulated cell is started on an ephemeral loopback port.
+``--calibration`` puts the tracker frame into a trajectory run log's 3D view (nothing else).
+
+Long because one stage runs both kinds of plan and its CLI options are declared here.
 """
 
 from __future__ import annotations
@@ -157,6 +160,24 @@ class _Job:
     inputs: dict[str, Path]
     connect: Callable[[], contextlib.AbstractContextManager[tuple[GatewayClient, Any]]]
     progress: Callable[[str, float], None] | None
+    tracker_to_base: Any = None  # pin.SE3 of --calibration, or None
+
+
+def _inputs(
+    plan: Path, robot: Robot, dynamics: Path | None, calibration: Path | None
+) -> tuple[dict[str, Path], Any]:
+    """The envelope's inputs, and --calibration's tracker_to_base (pin.SE3: the tracker frame in the
+    log's 3D view, nothing else) or None."""
+    inputs: dict[str, Path] = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
+    if dynamics is not None:
+        inputs["dynamics"] = Path(dynamics)
+    if calibration is None:
+        return inputs, None
+    from rxcomm.calibration.loading import load_calibrated_robot, load_calibration
+
+    load_calibrated_robot(robot, calibration)  # exit 2 unless it is this robot's calibration
+    inputs["calibration"] = Path(calibration)
+    return inputs, load_calibration(calibration)[1]
 
 
 def execute(
@@ -178,6 +199,7 @@ def execute(
     compare: Path | None = None,
     show_progress: bool = True,
     plant: str = "own",
+    calibration: Path | None = None,
 ) -> dict[str, Any]:
     """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
     from rxcomm.execution.campaign import CampaignSettings
@@ -204,14 +226,13 @@ def execute(
             "dynamics": dynamics,
             "truth": embedded_truth,
             "compare": compare,
+            "calibration": calibration,
             **robot_files(robot_dir),
         },
     )
     robot = load_robot(robot_dir)
     params, model_name = load_model(robot, dynamics, plan)
-    inputs: dict[str, Path] = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
-    if dynamics is not None:
-        inputs["dynamics"] = Path(dynamics)
+    inputs, tracker_to_base = _inputs(plan, robot, dynamics, calibration)
     virtual = gateway is None and not realtime  # the embedded cell's clock waits for the master
     lease = {"watchdog_ms": VIRTUAL_CELL_WATCHDOG_MS} if virtual else {}
     stream = StreamSettings(interpolation_ratio=interpolation_ratio, **lease)
@@ -219,7 +240,7 @@ def execute(
     restore_sigterm = sigterm_as_interrupt()
     job = _Job(
         plan, output, robot, params, model_name, inputs,
-        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant), update,
+        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant), update, tracker_to_base,
     )  # fmt: skip
     try:
         if cfg is None:
@@ -285,6 +306,7 @@ def _trajectory(
             feedforward=job.model_name if settings.feedforward else "none",
             embedded_cell=embedded,
             keep_encoder_s=CORRELATE_S if embedded else 0.0,
+            tracker_to_base=job.tracker_to_base,
         )
         tracker = functools.partial(record_tracker, server, robot) if embedded else None
         result = execute_trajectory(client, robot, prepared, params, settings, sink, job.progress, tracker)
@@ -443,6 +465,9 @@ _FaultReset = Annotated[
     bool, typer.Option(help="Reset drive faults and latched gateway stops before moving.")
 ]
 _Plot = Annotated[bool, typer.Option(help="Write NAME.png: lag errors per joint and TCP error over time.")]
+_Calibration = Annotated[
+    Path | None, typer.Option(help="calibration.yaml: the tracker frame in the run log's 3D view only.")
+]
 _Compare = Annotated[
     Path | None,
     typer.Option(help="Another run log to draw in the --plot figure (e.g. the run without feed-forward)."),
@@ -465,6 +490,7 @@ def command(
     fault_reset: _FaultReset = False,
     plot: _Plot = False,
     compare: _Compare = None,
+    calibration: _Calibration = None,
     other_robot: OtherRobot = False,
     allow_inconsistent: AllowInconsistent = False,
     plant: Plant = "own",
@@ -492,4 +518,5 @@ def command(
         plot=plot,
         compare=compare,
         plant=console.checked(embedded_plant, plant, gateway),
+        calibration=calibration,
     )
