@@ -193,12 +193,14 @@ def test_frame_transforms_template_is_the_json_of_the_message():
 
 def test_run_with_a_calibration_has_the_tracker_frame(tmp_path, rx130l):
     """`run --calibration`: the log's tree has `tracker` under the root link at the inverse of the
-    calibration's tracker_to_base (1e-12), and the summary lists /run/tf_tracker; a calibration of
-    other joints is exit 2 before anything moves."""
+    calibration's tracker_to_base (1e-12), the summary lists /run/tf_tracker, /robot_description is
+    the calibrated URDF and /run/tcp the calibrated FK (a 0.1 mm base error moves it 0.1 mm); a
+    calibration of other joints is exit 2 before anything moves."""
     import pinocchio as pin
     import yaml
 
-    from rxcomm.calibration.loading import parameter_names_from
+    from rxcomm.calibration.loading import load_calibrated_robot, load_calibration, parameter_names_from
+    from rxcomm.calibration.urdf import calibrated_urdf_text
     from rxcomm.errors import InputError
     from rxcomm.io.yaml_io import write_yaml_artefact
     from rxcomm.model.geometric_errors import placement_to_se3
@@ -228,6 +230,22 @@ def test_run_with_a_calibration_has_the_tracker_frame(tmp_path, rx130l):
     got = pin.XYZQUATToSE3(np.array([tr["x"], tr["y"], tr["z"], r["x"], r["y"], r["z"], r["w"]]))
     expected = placement_to_se3(xyz, rpy).inverse()
     np.testing.assert_allclose(got.homogeneous, expected.homogeneous, rtol=0, atol=1e-12)
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        (urdf,) = [json.loads(m.data)["data"] for _, _, m in reader.iter_messages(["/robot_description"])]
+        tcp0 = json.loads(next(m for _, _, m in reader.iter_messages(["/run/tcp"])).data)["pose"]["position"]
+    assert (
+        urdf
+        == calibrated_urdf_text(rx130l, load_calibration(cal_file)[0])
+        != ROBOT_DIR.joinpath("rx130l.urdf").read_text()
+    )
+    q0 = read_run_log(out).joints.fields["q_actual"][0]
+    calibrated = load_calibrated_robot(rx130l, cal_file)
+    fk = frame_placement(calibrated, calibrated.create_data(), q0, calibrated.tcp_frame_id).translation
+    nominal = frame_placement(rx130l, rx130l.create_data(), q0, rx130l.tcp_frame_id).translation
+    got_tcp = np.array([tcp0[a] for a in "xyz"])
+    np.testing.assert_allclose(got_tcp, fk, rtol=0, atol=1e-6)  # q_actual is stored as float32
+    assert np.linalg.norm(got_tcp - nominal) > 5e-5
     meta = yaml.safe_load(out.with_suffix(".yaml").read_text())
     assert "/run/tf_tracker" in [t["topic"] for t in meta["topics"]] and "calibration" in meta["inputs"]
     bad = cal.model_copy(update={"joint_names": [f"j{i}" for i in range(6)]})

@@ -80,6 +80,7 @@ def test_a_calibration_puts_the_tracker_frame_in_the_tree(tmp_path, rx130l):
     calibration's tracker_to_base (to 1e-12); without one there is no such channel."""
     import pinocchio as pin
 
+    from rxcomm.execution.frames import CalibratedView
     from rxcomm.model.geometric_errors import placement_to_se3
 
     plan = prepare_plan(rx130l, cosine_plan(Q0, DQ, 1.0), prior_parameters(rx130l), CYCLE)
@@ -87,7 +88,7 @@ def test_a_calibration_puts_the_tracker_frame_in_the_tree(tmp_path, rx130l):
     for name, given in (("with.mcap", t2b), ("without.mcap", None)):
         writer = RunLogWriter(
             tmp_path / name, rx130l, inputs={}, settings={}, feedforward="prior", embedded_cell=False,
-            tracker_to_base=given,
+            view=None if given is None else CalibratedView(rx130l, "<robot/>", given),
         )  # fmt: skip
         writer.begin(plan, 1, CYCLE)
         writer.records(0, plan.q[:10], plan.tau_ff[:10])

@@ -43,6 +43,17 @@ DEMAND_PREFIX = "demand/"
 
 
 @dataclass(frozen=True)
+class CalibratedView:
+    """A calibration in a run log's 3D view (run --calibration): the calibrated robot (FK of the
+    frames and TCP poses), its URDF text (``/robot_description``) and the root link's pose in the
+    tracker frame (``/run/tf_tracker``: the tracker frame in the tree)."""
+
+    robot: Robot
+    urdf_text: str
+    tracker_to_base: pin.SE3
+
+
+@dataclass(frozen=True)
 class LinkTree:
     """(parent, child) frame names and Pinocchio frame ids of every link below the root and the TCP."""
 
@@ -107,11 +118,11 @@ class FoxgloveFrames:
     """The 3D panel's channels of a run log: FK of every k-th sample (k: at most FOXGLOVE_RATE_HZ)."""
 
     def __init__(
-        self, w: McapWriter, robot: Robot, sample_s: float, tracker_to_base: pin.SE3 | None = None
+        self, w: McapWriter, robot: Robot, sample_s: float, view: CalibratedView | None = None
     ) -> None:
-        """``tracker_to_base`` (a calibration's: the root link's pose in the tracker frame), if given,
-        puts the ``tracker`` frame into the tree: ``/run/tf_tracker`` once, root link → tracker."""
-        self.w, self.robot, self.sample_s = w, robot, sample_s
+        """With a ``view`` (a calibration) the frames are FK of the calibrated robot, the URDF is the
+        calibrated one and the ``tracker`` frame joins the tree (``/run/tf_tracker`` once)."""
+        self.w, self.robot, self.sample_s = w, robot if view is None else view.robot, sample_s
         self.stride = max(1, math.ceil(1.0 / (FOXGLOVE_RATE_HZ * sample_s) - 1e-9))  # at most the rate
         self.tree = link_tree(robot)
         self.n = 0
@@ -125,10 +136,11 @@ class FoxgloveFrames:
             w.add_channel(topic, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
         # The URDF itself, so the 3D panel's URDF layers (source: topic) need no file of their own.
         w.add_channel(ROBOT_DESCRIPTION_TOPIC, "std_msgs/String", {"data": {}}, schema=STRING_SCHEMA)
-        w.write(ROBOT_DESCRIPTION_TOPIC, 0.0, {"data": robot.urdf_path.read_text()})
-        self.has_tracker_frame = tracker_to_base is not None
-        if tracker_to_base is not None:
-            inv = tracker_to_base.inverse()  # the tracker frame in the root link
+        urdf = robot.urdf_path.read_text() if view is None else view.urdf_text
+        w.write(ROBOT_DESCRIPTION_TOPIC, 0.0, {"data": urdf})
+        self.has_tracker_frame = view is not None
+        if view is not None:
+            inv = view.tracker_to_base.inverse()  # the tracker frame in the root link
             w.add_channel(
                 TF_TRACKER_TOPIC, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA
             )

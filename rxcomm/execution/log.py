@@ -22,10 +22,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pinocchio as pin
 
 from rxcomm.errors import InputError
-from rxcomm.execution.frames import FoxgloveFrames
+from rxcomm.execution.frames import CalibratedView, FoxgloveFrames
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.records import RunResult
 from rxcomm.execution.summary import MotionStats, run_summary, tcp_error_and_speed
@@ -76,11 +75,12 @@ class RunLogWriter:
         period_s: float = FLUSH_PERIOD_S,
         keep_encoder_s: float = 0.0,
         layout: str = "rows",
-        tracker_to_base: pin.SE3 | None = None,
+        view: CalibratedView | None = None,
     ) -> None:
-        """``tracker_to_base`` (run --calibration): the tracker frame joins the log's 3D view."""
+        """``view`` (run --calibration): the log's 3D view on the calibrated robot, with the tracker
+        frame (``FoxgloveFrames``); the data channels stay on ``robot``."""
         self.path = Path(path)
-        self.tracker_to_base = tracker_to_base
+        self.view = view
         summary_yaml_path(self.path)  # refuses a name not ending in .mcap before anything is written
         self.robot = robot
         self.inputs, self.settings = dict(inputs), dict(settings)
@@ -134,7 +134,7 @@ class RunLogWriter:
             else:  # the layout before issue 32 (per-sample JSON + column blocks): benches and tests
                 w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n), constants=names)
                 w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
-            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s, self.tracker_to_base)
+            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s, self.view)
             w.flush()
         except BaseException:
             w.abort()

@@ -23,7 +23,8 @@ For Foxglove's 3D panel, at most ``FOXGLOVE_RATE_HZ`` (every k-th joint sample):
 q_demand with the links prefixed ``demand/``) and ``/run/tcp`` and ``/run/tcp_demand``
 (``foxglove.PoseInFrame``: the TCP in the root link's frame), ``/robot_description`` (the URDF) and,
 with a tracker, ``/run/tracker_pose`` (PoseInFrame in frame ``tracker``); with a calibration,
-``/run/tf_tracker`` (the ``tracker`` frame in the root link, once). Every ``/run/joints``
+``/run/tf_tracker`` (the ``tracker`` frame in the root link, once) and the view on the calibrated
+robot. Every ``/run/joints``
 message repeats the ``joint_names`` (a channel constant). Times are epoch time: the run's wall
 clock at its start + the sample time (readers give s from the start).
 
