@@ -160,7 +160,7 @@ def test_tracker_poses_are_pose_in_frame_in_the_tracker_frame(tmp_path, rx130l):
     wxyz = np.tile([np.cos(0.2), 0.0, 0.0, np.sin(0.2)], (5, 1))  # 0.4 rad about z
     with McapWriter(path, TrajectorySummary.envelope({}, {}, {})) as w:
         frames = FoxgloveFrames(w, rx130l, 0.0004)
-        frames.tracker(t, pos, wxyz)
+        frames.tracker(t, pos, wxyz, 50.0)  # at most 50 Hz: every sample
         origin = w.time_origin_ns
     assert frames.topics()[-1].topic == "/run/tracker_pose" and frames.topics()[-1].n_messages == 5
     with open(path, "rb") as f:
@@ -189,3 +189,66 @@ def test_frame_transforms_template_is_the_json_of_the_message():
     ns = 1_796_000_000_123_456_789
     text = frame_transforms_json(frame_transforms_template(pairs), ns, trans, rot)
     assert json.loads(text) == frame_transforms(ns, pairs, trans, rot)
+
+
+def test_run_with_a_calibration_has_the_tracker_frame(tmp_path, rx130l):
+    """`run --calibration`: the log's tree has `tracker` under the root link at the inverse of the
+    calibration's tracker_to_base (1e-12), the summary lists /run/tf_tracker, /robot_description is
+    the calibrated URDF and /run/tcp the calibrated FK (a 0.1 mm base error moves it 0.1 mm); a
+    calibration of other joints is exit 2 before anything moves."""
+    import pinocchio as pin
+    import yaml
+
+    from rxcomm.calibration.loading import load_calibrated_robot, load_calibration, parameter_names_from
+    from rxcomm.calibration.urdf import calibrated_urdf_text
+    from rxcomm.errors import InputError
+    from rxcomm.io.yaml_io import write_yaml_artefact
+    from rxcomm.model.geometric_errors import placement_to_se3
+    from rxcomm.schemas.cell import Placement
+
+    from .artefacts import synthetic_calibration
+
+    xyz, rpy = (2.5, -0.7, 0.2), (0.01, -0.03, 2.4)
+    names = list(parameter_names_from(rx130l.joint_names))  # all 48, as calibrate writes them
+    cal = synthetic_calibration(rx130l, {"base.tx": 1e-4}, names=names).model_copy(
+        update={"tracker_to_base": Placement(xyz_m=xyz, rpy_rad=rpy)}
+    )
+    cal_file = write_yaml_artefact(tmp_path / "calibration.yaml", cal)
+    plan = save_plan(tmp_path / "plan.mcap", cosine_plan(Q0, 0.25 * DQ, 0.4))
+    out = tmp_path / "log.mcap"
+    srv = start_cell(rx130l)
+    try:
+        run_stage.execute(plan, ROBOT_DIR, out, gateway=gw(srv), show_progress=False, calibration=cal_file)
+    finally:
+        srv.stop()
+    with open(out, "rb") as f:
+        msgs = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(["/run/tf_tracker"])]
+    assert len(msgs) == 1
+    (tf,) = msgs[0]["transforms"]
+    assert (tf["parent_frame_id"], tf["child_frame_id"]) == ("base_link", "tracker")
+    tr, r = tf["translation"], tf["rotation"]
+    got = pin.XYZQUATToSE3(np.array([tr["x"], tr["y"], tr["z"], r["x"], r["y"], r["z"], r["w"]]))
+    expected = placement_to_se3(xyz, rpy).inverse()
+    np.testing.assert_allclose(got.homogeneous, expected.homogeneous, rtol=0, atol=1e-12)
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        (urdf,) = [json.loads(m.data)["data"] for _, _, m in reader.iter_messages(["/robot_description"])]
+        tcp0 = json.loads(next(m for _, _, m in reader.iter_messages(["/run/tcp"])).data)["pose"]["position"]
+    assert (
+        urdf
+        == calibrated_urdf_text(rx130l, load_calibration(cal_file)[0])
+        != ROBOT_DIR.joinpath("rx130l.urdf").read_text()
+    )
+    q0 = read_run_log(out).joints.fields["q_actual"][0]
+    calibrated = load_calibrated_robot(rx130l, cal_file)
+    fk = frame_placement(calibrated, calibrated.create_data(), q0, calibrated.tcp_frame_id).translation
+    nominal = frame_placement(rx130l, rx130l.create_data(), q0, rx130l.tcp_frame_id).translation
+    got_tcp = np.array([tcp0[a] for a in "xyz"])
+    np.testing.assert_allclose(got_tcp, fk, rtol=0, atol=1e-6)  # q_actual is stored as float32
+    assert np.linalg.norm(got_tcp - nominal) > 5e-5
+    meta = yaml.safe_load(out.with_suffix(".yaml").read_text())
+    assert "/run/tf_tracker" in [t["topic"] for t in meta["topics"]] and "calibration" in meta["inputs"]
+    bad = cal.model_copy(update={"joint_names": [f"j{i}" for i in range(6)]})
+    bad_file = write_yaml_artefact(tmp_path / "bad.yaml", bad)
+    with pytest.raises(InputError, match="joint"):
+        run_stage.execute(plan, ROBOT_DIR, tmp_path / "b.mcap", show_progress=False, calibration=bad_file)

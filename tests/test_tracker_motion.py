@@ -3,10 +3,13 @@ CSV export, and their alignment to the joint log (trigger, cross-correlation) wi
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
+from mcap.reader import make_reader
 
 from rxcomm.acceptance.alignment import align, tracker_channel, trigger_offset
 from rxcomm.cell.tracker import PRETRIGGER_S, MotionTracker, SimulatedTracker
@@ -196,6 +199,14 @@ def test_run_records_the_tracker_aligned_within_one_drive_cycle(tmp_path, rx130l
     np.testing.assert_allclose(np.diff(tr.t), 1e-3, atol=1e-9)  # reads back at the configured rate
     np.testing.assert_allclose(tr.t, tr.t_tracker_s - ch["offset_s"], atol=1e-9)
     assert any(t["topic"] == "/run/tracker" for t in meta["topics"])
+    # the 3D view's copy: every 20th of the 1 kHz samples (50 Hz), the same poses
+    with open(out, "rb") as f:
+        poses = [
+            json.loads(m.data)["pose"] for _, _, m in make_reader(f).iter_messages(["/run/tracker_pose"])
+        ]
+    assert len(poses) == len(range(0, len(tr), 20))
+    got = np.array([[p["position"][a] for a in "xyz"] for p in poses])
+    np.testing.assert_allclose(got, tr.fields["position_m"][::20], rtol=0, atol=1e-12)
 
 
 @pytest.mark.slow

@@ -34,11 +34,23 @@ from rxcomm.schemas.run_log import (
     TCP_TOPIC,
     TF_DEMAND_TOPIC,
     TF_TOPIC,
+    TF_TRACKER_TOPIC,
     TRACKER_POSE_TOPIC,
     RunLogTopic,
 )
 
 DEMAND_PREFIX = "demand/"
+
+
+@dataclass(frozen=True)
+class CalibratedView:
+    """A calibration in a run log's 3D view (run --calibration): the calibrated robot (FK of the
+    frames and TCP poses), its URDF text (``/robot_description``) and the root link's pose in the
+    tracker frame (``/run/tf_tracker``: the tracker frame in the tree)."""
+
+    robot: Robot
+    urdf_text: str
+    tracker_to_base: pin.SE3
 
 
 @dataclass(frozen=True)
@@ -105,12 +117,17 @@ def tcp_poses(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class FoxgloveFrames:
     """The 3D panel's channels of a run log: FK of every k-th sample (k: at most FOXGLOVE_RATE_HZ)."""
 
-    def __init__(self, w: McapWriter, robot: Robot, sample_s: float) -> None:
-        self.w, self.robot, self.sample_s = w, robot, sample_s
+    def __init__(
+        self, w: McapWriter, robot: Robot, sample_s: float, view: CalibratedView | None = None
+    ) -> None:
+        """With a ``view`` (a calibration) the frames are FK of the calibrated robot, the URDF is the
+        calibrated one and the ``tracker`` frame joins the tree (``/run/tf_tracker`` once)."""
+        self.w, self.robot, self.sample_s = w, robot if view is None else view.robot, sample_s
         self.stride = max(1, math.ceil(1.0 / (FOXGLOVE_RATE_HZ * sample_s) - 1e-9))  # at most the rate
         self.tree = link_tree(robot)
         self.n = 0
         self.n_tracker = 0
+        self.tracker_period_s: float | None = None
         self._templates: dict[str, str] = {}
         for topic in (TF_TOPIC, TF_DEMAND_TOPIC):
             w.add_channel(topic, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
@@ -119,7 +136,21 @@ class FoxgloveFrames:
             w.add_channel(topic, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
         # The URDF itself, so the 3D panel's URDF layers (source: topic) need no file of their own.
         w.add_channel(ROBOT_DESCRIPTION_TOPIC, "std_msgs/String", {"data": {}}, schema=STRING_SCHEMA)
-        w.write(ROBOT_DESCRIPTION_TOPIC, 0.0, {"data": robot.urdf_path.read_text()})
+        urdf = robot.urdf_path.read_text() if view is None else view.urdf_text
+        w.write(ROBOT_DESCRIPTION_TOPIC, 0.0, {"data": urdf})
+        self.has_tracker_frame = view is not None
+        if view is not None:
+            inv = view.tracker_to_base.inverse()  # the tracker frame in the root link
+            w.add_channel(
+                TF_TRACKER_TOPIC, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA
+            )
+            text = frame_transforms_json(
+                frame_transforms_template([(self.tree.root, "tracker")]),
+                w.time_origin_ns,
+                inv.translation[None, :],
+                pin.Quaternion(inv.rotation).coeffs()[None, :],
+            )
+            w.write_json(TF_TRACKER_TOPIC, 0.0, text)
 
     def write(self, first: int, q_demand: np.ndarray, q_actual: np.ndarray) -> None:
         """Rows ``first…`` of the joint log; writes those whose index is a multiple of the stride."""
@@ -147,14 +178,24 @@ class FoxgloveFrames:
                 self.w.write(tcp_topic, t[i], pose_in_frame(stamp_ns, root, pos[i], ori[i]))
         self.n += int(pick.sum())
 
-    def tracker(self, t_s: np.ndarray, position_m: np.ndarray, quaternion_wxyz: np.ndarray) -> None:
+    def tracker(
+        self, t_s: np.ndarray, position_m: np.ndarray, quaternion_wxyz: np.ndarray, rate_hz: float
+    ) -> None:
         """The tracker's TCP as ``/run/tracker_pose`` (foxglove.PoseInFrame in frame ``tracker``), at
-        log times ``t_s`` (s from the start, the joint log's axis), every sample. Once per log."""
+        log times ``t_s`` (s from the start, the joint log's axis): every k-th sample of a tracker
+        at ``rate_hz``, at most FOXGLOVE_RATE_HZ like the other 3D channels. Once per log."""
         if self.n_tracker:
             raise ValueError("tracker poses already written")
         fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
         self.w.add_channel(TRACKER_POSE_TOPIC, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
-        t = np.asarray(t_s, dtype=float)
+        self.tracker_stride = max(1, math.ceil(rate_hz / FOXGLOVE_RATE_HZ - 1e-9))
+        self.tracker_period_s = self.tracker_stride / rate_hz
+        k = self.tracker_stride
+        t, position_m, quaternion_wxyz = (
+            np.asarray(t_s, dtype=float)[::k],
+            position_m[::k],
+            quaternion_wxyz[::k],
+        )
         ns = self.w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
         xyzw = np.asarray(quaternion_wxyz, dtype=float)[:, [1, 2, 3, 0]]
         for i in range(len(t)):
@@ -167,23 +208,43 @@ class FoxgloveFrames:
         period = self.stride * self.sample_s
         tf = {"transforms": "foxglove.FrameTransform per link in its parent link (m, quaternion x-y-z-w)"}
         tcp = {"pose": f"TCP pose in {self.tree.root} (m, quaternion x-y-z-w)"}
-        return [
-            RunLogTopic(topic=TF_TOPIC, period_s=period, n_messages=self.n, fields=tf),
-            RunLogTopic(topic=TF_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tf),
-            RunLogTopic(topic=TCP_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
-            RunLogTopic(topic=TCP_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
-            RunLogTopic(
-                topic=ROBOT_DESCRIPTION_TOPIC, period_s=None, n_messages=1, fields={"data": "the URDF (XML)"}
-            ),
-        ] + (
+        return (
             [
+                RunLogTopic(topic=TF_TOPIC, period_s=period, n_messages=self.n, fields=tf),
+                RunLogTopic(topic=TF_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tf),
+                RunLogTopic(topic=TCP_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
+                RunLogTopic(topic=TCP_DEMAND_TOPIC, period_s=period, n_messages=self.n, fields=tcp),
                 RunLogTopic(
-                    topic=TRACKER_POSE_TOPIC,
+                    topic=ROBOT_DESCRIPTION_TOPIC,
                     period_s=None,
-                    n_messages=self.n_tracker,
-                    fields={"pose": "the tracker's TCP pose in frame tracker (m, quaternion x-y-z-w)"},
-                )
+                    n_messages=1,
+                    fields={"data": "the URDF (XML)"},
+                ),
             ]
-            if self.n_tracker
-            else []
+            + (
+                [
+                    RunLogTopic(
+                        topic=TF_TRACKER_TOPIC,
+                        period_s=None,
+                        n_messages=1,
+                        fields={
+                            "transforms": f"the tracker frame in {self.tree.root} (m, quaternion x-y-z-w)"
+                        },
+                    )
+                ]
+                if self.has_tracker_frame
+                else []
+            )
+            + (
+                [
+                    RunLogTopic(
+                        topic=TRACKER_POSE_TOPIC,
+                        period_s=self.tracker_period_s,
+                        n_messages=self.n_tracker,
+                        fields={"pose": "the tracker's TCP pose in frame tracker (m, quaternion x-y-z-w)"},
+                    )
+                ]
+                if self.n_tracker
+                else []
+            )
         )

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from rxcomm.errors import InputError
-from rxcomm.execution.frames import FoxgloveFrames
+from rxcomm.execution.frames import CalibratedView, FoxgloveFrames
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.records import RunResult
 from rxcomm.execution.summary import MotionStats, run_summary, tcp_error_and_speed
@@ -75,8 +75,12 @@ class RunLogWriter:
         period_s: float = FLUSH_PERIOD_S,
         keep_encoder_s: float = 0.0,
         layout: str = "rows",
+        view: CalibratedView | None = None,
     ) -> None:
+        """``view`` (run --calibration): the log's 3D view on the calibrated robot, with the tracker
+        frame (``FoxgloveFrames``); the data channels stay on ``robot``."""
         self.path = Path(path)
+        self.view = view
         summary_yaml_path(self.path)  # refuses a name not ending in .mcap before anything is written
         self.robot = robot
         self.inputs, self.settings = dict(inputs), dict(settings)
@@ -130,7 +134,7 @@ class RunLogWriter:
             else:  # the layout before issue 32 (per-sample JSON + column blocks): benches and tests
                 w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n), constants=names)
                 w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
-            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s)
+            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s, self.view)
             w.flush()
         except BaseException:
             w.abort()
@@ -195,13 +199,20 @@ class RunLogWriter:
         channel: TrackerChannel,
     ) -> None:
         """The ``/run/tracker`` channel: samples stamped on the tracker clock, put on the joint log's
-        time axis by ``channel.offset_s`` (samples before the stream start are dropped). Once, before
-        ``close``."""
+        time axis by ``channel.offset_s`` (samples before the stream start are dropped), and their
+        ``/run/tracker_pose`` view channel (at most FOXGLOVE_RATE_HZ). Once, before ``close``."""
         assert self._w is not None
         if self._tracker is not None:
             raise ValueError("tracker channel already written")
         self._tracker = write_tracker_channel(
             self._w, t_tracker_s, position_m, quaternion_wxyz, channel, rows=self.layout == "rows"
+        )
+        # the 3D view's copy: the same samples (those kept) as /run/tracker_pose
+        t = np.asarray(t_tracker_s) - channel.offset_s
+        keep = t >= 0
+        assert self._foxglove is not None
+        self._foxglove.tracker(
+            t[keep], np.asarray(position_m)[keep], np.asarray(quaternion_wxyz)[keep], channel.rate_hz
         )
 
     def close(self, result: RunResult) -> tuple[Path, dict[str, Any]]:

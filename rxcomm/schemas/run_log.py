@@ -22,7 +22,9 @@ For Foxglove's 3D panel, at most ``FOXGLOVE_RATE_HZ`` (every k-th joint sample):
 ``/run/tf_demand`` (``foxglove.FrameTransforms``: FK of q_actual with the URDF's link names, FK of
 q_demand with the links prefixed ``demand/``) and ``/run/tcp`` and ``/run/tcp_demand``
 (``foxglove.PoseInFrame``: the TCP in the root link's frame), ``/robot_description`` (the URDF) and,
-with a tracker, ``/run/tracker_pose`` (PoseInFrame in frame ``tracker``). Every ``/run/joints``
+with a tracker, ``/run/tracker_pose`` (PoseInFrame in frame ``tracker``); with a calibration,
+``/run/tf_tracker`` (the ``tracker`` frame in the root link, once) and the view on the calibrated
+robot. Every ``/run/joints``
 message repeats the ``joint_names`` (a channel constant). Times are epoch time: the run's wall
 clock at its start + the sample time (readers give s from the start).
 
@@ -49,6 +51,7 @@ TCP_TOPIC = "/run/tcp"
 TCP_DEMAND_TOPIC = "/run/tcp_demand"
 ROBOT_DESCRIPTION_TOPIC = "/robot_description"  # the URDF text, for the 3D panel's URDF layers
 TRACKER_POSE_TOPIC = "/run/tracker_pose"  # foxglove.PoseInFrame of the tracker's TCP, frame "tracker"
+TF_TRACKER_TOPIC = "/run/tf_tracker"  # run --calibration: the tracker frame in the root link, once
 # Views for Foxglove, derived from the data channels: readers of the data skip them.
 FOXGLOVE_VIEW_TOPICS = (
     TF_TOPIC,
@@ -57,6 +60,7 @@ FOXGLOVE_VIEW_TOPICS = (
     TCP_DEMAND_TOPIC,
     ROBOT_DESCRIPTION_TOPIC,
     TRACKER_POSE_TOPIC,
+    TF_TRACKER_TOPIC,
 )
 FOXGLOVE_RATE_HZ = 50.0  # the 3D view's rate: enough to watch, 50x fewer FK calls than 2.5 kHz
 JOINT_FIELDS = {

@@ -4,6 +4,10 @@ PLAN is a trajectory MCAP (excite / plan-cp / plan-ptp) or a pose list (`configs
 select-configs: a measurement campaign). Trajectory → ``-o NAME.mcap`` (+ ``NAME.yaml``, kind
 `rxcomm/RunLog`); pose list → ``-o NAME.yaml`` (kind `rxcomm/Measurements`, what `calibrate` reads).
 Without ``--gateway`` an embedded simulated cell is started on an ephemeral loopback port.
+``--calibration`` makes a trajectory run log's 3D view the calibrated robot's, with the tracker
+frame (nothing else).
+
+Long because one stage runs both kinds of plan and its CLI options are declared here.
 """
 
 from __future__ import annotations
@@ -157,6 +161,27 @@ class _Job:
     inputs: dict[str, Path]
     connect: Callable[[], contextlib.AbstractContextManager[tuple[GatewayClient, Any]]]
     progress: Callable[[str, float], None] | None
+    view: Any = None  # --calibration's CalibratedView, or None
+
+
+def _inputs(
+    plan: Path, robot: Robot, dynamics: Path | None, calibration: Path | None
+) -> tuple[dict[str, Path], Any]:
+    """The envelope's inputs, and --calibration's view (``CalibratedView``: the calibrated robot and
+    URDF and the tracker frame in the log's 3D view, nothing else) or None."""
+    inputs: dict[str, Path] = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
+    if dynamics is not None:
+        inputs["dynamics"] = Path(dynamics)
+    if calibration is None:
+        return inputs, None
+    from rxcomm.calibration.loading import load_calibrated_robot, load_calibration
+    from rxcomm.calibration.urdf import calibrated_urdf_text
+    from rxcomm.execution.frames import CalibratedView
+
+    calibrated = load_calibrated_robot(robot, calibration)  # exit 2 unless it is this robot's
+    errors, tracker_to_base = load_calibration(calibration)
+    inputs["calibration"] = Path(calibration)
+    return inputs, CalibratedView(calibrated, calibrated_urdf_text(robot, errors), tracker_to_base)
 
 
 def execute(
@@ -178,6 +203,7 @@ def execute(
     compare: Path | None = None,
     show_progress: bool = True,
     plant: str = "own",
+    calibration: Path | None = None,
 ) -> dict[str, Any]:
     """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
     from rxcomm.execution.campaign import CampaignSettings
@@ -204,14 +230,13 @@ def execute(
             "dynamics": dynamics,
             "truth": embedded_truth,
             "compare": compare,
+            "calibration": calibration,
             **robot_files(robot_dir),
         },
     )
     robot = load_robot(robot_dir)
     params, model_name = load_model(robot, dynamics, plan)
-    inputs: dict[str, Path] = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
-    if dynamics is not None:
-        inputs["dynamics"] = Path(dynamics)
+    inputs, view = _inputs(plan, robot, dynamics, calibration)
     virtual = gateway is None and not realtime  # the embedded cell's clock waits for the master
     lease = {"watchdog_ms": VIRTUAL_CELL_WATCHDOG_MS} if virtual else {}
     stream = StreamSettings(interpolation_ratio=interpolation_ratio, **lease)
@@ -219,7 +244,7 @@ def execute(
     restore_sigterm = sigterm_as_interrupt()
     job = _Job(
         plan, output, robot, params, model_name, inputs,
-        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant), update,
+        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant), update, view,
     )  # fmt: skip
     try:
         if cfg is None:
@@ -285,6 +310,7 @@ def _trajectory(
             feedforward=job.model_name if settings.feedforward else "none",
             embedded_cell=embedded,
             keep_encoder_s=CORRELATE_S if embedded else 0.0,
+            view=job.view,
         )
         tracker = functools.partial(record_tracker, server, robot) if embedded else None
         result = execute_trajectory(client, robot, prepared, params, settings, sink, job.progress, tracker)
@@ -443,6 +469,12 @@ _FaultReset = Annotated[
     bool, typer.Option(help="Reset drive faults and latched gateway stops before moving.")
 ]
 _Plot = Annotated[bool, typer.Option(help="Write NAME.png: lag errors per joint and TCP error over time.")]
+_Calibration = Annotated[
+    Path | None,
+    typer.Option(
+        help="calibration.yaml: the run log's 3D view on the calibrated robot, with the tracker frame."
+    ),
+]
 _Compare = Annotated[
     Path | None,
     typer.Option(help="Another run log to draw in the --plot figure (e.g. the run without feed-forward)."),
@@ -465,6 +497,7 @@ def command(
     fault_reset: _FaultReset = False,
     plot: _Plot = False,
     compare: _Compare = None,
+    calibration: _Calibration = None,
     other_robot: OtherRobot = False,
     allow_inconsistent: AllowInconsistent = False,
     plant: Plant = "own",
@@ -492,4 +525,5 @@ def command(
         plot=plot,
         compare=compare,
         plant=console.checked(embedded_plant, plant, gateway),
+        calibration=calibration,
     )
