@@ -168,6 +168,9 @@ class _Recorder:
         self.status_seen = 0  # OR of every status word received
         self._trace_end = 0  # one past the highest record received
         self._next_emit = self.t0 + (sink.period_s if sink is not None else 0.0)
+        # also every period_s of stream time: in virtual time the cell runs faster than the wall clock,
+        # and a batch of period_s wall time grew with the machine's speed (2.5x on an idle one)
+        self._emit_records = max(1, round(sink.period_s / (ratio * cycle_s))) if sink is not None else 0
         self.stalls: StallWatch | None = None  # the pauses between replies, for a stop's message
 
     def __call__(self, reply: BlockReply) -> None:
@@ -198,7 +201,9 @@ class _Recorder:
         if self.progress is not None and wall >= self._next_progress:
             self._next_progress = wall + 0.1
             self.progress(min(1.0, st.execute_index / self.n))
-        if self.sink is not None and time.perf_counter() >= self._next_emit:
+        if self.sink is not None and (
+            time.perf_counter() >= self._next_emit or self._trace_end - self.emitted >= self._emit_records
+        ):
             self.emit()
 
     def emit(self, end: int | None = None) -> None:
