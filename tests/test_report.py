@@ -291,6 +291,14 @@ def test_the_preamble_says_what_the_run_logs_ran_on():
     )
     # a real gateway is named by its address, never called the simulated cell
     assert ran_on({"a.yaml": real}) == "the gateway at 192.168.0.10:502 (1 of 1 run logs)"
+    # a log that names its plant says which (an older log without one does not guess)
+    mj = {**sim, "settings": {"plant": "mujoco"}}
+    assert ran_on({"a.yaml": mj, "b.yaml": mj}) == (
+        "the simulated cell `run` started itself, MuJoCo plant (2 of 2 run logs)"
+    )
+    assert "rxcomm's own plant (1 of 2" in ran_on(
+        {"a.yaml": mj, "b.yaml": {**sim, "settings": {"plant": "own"}}}
+    )
     both = ran_on({"a.yaml": sim, "b.yaml": real, "c.yaml": real})
     assert both == (
         "the simulated cell `run` started itself (1 of 3 run logs) and the gateway at 192.168.0.10:502 "

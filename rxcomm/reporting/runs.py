@@ -23,20 +23,31 @@ LIMITS = ("position", "velocity", "acceleration", "torque", "torque_rate")
 
 
 def ran_on(runs: Mapping[str, Mapping]) -> str:
-    """What the run logs say they ran on (their `embedded_cell` and `gateway`): the simulated cell
-    `run` started itself, and/or the gateways by address (a real cell, or a `rxcomm cell-sim` served
-    apart: the log cannot tell which)."""
+    """What the run logs say they ran on (their `embedded_cell`, the plant in their settings, and
+    `gateway`): the simulated cell `run` started itself, per plant where a log names it (older logs
+    do not), and/or the gateways by address (a real cell, or a `rxcomm cell-sim` served apart: the
+    log cannot tell which)."""
     if not runs:
         return "no cell (no run log in this directory)"
-    embedded = sum(bool(r.get("embedded_cell")) for r in runs.values())
+    cells: dict[str, int] = {}
     gateways: dict[str, int] = {}
     for r in runs.values():
-        if not r.get("embedded_cell"):
+        if r.get("embedded_cell"):
+            plant = (r.get("settings") or {}).get("plant")
+            key = "" if plant is None else f", {PLANT_NAMES.get(plant, plant)} plant"
+            cells[key] = cells.get(key, 0) + 1
+        else:
             gateways[str(r.get("gateway"))] = gateways.get(str(r.get("gateway")), 0) + 1
     n_runs = len(runs)
-    parts = [f"the simulated cell `run` started itself ({embedded} of {n_runs} run logs)"] if embedded else []
+    parts = [
+        f"the simulated cell `run` started itself{k} ({n} of {n_runs} run logs)"
+        for k, n in sorted(cells.items())
+    ]
     parts += [f"the gateway at {gw} ({n} of {n_runs} run logs)" for gw, n in sorted(gateways.items())]
     return " and ".join(parts)
+
+
+PLANT_NAMES = {"own": "rxcomm's own", "mujoco": "MuJoCo"}  # the embedded cell's plants (`run --plant`)
 
 
 def trajectory_section(

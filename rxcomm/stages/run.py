@@ -305,6 +305,7 @@ def _trajectory(
                 **settings.model_dump(mode="json"),
                 "model": job.model_name,
                 "embedded_cell": embedded,
+                "plant": getattr(server.core.backend, "plant_name", None) if embedded else None,
                 "realtime": realtime,
             },
             feedforward=job.model_name if settings.feedforward else "none",
@@ -348,6 +349,7 @@ def _campaign(
             **settings.model_dump(mode="json"),
             "model": job.model_name,
             "embedded_cell": server is not None,
+            "plant": getattr(server.core.backend, "plant_name", None) if server is not None else None,
         }
         log = CampaignLog(job.output, robot, [p.role for p in cfg.poses], job.inputs, env_settings)
         poses = [p.q_rad for p in cfg.poses]
