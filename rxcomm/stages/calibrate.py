@@ -18,11 +18,11 @@ import typer
 
 from rxcomm import console
 from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.options import RobotDir, parse_numbers
 from rxcomm.schemas.cell import Cell
+from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:
     import pinocchio as pin
@@ -216,17 +216,17 @@ def command(
     from rxcomm.calibration.measurements import read_measurements
     from rxcomm.calibration.settings import CalibrateSettings
     from rxcomm.model.base_parameters import load_dynamics
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
 
     output = Path(output)
-    check_outputs(
-        {
-            "output": output,
-            "urdf-out": urdf_out,
-            "mdh-out": mdh_out,
-            "mdh-out CSV": Path(mdh_out).with_suffix(".csv") if mdh_out is not None else None,
-        },
-        {"measurements": measurements, "dynamics": dynamics, "cell": cell, **robot_files(robot_dir)},
+    DECLARATIONS["calibrate"].check(
+        output=output,
+        urdf_out=urdf_out,
+        mdh_out=mdh_out,
+        robot=robot_dir,
+        measurements=measurements,
+        cell=cell,
+        dynamics=dynamics,
     )
     robot = load_robot(robot_dir)
     ms = read_measurements(measurements, robot)

@@ -21,7 +21,6 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
 from rxcomm.options import RobotDir, parse_numbers, radians_text, radians_value
@@ -29,6 +28,7 @@ from rxcomm.schemas.cell import AllowedRegion, Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
 from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:
     from rxcomm.identification.excitation import ExcitationDesign
@@ -170,7 +170,7 @@ def command(
     plot: Annotated[bool, typer.Option(help="Write OUTPUT.png: trajectory and tool path.")] = False,
 ) -> Excitation:
     """Design the optimal exciting trajectory (min cond of the base regressor) within every limit."""
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
 
     start = radians_text(start, start_deg, "start")
     values = {
@@ -189,13 +189,8 @@ def command(
         "baseline_trajectories": baseline_trajectories,
     }
     output, traj_path = _outputs(output, trajectory_out)
-    check_outputs(
-        {
-            "output": output,
-            "trajectory-out": traj_path,
-            "plot": output.with_suffix(".png") if plot else None,
-        },
-        {"cell": cell, **robot_files(robot_dir)},
+    DECLARATIONS["excite"].check(
+        output=output, trajectory_out=traj_path, plot=plot, robot=robot_dir, cell=cell
     )
     robot = load_robot(robot_dir)
     cell_model = read_yaml_model(cell, Cell)

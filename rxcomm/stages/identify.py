@@ -23,11 +23,11 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
 from rxcomm.options import RobotDir
 from rxcomm.schemas.dynamics import Dynamics
+from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:
     from rxcomm.identification.fit import Identification
@@ -342,11 +342,10 @@ def score_run(
     from rxcomm.identification.logs import load_joint_log
     from rxcomm.identification.settings import IdentifySettings
     from rxcomm.model.base_parameters import dynamics_from_artefact
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
 
-    check_outputs(
-        {"torques-out": torques_csv, "output": output},
-        {"log": log, "dynamics": model, **robot_files(robot_dir)},
+    DECLARATIONS["score"].check(
+        output=output, torques_out=torques_csv, robot=robot_dir, dynamics=model, log=log
     )
     robot = load_robot(robot_dir)
     art = read_yaml_artefact(model, Dynamics)
@@ -402,19 +401,19 @@ def run(
     from rxcomm.identification.export import write_parameters_csv, write_torques_csv
     from rxcomm.identification.fit import identify
     from rxcomm.identification.logs import load_joint_log
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
 
     output = Path(output)
     if output.suffix not in (".yaml", ".yml"):
         raise InputError("the output must be a .yaml file", field="output")
-    check_outputs(
-        {
-            "output": output,
-            "plot": output.with_suffix(".png") if plot else None,
-            "torques-out": torques_csv,
-            "params-out": params_csv,
-        },
-        {"log": log, "validate": validate, **robot_files(robot_dir)},
+    DECLARATIONS["identify"].check(
+        output=output,
+        plot=plot,
+        torques_out=torques_csv,
+        params_out=params_csv,
+        robot=robot_dir,
+        log=log,
+        validate=validate,
     )
     opts = _settings(settings)
     robot = load_robot(robot_dir)

@@ -16,10 +16,11 @@ from typing import Annotated
 import typer
 
 from rxcomm import console
-from rxcomm.io.files import check_outputs, mcap_summary_path
+from rxcomm.io.files import mcap_summary_path
 from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.options import RobotDir
 from rxcomm.schemas.run_log import RunLog, TrackerChannel
+from rxcomm.stages.declarations import DECLARATIONS
 
 
 class Alignment(StrEnum):
@@ -36,18 +37,10 @@ def execute(
     from rxcomm.execution.tracker_log import attach_tracker
     from rxcomm.io.run_log import read_run_log
     from rxcomm.io.tracker_csv import read_tracker_csv
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
 
     log, tracker_csv, output = Path(log), Path(tracker_csv), Path(output)
-    check_outputs(
-        {"output": output},
-        {
-            "log": log,
-            "log summary": mcap_summary_path(log),
-            "tracker csv": tracker_csv,
-            **robot_files(robot_dir),
-        },
-    )
+    DECLARATIONS["import-tracker"].check(output=output, log=log, tracker_csv=tracker_csv, robot=robot_dir)
     robot = load_robot(robot_dir)
     export = read_tracker_csv(tracker_csv)
     data = read_run_log(log, fields=("q_actual",))

@@ -17,13 +17,13 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
 from rxcomm.options import Iso9283Paths, RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283
 from rxcomm.schemas.path import PathSpec
+from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:
     from rxcomm.acceptance.campaign import EvaluationSettings
@@ -53,6 +53,15 @@ def read_specs(paths_dir: Path) -> dict[str, PathSpec]:
     return specs
 
 
+# The option of each test path's logs (`path_logs` keys: acceptance.campaign.PATH_TARGETS).
+LOG_OPTIONS = {
+    "iso9283-line": "line-log",
+    "iso9283-circle-large": "circle-log",
+    "iso9283-circle-small": "small-circle-log",
+    "iso9283-rectangle": "rectangle-log",
+}
+
+
 def execute(
     robot_dir: Path,
     output: Path,
@@ -68,15 +77,23 @@ def execute(
     """The stage as a function (tests call it): returns the artefact written. Raises RxcommError."""
     from rxcomm.acceptance.campaign import EvaluationSettings, evaluate
     from rxcomm.model.geometric_errors import placement_to_se3
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
 
     output = Path(output)
     paths_dir = Path(paths_dir) if paths_dir is not None else Path(robot_dir) / "paths"
-    logs = {f"pose log {i + 1}": p for i, p in enumerate(pose_logs)}
-    logs |= {f"{t} log {i + 1}": p for t, ps in path_logs.items() for i, p in enumerate(ps)}
-    check_outputs(
-        {"output": output, "plot": output.with_suffix(".png") if plot else None},
-        {**logs, "calibration": calibration, "cell": cell, **robot_files(robot_dir)},
+    unknown = set(path_logs) - set(LOG_OPTIONS)
+    if unknown:
+        raise InputError(f"no ISO 9283 test path {sorted(unknown)}", field="path_logs")
+    logs = {LOG_OPTIONS[t].replace("-", "_"): ps for t, ps in path_logs.items()}
+    DECLARATIONS["iso9283"].check(
+        output=output,
+        plot=plot,
+        robot=robot_dir,
+        pose_log=pose_logs,
+        **{name.replace("-", "_"): [] for name in LOG_OPTIONS.values()} | logs,
+        paths=paths_dir,
+        calibration=calibration,
+        cell=cell,
     )
     s = settings or EvaluationSettings()
     frame = base_frame(calibration, cell)
@@ -203,10 +220,10 @@ def command(
         output,
         pose_logs=list(pose_log or []),
         path_logs={
-            "iso9283-line": list(line_log or []),
-            "iso9283-circle-large": list(circle_log or []),
-            "iso9283-circle-small": list(small_circle_log or []),
-            "iso9283-rectangle": list(rectangle_log or []),
+            target: list(logs or [])
+            for target, logs in zip(
+                LOG_OPTIONS, (line_log, circle_log, small_circle_log, rectangle_log), strict=True
+            )
         },
         paths_dir=paths,
         calibration=calibration,

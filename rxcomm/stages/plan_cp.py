@@ -21,7 +21,7 @@ from rich.markup import escape
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.io.files import atomic_write_text, check_output_dir, check_outputs, trajectory_output
+from rxcomm.io.files import atomic_write_text, check_output_dir, trajectory_output
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import dump_yaml, read_yaml_artefact, read_yaml_model
 from rxcomm.options import (
@@ -36,6 +36,7 @@ from rxcomm.options import (
 )
 from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:
     from rxcomm.io.trajectory import Trajectory
@@ -251,7 +252,7 @@ def command(
     from rxcomm.calibration.loading import load_calibrated_robot
     from rxcomm.model.artefact_checks import accept_artefacts
     from rxcomm.model.catalogue import catalogue_limits
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
     from rxcomm.planning.cp import CpSettings
     from rxcomm.planning.paths import load_path
     from rxcomm.planning.timing import PlanDynamics
@@ -261,9 +262,8 @@ def command(
         return iso_paths(robot_dir, iso9283, cell=cell, rpy_deg=iso_rpy_deg)
     t_all = time.perf_counter()
     path, output = _given_paths(path, output)
-    check_outputs(
-        {"output": output, "plot": output.with_suffix(".png") if plot else None},
-        {"path": path, "dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
+    DECLARATIONS["plan-cp"].check(
+        output=output, plot=plot, robot=robot_dir, path=path, dynamics=dynamics, calibration=calibration
     )
     robot = load_robot(robot_dir)
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}

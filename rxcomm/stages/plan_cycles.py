@@ -21,9 +21,10 @@ import numpy as np
 import typer
 
 from rxcomm import console
-from rxcomm.io.files import check_outputs, trajectory_output
+from rxcomm.io.files import trajectory_output
 from rxcomm.options import PLAN_OUTPUT, PlanDynamics, RobotDir
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.declarations import DECLARATIONS
 from rxcomm.stages.summary import motion_summary
 
 
@@ -45,12 +46,12 @@ def command(
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.catalogue import catalogue_limits
     from rxcomm.model.limits import check_limits
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
     from rxcomm.planning.iso9283 import cycloidal_move, repeat_cycles, time_scaled
     from rxcomm.planning.ptp_problem import PtpDynamics
 
     t_all, plan, output = time.perf_counter(), Path(plan), trajectory_output(output)
-    check_outputs({"output": output}, {"plan": plan, "dynamics": dynamics, **robot_files(robot_dir)})
+    DECLARATIONS["plan-cycles"].check(output=output, robot=robot_dir, plan=plan, dynamics=dynamics)
     one, env = load_trajectory_mcap(plan)
     robot = load_robot(robot_dir)
     catalogue = catalogue_limits(robot)

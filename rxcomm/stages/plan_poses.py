@@ -17,12 +17,13 @@ import typer
 
 from rxcomm import console
 from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs, trajectory_output
+from rxcomm.io.files import trajectory_output
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.options import PLAN_OUTPUT, Iso9283Paths, PlanDynamics, RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.declarations import DECLARATIONS
 from rxcomm.stages.summary import motion_summary
 
 PLAN_CYCLES = 8  # the plan is sampled every 8 drive cycles: it dwells and moves slowly (run resamples)
@@ -45,15 +46,14 @@ def command(
     from rxcomm.io.trajectory import save_trajectory_mcap
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.catalogue import catalogue_limits
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
     from rxcomm.planning.catalogue_timing import pose_cycle_plan
     from rxcomm.planning.ptp_problem import PtpDynamics
 
     t_all, output = time.perf_counter(), trajectory_output(output)
     rectangle = (Path(paths) if paths is not None else Path(robot_dir) / "paths") / "iso9283-rectangle.yaml"
-    check_outputs(
-        {"output": output},
-        {"rectangle": rectangle, "calibration": calibration, "dynamics": dynamics, **robot_files(robot_dir)},
+    DECLARATIONS["plan-poses"].check(
+        output=output, robot=robot_dir, paths=rectangle, calibration=calibration, dynamics=dynamics
     )
     if not rectangle.is_file():
         raise InputError("no iso9283-rectangle.yaml (write them with plan-cp --iso9283)", file=rectangle)

@@ -17,7 +17,7 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.io.files import check_outputs, trajectory_output
+from rxcomm.io.files import trajectory_output
 from rxcomm.io.validate import settings_from_options
 from rxcomm.options import (
     POSE_PREFIX,
@@ -33,6 +33,7 @@ from rxcomm.options import (
 )
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.declarations import DECLARATIONS
 from rxcomm.stages.summary import motion_summary
 
 if TYPE_CHECKING:
@@ -222,15 +223,13 @@ def command(
 ) -> dict[str, object]:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
     from rxcomm.model.artefact_checks import accept_artefacts
-    from rxcomm.model.robot import robot_files
     from rxcomm.planning.ptp_problem import PtpOptions
 
     accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     start, goal = state_text(start, start_deg, "start"), state_text(goal, goal_deg, "goal")
     t_all, output = time.perf_counter(), trajectory_output(output)
-    check_outputs(
-        {"output": output, "plot": output.with_suffix(".png") if plot else None},
-        {"dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
+    DECLARATIONS["plan-ptp"].check(
+        output=output, plot=plot, robot=robot_dir, dynamics=dynamics, calibration=calibration
     )
     robot, dyn, inputs = _planning_model(robot_dir, calibration, dynamics)
     options = settings_from_options(

@@ -14,14 +14,14 @@ from typing import Annotated
 import typer
 
 from rxcomm import console
+from rxcomm.stages.declarations import DECLARATIONS
 
 
 def execute(part: Path, output: Path | None = None) -> Path:
     from rxcomm.execution.log import recover_run_log, recovered_path  # here: `--help` stays fast
-    from rxcomm.io.files import check_outputs
 
     output = Path(output) if output is not None else recovered_path(part)
-    check_outputs({"output": output}, {"part": part})
+    DECLARATIONS["recover-log"].check(output=output, part=part)
     rec = recover_run_log(part, output)
     console.err.print(f"warning: {rec.warning()}")
     console.out.print(f"recovered run log → {rec.written}")

@@ -19,7 +19,7 @@ import typer
 
 from rxcomm import __version__, console
 from rxcomm.errors import InputError
-from rxcomm.io.files import atomic_write_text, check_outputs
+from rxcomm.io.files import atomic_write_text
 from rxcomm.io.yaml_io import load_yaml, read_yaml_artefact
 from rxcomm.reporting import html, markdown
 from rxcomm.reporting.calibration import calibration_section, configs_section
@@ -52,6 +52,7 @@ from rxcomm.schemas.excitation import Excitation
 from rxcomm.schemas.iso9283 import Iso9283
 from rxcomm.schemas.run_log import RunLog
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.declarations import DECLARATIONS
 
 # The artefacts read by name, and the section a missing one leaves "not measured".
 ARTEFACTS: dict[str, tuple[type[Artefact], str]] = {
@@ -263,7 +264,7 @@ def command(
     page = output.with_suffix(".html")
     # the report reads the build's artefacts and embeds its figures: none of them may be an output
     artefacts = {p.name: p for p in sorted(build_dir.iterdir()) if p.suffix in (".yaml", ".mcap", ".png")}
-    check_outputs({"output": output, "html": page}, artefacts)
+    DECLARATIONS["report"].check(output=output, build_dir=list(artefacts.values()))
     verdict = _load(build_dir / "verdict.yaml", Acceptance)  # factory vs commissioned (`rxcomm accept`)
     report, missing = build_report(build_dir, acceptance_verdict(verdict), headline(verdict))
     output.parent.mkdir(parents=True, exist_ok=True)

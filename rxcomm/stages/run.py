@@ -23,13 +23,13 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import GatewayError, InputError, LocatedError, RxcommError, SafetyStop
-from rxcomm.io.files import check_outputs
 from rxcomm.io.plan_files import plan_kind
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.options import AllowInconsistent, OtherRobot, Plant, RobotDir, embedded_plant
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:
     from rxcomm.execution.campaign import CampaignSettings
@@ -210,7 +210,7 @@ def execute(
     from rxcomm.execution.guards import check_output_kind, check_run_options, sigterm_as_interrupt
     from rxcomm.execution.session import VIRTUAL_CELL_WATCHDOG_MS, RunSettings, StreamSettings
     from rxcomm.io.mcap_io import read_mcap_envelope
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
 
     plan, output = Path(plan), Path(output)
     check_run_options(interpolation_ratio, speed)  # exit 2 before anything is read
@@ -223,16 +223,15 @@ def execute(
     if compare is not None and not plot:
         raise InputError("--compare draws into the --plot figure: pass --plot too", field="compare")
     embedded_truth = None if gateway is not None else (truth or Path(robot_dir) / "truth.yaml")
-    check_outputs(
-        {"output": output, "plot": output.with_suffix(".png") if plot else None},
-        {
-            "plan": plan,
-            "dynamics": dynamics,
-            "truth": embedded_truth,
-            "compare": compare,
-            "calibration": calibration,
-            **robot_files(robot_dir),
-        },
+    DECLARATIONS["run"].check(
+        output=output,
+        plot=plot,
+        robot=robot_dir,
+        plan=plan,
+        dynamics=dynamics,
+        truth=embedded_truth,
+        compare=compare,
+        calibration=calibration,
     )
     robot = load_robot(robot_dir)
     params, model_name = load_model(robot, dynamics, plan)

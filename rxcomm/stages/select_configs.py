@@ -21,6 +21,7 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.options import RobotDir
+from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:  # the library (pinocchio, scipy) is imported where used: `--help` stays fast
     from rxcomm.calibration.pose_selection import PoseSelection
@@ -193,9 +194,8 @@ def command(
 ) -> dict[str, object]:
     """Select measurement poses that make the geometric error parameters well identifiable."""
     from rxcomm.calibration.pose_selection import Criterion
-    from rxcomm.io.files import check_outputs
     from rxcomm.io.yaml_io import write_yaml_artefact
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
 
     t0 = time.perf_counter()
     output = Path(output)
@@ -204,10 +204,7 @@ def command(
             raise InputError(f"must be ≥ {lo}, got {value}", field=name)
     if max_candidates < 0 or n_validation < 0:
         raise InputError("must be ≥ 0", field="max-candidates" if max_candidates < 0 else "validation-poses")
-    check_outputs(
-        {"output": output, "plot": output.with_suffix(".png") if plot else None},
-        {"cell": cell, **robot_files(robot_dir)},
-    )
+    DECLARATIONS["select-configs"].check(output=output, plot=plot, robot=robot_dir, cell=cell)
     robot = load_robot(robot_dir)
     cell_model = read_cell(cell)
     settings = {

@@ -14,6 +14,7 @@ import typer
 
 from rxcomm import console
 from rxcomm.options import RobotDir
+from rxcomm.stages.declarations import DECLARATIONS
 
 
 def command(
@@ -32,13 +33,13 @@ def command(
 def run(robot_dir: Path, output: Path, *, seed: int = 0, compliance: bool = False) -> dict[str, object]:
     from rxcomm.cell.truth import load_truth
     from rxcomm.cell.truth_draw import draw_truth
-    from rxcomm.io.files import atomic_write_text, check_outputs, part_path
+    from rxcomm.io.files import atomic_write_text, part_path
     from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
-    from rxcomm.model.robot import load_robot, robot_files
+    from rxcomm.model.robot import load_robot
     from rxcomm.schemas.cell import Cell
 
     output = Path(output)
-    check_outputs({"output": output}, robot_files(robot_dir))
+    DECLARATIONS["truth"].check(output=output, robot=robot_dir)
     robot = load_robot(robot_dir)
     cell_path = robot.drives_path.parent / "cell.yaml"
     cell = read_yaml_model(cell_path, Cell) if cell_path.exists() else None
