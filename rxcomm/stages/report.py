@@ -45,26 +45,28 @@ from rxcomm.reporting.runs import (
 from rxcomm.reporting.targets import acceptance_verdict, headline, stage_verdicts, verdict_note
 from rxcomm.schemas.acceptance import Acceptance
 from rxcomm.schemas.calibration import Calibration
-from rxcomm.schemas.configs import Configs
-from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.envelope import Artefact
-from rxcomm.schemas.excitation import Excitation
 from rxcomm.schemas.iso9283 import Iso9283
 from rxcomm.schemas.run_log import RunLog
-from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
 
-# The artefacts read by name, and the section a missing one leaves "not measured".
-ARTEFACTS: dict[str, tuple[type[Artefact], str]] = {
-    "configs.yaml": (Configs, "Optimal measurement poses (paper §3.3)"),
-    "calibration.yaml": (Calibration, "Geometric calibration (paper §3.1–3.4, Table 2)"),
-    "excitation.yaml": (Excitation, "Optimal exciting trajectory (paper §4.2)"),
-    "dynamics.yaml": (Dynamics, "Dynamic identification (paper §4.1, §4.3, Fig. 5b)"),
-    "cp.yaml": (TrajectorySummary, "Time-optimal continuous path (paper §5.1–5.3, Figs. 7–8)"),
-    "ptp.yaml": (TrajectorySummary, "Time-optimal point-to-point (paper §5.4–5.5, Fig. 9)"),
-    "run-ff.yaml": (RunLog, "Execution with model-based feed-forward (paper §2.3, Fig. 2)"),
+# The artefacts read by name: the command that writes each in the chain (tests/test_stage_declarations.py
+# holds the Makefile's rules to it) and the section a missing one leaves "not measured".
+SECTIONS: dict[str, tuple[str, str]] = {
+    "configs.yaml": ("select-configs", "Optimal measurement poses (paper §3.3)"),
+    "calibration.yaml": ("calibrate", "Geometric calibration (paper §3.1–3.4, Table 2)"),
+    "excitation.yaml": ("excite", "Optimal exciting trajectory (paper §4.2)"),
+    "dynamics.yaml": ("identify", "Dynamic identification (paper §4.1, §4.3, Fig. 5b)"),
+    "cp.yaml": ("plan-cp", "Time-optimal continuous path (paper §5.1–5.3, Figs. 7–8)"),
+    "ptp.yaml": ("plan-ptp", "Time-optimal point-to-point (paper §5.4–5.5, Fig. 9)"),
+    "run-ff.yaml": ("run", "Execution with model-based feed-forward (paper §2.3, Fig. 2)"),
 }
-# Which run log executed which plan: the limit tolerance `run` checked that plan against.
+# Each artefact's schema: its command's declared output.
+ARTEFACTS: dict[str, tuple[type[Artefact], str]] = {
+    name: (DECLARATIONS[command].kinds[0], title) for name, (command, title) in SECTIONS.items()
+}
+# Which run log executed which plan: the limit tolerance `run` checked that plan against (the test
+# above holds these to the Makefile's rules too).
 EXECUTED_BY = {"cp": "run-ff.yaml", "ptp": "run-ptp.yaml", "excitation": "excite-log.yaml"}
 
 
@@ -77,6 +79,14 @@ def _load(path: Path, model: type[Artefact]) -> dict | None:
 
 def _img(build: Path, name: str) -> str | None:
     return name if (build / name).exists() else None
+
+
+def _plot(build: Path, artefact: str, command: str | None = None) -> str | None:
+    """The plot `command` (default: the artefact's, `SECTIONS`) writes beside `artefact`, if the build
+    has it (the declaration's `--plot` file)."""
+    stage = DECLARATIONS[command or SECTIONS[artefact][0]]
+    plot = next((b for b in stage.beside if b.when == "plot"), None)
+    return None if plot is None else _img(build, plot.path(artefact).name)
 
 
 def run_logs(build: Path) -> dict[str, dict]:
@@ -104,7 +114,9 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
     cfg, cal, dyn = a["configs.yaml"], a["calibration.yaml"], a["dynamics.yaml"]
     out: dict[str, Section] = {}
     if cfg:
-        out["configs.yaml"] = configs_section(s["configs.yaml"], _img(build, "configs.png"), cfg["criterion"])
+        out["configs.yaml"] = configs_section(
+            s["configs.yaml"], _plot(build, "configs.yaml"), cfg["criterion"]
+        )
     if cal:
         # The prior-torque pass of the same measurements (optional: not every chain makes it).
         prior = _load(build / "calibration-prior.yaml", Calibration)
@@ -118,11 +130,11 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
     if s["excitation.yaml"]:
         exc_tol = tol.get("excitation", DEFAULT_TOLERANCE)
         out["excitation.yaml"] = excitation_section(
-            s["excitation.yaml"], _img(build, "excitation.png"), exc_tol
+            s["excitation.yaml"], _plot(build, "excitation.yaml"), exc_tol
         )
     if dyn:
         out["dynamics.yaml"] = dynamics_section(
-            dyn["summary"], _img(build, "dynamics.png"), dyn["base_parameters"], dyn["friction"]
+            dyn["summary"], _plot(build, "dynamics.yaml"), dyn["base_parameters"], dyn["friction"]
         )
     for key, paper in (("cp", "1.04 s (straight line passing near a singularity)"), ("ptp", "0.67 s")):
         if s[f"{key}.yaml"]:
@@ -130,7 +142,7 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
             sec = trajectory_section(
                 ARTEFACTS[name][1],
                 s[name],
-                _img(build, f"{key}.png"),
+                _plot(build, name),
                 paper,
                 tol.get(key, DEFAULT_TOLERANCE),
             )
@@ -139,7 +151,7 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
             out[name] = sec
     if s["run-ff.yaml"]:
         out["run-ff.yaml"] = execution_section(
-            s["run-ff.yaml"], s["run-noff.yaml"], _img(build, "run-ff.png")
+            s["run-ff.yaml"], s["run-noff.yaml"], _plot(build, "run-ff.yaml")
         )
     return [out.get(name) or missing_section(title, [name]) for name, (_, title) in ARTEFACTS.items()]
 
@@ -156,9 +168,7 @@ def build_report(
     a["run-noff.yaml"] = runs.get("run-noff.yaml")
     tol = _tolerances(runs)
     sections = _stage_sections(build, a, tol)
-    run_images = [
-        f"{Path(n).stem}.png" for n in runs if n != "run-ff.yaml" and (build / n).with_suffix(".png").exists()
-    ]
+    run_images = [png for n in runs if n != "run-ff.yaml" and (png := _plot(build, n, "run"))]
     sections.append(runs_section(runs, run_images))
     parity = build / "exports" / "parity.yaml"
     sections.append(exports_section(load_yaml(parity) if parity.is_file() else None))
