@@ -397,7 +397,7 @@ $(B)/report.md: $(B)/configs.yaml $(B)/calibration-prior.yaml $(B)/calibration.y
 		$(B)/run-factory-ptp.mcap $(B)/run-factory-poses.mcap $(B)/run-poses.mcap \
 		$(B)/run-factory-iso-line.mcap $(B)/run-iso-line.mcap $(B)/run-factory-iso-circle.mcap \
 		$(B)/run-iso-circle.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap \
-		$(B)/verdict.yaml $(B)/exports/parity.yaml
+		$(B)/iso9283-factory.yaml $(B)/iso9283.yaml $(B)/verdict.yaml $(B)/exports/parity.yaml
 	$(RX) report $(B) -o $@
 
 # The command each rule runs, by its code stamp (above; tests/test_make.py checks each recipe's command).

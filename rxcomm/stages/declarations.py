@@ -65,6 +65,7 @@ class Declaration:
     outputs: tuple[str, ...] = ()  # further output options, e.g. "urdf-out"
     beside: tuple[Beside, ...] = ()
     positional: tuple[str, ...] = ()  # inputs given as arguments (in this order), not as options
+    defaults: tuple[Beside, ...] = ()  # further outputs that default to a file beside -o
     settings: str | None = None  # the settings model, "module:Class" (imported on use: `settings_model`)
 
     @property
@@ -78,8 +79,12 @@ class Declaration:
 
     def written(self, **files: FileArg | bool) -> dict[str, Path | None]:
         """The files written, by name: `output`, the further outputs and the files beside them."""
+        files = _dashed(files)
         out: dict[str, FileArg] = {"output": files.get("output")}
         out |= {name: files.get(name) for name in self.outputs}
+        for d in self.defaults:
+            if out[d.name] is None and out[d.of] is not None:
+                out[d.name] = d.path(out[d.of])  # type: ignore[arg-type]
         for b in self.beside:
             of = out.get(b.of)
             made = of is not None and (b.when is None or bool(files.get(b.when)))
@@ -88,6 +93,7 @@ class Declaration:
 
     def read(self, **files: FileArg | Sequence[FileArg] | bool) -> dict[str, FileArg]:
         """The files read, by name: a list input numbered, `robot` as its files."""
+        files = _dashed(files)
         from rxcomm.model.robot import robot_files
 
         out: dict[str, FileArg] = {}
@@ -106,7 +112,7 @@ class Declaration:
         any work. Keywords: every name of `names()` (dashes as underscores); another is a TypeError."""
         from rxcomm.io.files import check_output_dir, check_outputs
 
-        given = {k.replace("_", "-"): v for k, v in files.items()}
+        given = _dashed(files)
         if set(given) != self.names():
             raise TypeError(f"undeclared {set(given) - self.names()}, missing {self.names() - set(given)}")
         if self.suffixes == ("/",):
@@ -118,6 +124,10 @@ class Declaration:
             return None
         module, _, name = self.settings.partition(":")
         return getattr(importlib.import_module(module), name)
+
+
+def _dashed(files: dict) -> dict:
+    return {k.replace("_", "-"): v for k, v in files.items()}
 
 
 TRAJECTORY = {"kinds": (TrajectorySummary,), "suffixes": (".mcap",)}
@@ -136,6 +146,7 @@ DECLARATIONS: dict[str, Declaration] = {
         (Excitation,),
         outputs=("trajectory-out",),
         beside=(PLOT,),
+        defaults=(Beside("trajectory-out", "-trajectory.mcap"),),  # excitation-trajectory.mcap
         settings="rxcomm.schemas.excitation:ExcitationSettings",
     ),
     "identify": Declaration(

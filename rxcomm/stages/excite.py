@@ -40,7 +40,7 @@ Objective = Literal["cond", "logdet"]
 
 def trajectory_path(output: Path) -> Path:
     """``excitation.yaml`` -> ``excitation-trajectory.mcap`` (its own ``.yaml`` must not clash)."""
-    return output.with_name(output.stem + "-trajectory.mcap")
+    return DECLARATIONS["excite"].written(output=output)["trajectory-out"]
 
 
 def design_ratios(robot: Robot, s, opts: ExcitationSettings, region: AllowedRegion | None) -> dict:
