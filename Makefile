@@ -206,7 +206,7 @@ $(B)/run-factory-ptp.mcap: $(B)/factory-ptp.mcap $(SIM_FILES) $(call params,run-
 
 # A path file the chain reads that the robot directory lacks: say how to write it, not make's "No rule".
 $(ROBOT)/paths/%.yaml:
-	@echo "error: $@: no such path file (a robot's ISO 9283 paths: rxcomm plan-cp --robot $(ROBOT) --iso9283 $(ROBOT)/paths; any other path: a rxcomm/Path YAML, rxcomm/schemas/path.py)" >&2; exit 2
+	@echo "error: $@: no such path file (a robot's ISO 9283 paths: rxcomm iso9283-paths --robot $(ROBOT) -o $(ROBOT)/paths; any other path: a rxcomm/Path YAML, rxcomm/schemas/path.py)" >&2; exit 2
 
 # ---- ISO 9283 in both states, measured by the tracker during motion (rxcomm iso9283) -----------------
 # The pose test (P1 → P5 → P4 → P3 → P2, dwells, catalogue-limit moves in both states: it measures at

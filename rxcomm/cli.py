@@ -78,6 +78,11 @@ STAGES: dict[str, Stage] = {
         + (("--max-gap", "--max-gap-s"), ("--torque-lag", "--torque-lag-s"))
         + (("--stick-guard", "--stick-guard-s"),),
     ),
+    "score": Stage(
+        "score",
+        "Score an identified dynamics.yaml on another log without refitting: identify's validation figures.",
+        "rxcomm score --robot samples/rx130l --dynamics build/dynamics.yaml --log build/validation-log.mcap",
+    ),
     "plan-cp": Stage(
         "plan_cp",
         "Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`.",
@@ -87,6 +92,12 @@ STAGES: dict[str, Stage] = {
         + (("--torque-rate", "--torque-rate-limits"), ("--no-torque-rate", "--no-torque-rate-limits"))
         + (("--tcp-speed-max", "--max-tcp-speed-m-s"),)
         + (("--tcp-acceleration-max", "--max-tcp-acceleration-m-s2"),),
+    ),
+    "iso9283-paths": Stage(
+        "iso9283_paths",
+        "Write the robot's ISO 9283 test-plane paths (line, circles, rectangle) as path files to a "
+        "directory.",
+        "rxcomm iso9283-paths --robot samples/rx130l --cell samples/rx130l/cell.yaml -o robots/arm/paths",
     ),
     "plan-ptp": Stage(
         "plan_ptp",

@@ -11,7 +11,8 @@ import typer
 from rxcomm.errors import InputError
 
 # The robot every stage works on: one option, one name, one help text (docs/cli.md).
-RobotDir = Annotated[Path, typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")]
+ROBOT = typer.Option("--robot", help="Robot directory: a URDF + drives.yaml.")
+RobotDir = Annotated[Path, ROBOT]
 Plant = Annotated[str, typer.Option(help="The simulated cell's physics: own or mujoco (architecture §6).")]
 
 
@@ -26,9 +27,20 @@ def embedded_plant(plant: str, gateway: str | None) -> str:
 # plan-cp, plan-ptp: the optimal plan, or a generic controller's from the catalogue limits.
 Timing = Literal["optimal", "catalogue"]
 TRAJECTORY_OUTPUT = typer.Option("-o", "--output", help="Output trajectory NAME.mcap (+ NAME.yaml).")
-IdentifiedDynamics = Annotated[
-    Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
-]
+# One meaning a name across stages (tests/test_cli_vocabulary.py): --dynamics is always the identified
+# model a stage computes torques with; --cell always the cell description; --log a joint log.
+DYNAMICS_HELP = (
+    "Identified dynamics.yaml (rxcomm identify); where optional, the robot's prior model without it."
+)
+Dynamics = typer.Option("--dynamics", help=DYNAMICS_HELP)
+IdentifiedDynamics = Annotated[Path | None, Dynamics]
+CELL = typer.Option(
+    "--cell",
+    help="cell.yaml: workspace, allowed region, tracker and its noise, nominal layout (what each command "
+    "uses of it: its description above).",
+)
+CellFile = Annotated[Path | None, CELL]
+JointLog = typer.Option("--log", help="Run log MCAP (rxcomm run) or a robot CSV (docs/identify-csv.md).")
 TimeWeight = Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")]
 # plan-cp, plan-ptp, run: artefacts that claim another robot or an impossible one (issue 27).
 OtherRobot = Annotated[
@@ -47,9 +59,7 @@ AllowInconsistent = Annotated[
 ]
 # plan-poses, plan-cycles: a plan derived from catalogue timing.
 PLAN_OUTPUT = typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")
-PlanDynamics = Annotated[
-    Path | None, typer.Option(help="dynamics.yaml: the plan's torques (default: the prior model).")
-]
+PlanDynamics = IdentifiedDynamics
 # plan-poses, iso9283: where the ISO 9283 path files are.
 Iso9283Paths = Annotated[
     Path | None, typer.Option("--paths", help="Directory of the ISO 9283 path specs (default ROBOT/paths).")

@@ -47,13 +47,14 @@ def stage_reading(d) -> dict[str, list[str]]:
         + ["--dynamics", str(d), "-o", out + ".mcap"],
         "recover-log": ["recover-log", str(d)],
         "identify --dynamics": ["identify", "--robot", r, "--dynamics", str(d), "--validate", str(d)],
+        "score": ["score", "--robot", r, "--dynamics", str(d), "--log", str(d)],
     }
 
 
 @pytest.mark.parametrize(
     "case",
     ["select-configs", "calibrate", "cell-sim", "excite", "plan-cp", "plan-cp --calibration"]
-    + ["plan-ptp --dynamics", "recover-log", "identify --dynamics"],
+    + ["plan-ptp --dynamics", "recover-log", "identify --dynamics", "score"],
 )
 def test_an_input_that_cannot_be_read_is_one_line_exit_2_naming_it(tmp_path, case):
     d = tmp_path / "a-directory"

@@ -21,20 +21,21 @@ DOC = ROOT / "docs" / "cli.md"
 HEAVY = ("toppra", "matplotlib", "scipy", "casadi", "pinocchio")
 
 
-def documented() -> dict[str, tuple[set[str], set[str]]]:
-    """command -> (option spellings, deprecated spellings) from the tables of docs/cli.md."""
-    tables: dict[str, tuple[set[str], set[str]]] = {}
+def documented() -> dict[str, tuple[set[str], set[str], set[str]]]:
+    """command -> (option spellings, deprecated spellings, hidden options) from the tables of docs/cli.md
+    (a hidden option's meaning starts with "hidden:")."""
+    tables: dict[str, tuple[set[str], set[str], set[str]]] = {}
     name = None
     for line in DOC.read_text(encoding="utf-8").splitlines():
         if m := re.match(r"### `rxcomm ([a-z0-9-]+)`", line):
             name = m.group(1)
-            tables[name] = (set(), set())
+            tables[name] = (set(), set(), set())
         elif name and line.startswith("| `-"):
             cells = [c.strip() for c in line.strip("|").split("|")]
             names = re.findall(r"`(-[^`]+)`", cells[0])
             if cells[1] == "switch":  # rule 7: a switch --X is also --no-X
                 names += [f"--no-{o[2:]}" for o in names if not o.startswith("--no-")]
-            tables[name][0].update(names)
+            tables[name][2 if cells[2].startswith("hidden") else 0].update(names)
             tables[name][1].update(re.findall(r"`(-[^`]+)`", cells[-1]))
     return tables
 
@@ -45,11 +46,12 @@ def command_tree() -> dict:
     return {name: group.get_command(ctx, name) for name in group.list_commands(ctx)}
 
 
-def spellings(cmd) -> set[str]:
+def spellings(cmd, hidden: bool | None = False) -> set[str]:
+    """The options' spellings: visible ones (hidden=False), hidden ones (True) or all (None)."""
     return {
         o
         for p in cmd.params
-        if p.param_type_name == "option" and not p.hidden
+        if p.param_type_name == "option" and (hidden is None or p.hidden == hidden)
         for o in (*p.opts, *p.secondary_opts)
         if o != "--help"
     }
@@ -60,11 +62,12 @@ def test_every_option_is_spelled_as_docs_cli_md_says():
     assert set(docs) == set(tree), "docs/cli.md must have one table per command"
     for name, cmd in tree.items():
         assert spellings(cmd) == docs[name][0], name
+        assert spellings(cmd, hidden=True) == docs[name][2], name
         old = {o for o, _ in cli.STAGES[name].deprecated}
         assert old == docs[name][1] - {"positional"}, name  # the table's deprecated column
         assert not old & spellings(cmd), f"{name}: a deprecated spelling is still a visible option"
         for _, new in cli.STAGES[name].deprecated:
-            assert new in spellings(cmd), f"{name}: alias to unknown {new}"
+            assert new in spellings(cmd, hidden=None), f"{name}: alias to unknown {new}"
 
 
 def test_units_are_the_last_word_and_no_single_letter_option_but_o():
@@ -174,3 +177,83 @@ def test_the_makefile_spells_every_option_as_docs_cli_md(tmp_path, goal):
     for name, args in commands:
         used = {a.partition("=")[0] for a in args.split() if a.startswith("-")}
         assert used <= spellings(tree[name]), f"{name}: {used - spellings(tree[name])}"
+
+
+# Option names that still carry several help texts across commands: each a name whose meaning differs by
+# command or whose texts say what that command does with it. One meaning a name is the rule (issue 28):
+# this list only shrinks; a new name with a second help text fails below.
+SEVERAL_HELP_TEXTS = {
+    "--allow-remote",  # run: a real gateway; cell-sim: listening beyond loopback
+    "--calibration",  # what each command takes from the calibration
+    "--cycles",  # pose cycles / path cycles
+    "--duration-s",  # cell-sim: stop after; plan-cycles: time-scale to
+    "--dwell-s",  # at each pose / at each path end
+    "--k2",
+    "--method",  # identify: least squares; plan-cp: planner
+    "--output",  # what each command writes
+    "--plot",  # what each figure shows
+    "--realtime",
+    "--seed",  # of what each command draws
+    "--start",  # cell-sim: initial; excite: rest pose; plan-ptp: start of the move
+    "--start-deg",
+    "--timing",
+    "--truth",
+}
+
+
+def help_texts() -> dict[str, set[str]]:
+    """option name -> its help texts over every command (visible options)."""
+    out: dict[str, set[str]] = {}
+    for cmd in command_tree().values():
+        for p in cmd.params:
+            if p.param_type_name == "option" and not p.hidden:
+                out.setdefault(max(p.opts, key=len), set()).add(" ".join((p.help or "").split()))
+    return out
+
+
+def test_every_option_name_has_one_help_text_across_commands():
+    texts = help_texts()
+    several = {name for name, t in texts.items() if len(t) > 1}
+    assert several == SEVERAL_HELP_TEXTS, (several - SEVERAL_HELP_TEXTS, SEVERAL_HELP_TEXTS - several)
+    for name in ("--dynamics", "--cell", "--log", "--robot"):  # the ones issue 28 named, and the robot
+        assert len(texts[name]) == 1, (name, texts[name])
+    # the check fails on a name given a second text
+    texts["--dynamics"].add("Score this dynamics.yaml instead of identifying.")
+    assert {name for name, t in texts.items() if len(t) > 1} != SEVERAL_HELP_TEXTS
+
+
+@pytest.mark.slow
+def test_iso9283_paths_writes_the_sample_paths_and_the_old_spelling_still_works(tmp_path):
+    robot = ROOT / "samples" / "rx130l"
+    res = CliRunner().invoke(
+        cli.app,
+        [
+            "iso9283-paths",
+            "--robot",
+            str(robot),
+            "--cell",
+            str(robot / "cell.yaml"),
+            "-o",
+            str(tmp_path / "a"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    for f in sorted(robot.glob("paths/iso9283-*.yaml")):  # the samples were written this way
+        body = [ln for ln in (tmp_path / "a" / f.name).read_text().splitlines() if not ln.startswith("#")]
+        assert body == [ln for ln in f.read_text().splitlines() if not ln.startswith("#")], f.name
+    res = CliRunner().invoke(
+        cli.app,
+        [
+            "plan-cp",
+            "--robot",
+            str(robot),
+            "--cell",
+            str(robot / "cell.yaml"),
+            "--iso9283",
+            str(tmp_path / "b"),
+        ],
+    )
+    assert res.exit_code == 0 and "deprecated: use rxcomm iso9283-paths" in res.output, res.output
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == sorted(
+        p.name for p in (tmp_path / "a").iterdir()
+    )

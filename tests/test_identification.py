@@ -594,10 +594,15 @@ def test_scoring_a_model_on_a_log_reproduces_its_validation(
     table = np.loadtxt(csv, delimiter=",", comments="#", skiprows=2)
     assert table.shape == (len(val.t), 1 + 3 * 6)
     np.testing.assert_allclose(table[:, 7:13], val.predicted, rtol=1e-8, atol=1e-8)
+    res = CliRunner().invoke(app, ["score", "--robot", rx, "--dynamics", str(out), "--log", str(vlog)])
+    assert res.exit_code == 0 and "scored on iso-log.mcap" in res.output, res.output
+    assert "deprecated" not in res.output
+    # the old spelling: the same scoring, with a deprecation note
     res = CliRunner().invoke(
         app, ["identify", "--robot", rx, "--dynamics", str(out), "--validate", str(vlog)]
     )
     assert res.exit_code == 0 and "scored on iso-log.mcap" in res.output, res.output
+    assert "deprecated: use rxcomm score" in res.output
     res = CliRunner().invoke(app, ["identify", "--robot", rx, "--dynamics", str(out), "--log", str(vlog)])
     assert res.exit_code == 2 and "--validate" in res.output
 

@@ -109,7 +109,7 @@ def test_auto_cutoff_says_why_when_it_cannot_choose(rx130l, standstill_log):
 
 
 def test_scoring_a_model_writes_it_with_the_new_figures(tmp_path, rx130l, standstill_log):
-    """identify (default cut-off: auto) then `identify --dynamics M --validate LOG -o OUT`: OUT is the
+    """identify (default cut-off: auto) then `score --dynamics M --log LOG -o OUT`: OUT is the
     model, its parameters unchanged, with LOG's validation figures (on main: -o refused when scoring)."""
     log, _ = standstill_log
     path = write_run_log(tmp_path / "log.mcap", log.t, log.q, log.tau)
@@ -120,7 +120,8 @@ def test_scoring_a_model_writes_it_with_the_new_figures(tmp_path, rx130l, stands
     assert "every row" in r.output and "standstill_in_band" in r.output
     art = read_yaml_artefact(model, Dynamics)
     assert art.summary["cutoff_choice"].startswith("auto")
-    r = CliRunner().invoke(app, [*base, "--dynamics", str(model), "--validate", str(path), "-o", str(scored)])
+    score = ["score", "--robot", str(SAMPLES / "rx130l"), "--dynamics", str(model), "--log", str(path)]
+    r = CliRunner().invoke(app, [*score, "-o", str(scored)])
     assert r.exit_code == 0, r.output
     out = read_yaml_artefact(scored, Dynamics)
     assert out.base_parameters == art.base_parameters

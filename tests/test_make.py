@@ -339,7 +339,7 @@ def test_a_robot_without_the_singular_line_runs_its_iso_line_and_a_missing_path_
     out = _make(tmp_path, "build/factory-cp.mcap", "ROBOT=newbot")  # the path is its first input
     assert out.returncode == 2
     assert "newbot/paths/iso9283-line.yaml: no such path file" in out.stderr
-    assert "--iso9283 newbot/paths" in out.stderr
+    assert "iso9283-paths --robot newbot -o newbot/paths" in out.stderr
     assert not (tmp_path / "build" / "factory-cp.mcap").exists()
 
 

@@ -20,7 +20,7 @@ from rxcomm import console
 from rxcomm.errors import InputError
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.options import RobotDir, parse_numbers
+from rxcomm.options import CellFile, IdentifiedDynamics, RobotDir, parse_numbers
 from rxcomm.schemas.cell import Cell
 from rxcomm.stages.declarations import DECLARATIONS
 
@@ -116,10 +116,7 @@ MdhOutOption = Annotated[
         "here (YAML, and a CSV beside it), with the residual MDH cannot express.",
     ),
 ]
-CellOption = Annotated[
-    Path | None,
-    typer.Option(help="cell.yaml: nominal tracker_to_base and tracker noise (else from the measurements)."),
-]
+CellOption = CellFile  # its nominal tracker_to_base and tracker noise (else from the measurements)
 HoldoutOption = Annotated[
     float | None,
     typer.Option(
@@ -138,13 +135,7 @@ ModelOption = Annotated[
     Model,
     typer.Option("--error-model", help="Error model; auto: chosen by cross-validation over the fit poses."),
 ]
-DynamicsOption = Annotated[
-    Path | None,
-    typer.Option(
-        help="dynamics.yaml (identify): its holding torques bend the joints in the compliance "
-        "model (default: the prior model of the URDF and drives.yaml)."
-    ),
-]
+DynamicsOption = IdentifiedDynamics  # its holding torques bend the joints in the compliance model
 
 
 def _cell_and_noise(

@@ -19,7 +19,7 @@ import typer
 
 from rxcomm import console
 from rxcomm.errors import InputError
-from rxcomm.options import Plant, parse_numbers, radians_text
+from rxcomm.options import CellFile, Plant, parse_numbers, radians_text
 
 if TYPE_CHECKING:  # the cell (pinocchio, the plant) is imported where used: `--help` stays fast
     from rxcomm.cell.server import CellServer
@@ -47,10 +47,7 @@ def command(
     q0_deg: Annotated[
         str | None, typer.Option("--start-deg", help="Initial joint angles in degrees.")
     ] = None,
-    cell: Annotated[
-        Path | None,
-        typer.Option(help="cell.yaml for the tracker's field of view (default: cell.yaml beside the truth)."),
-    ] = None,
+    cell: CellFile = None,  # the tracker's field of view (default: cell.yaml beside the truth)
     seed: Annotated[int | None, typer.Option(help="Noise seed (default: the truth file's).")] = None,
     duration_s: Annotated[
         float | None,

@@ -23,7 +23,7 @@ from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.options import RobotDir, parse_numbers, radians_text, radians_value
+from rxcomm.options import CELL, RobotDir, parse_numbers, radians_text, radians_value
 from rxcomm.schemas.cell import AllowedRegion, Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
 from rxcomm.schemas.plain import sha256_file
@@ -119,9 +119,7 @@ def plot_excitation(
 
 
 # The options whose help runs over several lines, named here so that `command` reads as a list.
-CellOption = Annotated[
-    Path, typer.Option(help="cell.yaml: its allowed_region bounds tool, wrist centre, elbow.")
-]
+CellOption = Annotated[Path, CELL]  # its allowed_region bounds tool, wrist centre, elbow
 TrajectoryOutOption = Annotated[
     Path | None,
     typer.Option(help="Trajectory MCAP for `run` (default: OUTPUT's stem + '-trajectory.mcap')."),

@@ -24,6 +24,7 @@ import typer
 from rxcomm import console
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs
+from rxcomm.options import ROBOT
 
 # kind -> format -> (what the export is, default suffix, "module:function" (source, out[, ctx]) -> summary).
 # Named, not imported: `rxcomm --help` loads this module and must stay light.
@@ -207,7 +208,7 @@ def command(
         ),
     ] = None,
     robot_dir: Annotated[
-        Path | None, typer.Option("--robot", help="Robot directory (calibration exports).")
+        Path | None, ROBOT  # a calibration's exports
     ] = None,
     calibration: Annotated[
         Path | None,

@@ -7,9 +7,8 @@ identifies the base parameters (`rxcomm.identification.fit`), validates them on 
 ``dynamics.yaml`` (kind rxcomm/Dynamics), which plan-cp, plan-ptp and run load. ``--plot`` writes
 ``dynamics.png``: measured against predicted torques on the validation data (paper Fig. 5b).
 
-``--dynamics dynamics.yaml --validate LOG`` scores an identified model on another log without refitting
-(the same figures; ``-o`` writes the model again with this log's validation figures, ``--torques-out``
-the measured and predicted torques per row).
+Scoring an identified model on another log without refitting is `rxcomm score` (`stages/score.py`;
+``--dynamics D --validate LOG`` here is its old spelling, hidden).
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
-from rxcomm.options import RobotDir
+from rxcomm.options import JointLog, RobotDir
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.stages.declarations import DECLARATIONS
 
@@ -124,6 +123,10 @@ TorqueLagOption = Annotated[
         "(default: one drive cycle for a run log, 0 for a CSV).",
     ),
 ]
+TorquesOut = Annotated[
+    Path | None,
+    typer.Option("--torques-out", help="Write the validation rows' measured and predicted torques as CSV."),
+]
 ValidateOption = Annotated[
     Path | None,
     typer.Option(
@@ -135,22 +138,10 @@ ValidateOption = Annotated[
 
 def command(
     robot_dir: RobotDir,
-    log: Annotated[
-        Path | None, typer.Option(help="Run log MCAP (rxcomm run) or a robot CSV (docs/identify-csv.md).")
-    ] = None,
+    log: Annotated[Path | None, JointLog] = None,
     output: Annotated[Path | None, typer.Option("-o", "--output", help="Output dynamics.yaml.")] = None,
-    model: Annotated[
-        Path | None,
-        typer.Option(
-            "--dynamics", help="Score this identified dynamics.yaml on --validate LOG instead of identifying."
-        ),
-    ] = None,
-    torques_csv: Annotated[
-        Path | None,
-        typer.Option(
-            "--torques-out", help="Write the validation rows' measured and predicted torques as CSV."
-        ),
-    ] = None,
+    model: Annotated[Path | None, typer.Option("--dynamics", hidden=True)] = None,  # old `rxcomm score`
+    torques_csv: TorquesOut = None,
     validate: ValidateOption = None,
     friction: Annotated[
         Friction | None,
@@ -201,6 +192,9 @@ def command(
     }
     _check_mode(model, log, output, validate, params_out)
     if model is not None:
+        console.err.print(
+            "identify --dynamics D --validate LOG is deprecated: use rxcomm score --dynamics D --log LOG"
+        )
         score_run(robot_dir, model, validate, settings=values, torques_csv=torques_csv, output=output)
         return
     run(

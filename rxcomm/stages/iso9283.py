@@ -1,6 +1,6 @@
 """`rxcomm iso9283`: the ISO 9283 performance criteria of one robot state, from run logs with tracker data.
 
-Inputs: the robot, the ISO 9283 path specs (`plan-cp --iso9283 DIR`; the rectangle defines the test
+Inputs: the robot, the ISO 9283 path specs (`rxcomm iso9283-paths`; the rectangle defines the test
 cube), the base frame the tracker measures in (`--calibration`: its nominal `tracker_to_base`, or
 `--cell`), and run logs with a ``/run/tracker`` channel: pose-cycle logs (P1 → P5 → P4 → P3 → P2 per
 cycle, with dwells) and one log per cycle of each test path. Writes ``iso9283.yaml`` (kind
@@ -18,7 +18,7 @@ import typer
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
-from rxcomm.options import Iso9283Paths, RobotDir
+from rxcomm.options import CELL, Iso9283Paths, RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283
@@ -205,9 +205,7 @@ def command(
         Path | None,
         typer.Option("--calibration", help="calibration.yaml: the base frame in the tracker frame."),
     ] = None,
-    cell: Annotated[
-        Path | None, typer.Option("--cell", help="cell.yaml: the base frame (nominal layout).")
-    ] = None,
+    cell: Annotated[Path | None, CELL] = None,
     plot: Annotated[bool, typer.Option("--plot", help="Write NAME.png beside the output.")] = False,
 ) -> None:
     """ISO 9283 criteria (AP/RP at P1–P5, AT/RT/AV/RV on the paths, CO on the rectangle) from run logs

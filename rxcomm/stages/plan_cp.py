@@ -5,8 +5,8 @@ and a calibration; plans with `rxcomm.planning.cp.plan_cp` and writes the trajec
 ``NAME.mcap`` (q, q̇, q̈, τ_ff, σ, σ̇ at the drive cycle) with ``NAME.yaml`` beside it (architecture §9
 summary), and with ``--plot`` ``NAME.png`` (the paper's Figs. 7 and 8). With a ``--calibration`` that
 found joint compliance, q is what the encoders must read to hold the links on the calibrated IK
-(`rxcomm.calibration.compensation.compliance_command`, `rxcomm.planning.commanded`). ``--iso9283 DIR``
-instead writes the ISO 9283 test-plane paths of the robot (and ``--cell`` workspace) to DIR.
+(`rxcomm.calibration.compensation.compliance_command`, `rxcomm.planning.commanded`). The ISO 9283
+test-plane paths are `rxcomm iso9283-paths` (``--iso9283 DIR``: its old spelling, hidden).
 """
 
 from __future__ import annotations
@@ -17,13 +17,12 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import typer
-from rich.markup import escape
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.io.files import atomic_write_text, check_output_dir, trajectory_output
+from rxcomm.io.files import trajectory_output
 from rxcomm.io.validate import settings_from_options
-from rxcomm.io.yaml_io import dump_yaml, read_yaml_artefact, read_yaml_model
+from rxcomm.io.yaml_io import read_yaml_artefact
 from rxcomm.options import (
     TRAJECTORY_OUTPUT,
     AllowInconsistent,
@@ -32,9 +31,7 @@ from rxcomm.options import (
     RobotDir,
     TimeWeight,
     Timing,
-    parse_numbers,
 )
-from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
 
@@ -130,43 +127,6 @@ def _print_active(plan: CpPlan) -> None:
         )
 
 
-# --- ISO 9283 -----------------------------------------------------------------------------------------
-def write_iso9283(robot: Robot, out_dir: Path, cell: Path | None, rpy_deg: str) -> dict[str, object]:
-    """Find the robot's ISO 9283 test cube and write its test-plane paths to `out_dir`."""
-    from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
-
-    rpy = np.radians(parse_numbers(rpy_deg, 3, "iso-rpy", "degrees"))
-    box = None
-    if cell is not None:
-        ws = read_yaml_model(cell, Cell).workspace
-        lo = list(ws.box.min_m)
-        lo[2] = max(lo[2], ws.floor_z_m + ws.floor_clearance_m)
-        box = Box(min_m=tuple(lo), max_m=ws.box.max_m)
-    with console.phase("plan-cp: searching the largest reachable ISO 9283 cube"):
-        cube = iso9283_cube(robot, tuple(rpy), workspace=box)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, spec in iso9283_paths(cube).items():
-        target = out_dir / f"{name}.yaml"
-        header = f"# ISO 9283 test path for {robot.name}, written by `rxcomm plan-cp --iso9283`.\n"
-        data = spec.model_dump(mode="json", exclude_none=True)
-        if data["geometry"].get("points_m") is None:
-            data["geometry"].pop("full", None)  # only meaningful for the three-point form
-        if not data["limits"]:
-            data.pop("limits")
-        atomic_write_text(target, header + dump_yaml(data))
-        written.append(str(target))
-    facts = {
-        "cube_centre_m": cube.centre_m.tolist(),
-        "cube_side_m": cube.side_m,
-        **{f"{k}_m": v.tolist() for k, v in cube.points_m.items()},
-    }
-    console.summary_table(f"ISO 9283 test cube of {robot.name}", facts)
-    for f in written:
-        console.out.print(f"  wrote {escape(f)}")
-    return facts | {"files": written}
-
-
 # --- the stage --------------------------------------------------------------------------------------
 Method = Literal["nlp", "toppra"]
 
@@ -208,14 +168,10 @@ TcpAccelerationOption = Annotated[
 PlotOption = Annotated[
     bool, typer.Option(help="Write NAME.png: TCP speed (Fig. 7), binding limits (Fig. 8).")
 ]
-Iso9283Option = Annotated[
-    Path | None,
-    typer.Option(help="Write the robot's ISO 9283 test-plane paths to this directory and exit."),
-]
-CellOption = Annotated[Path | None, typer.Option(help="cell.yaml: workspace box for --iso9283.")]
-IsoRpyOption = Annotated[
-    str, typer.Option(help="TCP orientation for --iso9283: URDF roll,pitch,yaw in degrees.")
-]
+# The old spelling of `rxcomm iso9283-paths -o DIR [--cell C] [--tcp-rpy-deg R]` (hidden, deprecated).
+Iso9283Option = Annotated[Path | None, typer.Option(hidden=True)]
+CellOption = Annotated[Path | None, typer.Option(hidden=True)]
+IsoRpyOption = Annotated[str, typer.Option(hidden=True)]
 TimingOption = Annotated[
     Timing,
     typer.Option(
@@ -258,8 +214,11 @@ def command(
     from rxcomm.planning.timing import PlanDynamics
 
     accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
-    if iso9283 is not None:
-        return iso_paths(robot_dir, iso9283, cell=cell, rpy_deg=iso_rpy_deg)
+    if iso9283 is not None:  # the old spelling of `rxcomm iso9283-paths`
+        from rxcomm.stages import iso9283_paths
+
+        console.err.print("plan-cp --iso9283 DIR is deprecated: use rxcomm iso9283-paths -o DIR")
+        return iso9283_paths.command(robot_dir, iso9283, cell=cell, tcp_rpy_deg=iso_rpy_deg)
     t_all = time.perf_counter()
     path, output = _given_paths(path, output)
     DECLARATIONS["plan-cp"].check(
@@ -303,14 +262,6 @@ def command(
     return _write(
         robot, plan, cpath, catalogue, inputs, run_settings, output, t_all, plot, spec.name or path.stem
     )
-
-
-@console.stage_command
-def iso_paths(robot_dir: Path, out_dir: Path, *, cell: Path | None = None, rpy_deg: str = "180,0,0") -> dict:
-    from rxcomm.model.robot import load_robot, robot_files
-
-    check_output_dir(out_dir, "iso9283", {"cell": cell, **robot_files(robot_dir)})
-    return write_iso9283(load_robot(robot_dir), Path(out_dir), cell, rpy_deg)
 
 
 def _write(

@@ -1,6 +1,6 @@
 """`rxcomm plan-poses`: the ISO 9283 pose-cycle plan through P1–P5 (ISO 9283 §7.2.1, issue 17).
 
-Reads the robot, its ISO 9283 paths (`plan-cp --iso9283`: the iso9283-rectangle spec defines the
+Reads the robot, its ISO 9283 paths (`rxcomm iso9283-paths`: the iso9283-rectangle spec defines the
 test cube) and optionally a calibration (the poses' IK on the calibrated robot), and writes the plan
 `run` executes: ``NAME.mcap`` with ``NAME.yaml`` beside it: a dwell at P1, then N cycles of
 P5 → P4 → P3 → P2 → P1, each move a cycloidal profile at the catalogue limits (`model.catalogue`),
@@ -56,7 +56,7 @@ def command(
         output=output, robot=robot_dir, paths=rectangle, calibration=calibration, dynamics=dynamics
     )
     if not rectangle.is_file():
-        raise InputError("no iso9283-rectangle.yaml (write them with plan-cp --iso9283)", file=rectangle)
+        raise InputError("no iso9283-rectangle.yaml (write them with rxcomm iso9283-paths)", file=rectangle)
     nominal = load_robot(robot_dir)
     catalogue = catalogue_limits(nominal)  # the maker's, as the factory state's timing
     robot = nominal if calibration is None else load_calibrated_robot(nominal, calibration)

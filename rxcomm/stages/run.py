@@ -26,7 +26,7 @@ from rxcomm.errors import GatewayError, InputError, LocatedError, RxcommError, S
 from rxcomm.io.plan_files import plan_kind
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.options import AllowInconsistent, OtherRobot, Plant, RobotDir, embedded_plant
+from rxcomm.options import AllowInconsistent, IdentifiedDynamics, OtherRobot, Plant, RobotDir, embedded_plant
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
@@ -441,12 +441,7 @@ _Gateway = Annotated[
 _Truth = Annotated[
     Path | None, typer.Option(help="The embedded cell's truth file (default: ROBOT_DIR/truth.yaml).")
 ]
-_Dynamics = Annotated[
-    Path | None,
-    typer.Option(
-        help="Identified dynamics.yaml for τ_ff and the torque checks (default: the prior URDF model)."
-    ),
-]
+_Dynamics = IdentifiedDynamics  # τ_ff and the torque checks
 _Feedforward = Annotated[
     bool, typer.Option("--feedforward/--no-feedforward", help="Stream τ_ff = M(q)q̈ + g(q, q̇), or zeros.")
 ]

@@ -20,7 +20,7 @@ import typer
 
 from rxcomm import console, plotting
 from rxcomm.errors import InputError
-from rxcomm.options import RobotDir
+from rxcomm.options import CELL, RobotDir
 from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:  # the library (pinocchio, scipy) is imported where used: `--help` stays fast
@@ -180,7 +180,7 @@ MeasureBaselineOption = Annotated[
 @console.stage_command
 def command(
     robot_dir: RobotDir,
-    cell: Annotated[Path, typer.Option(help="cell.yaml: workspace, self-collision, tracker.")],
+    cell: Annotated[Path, CELL],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output configs.yaml.")],
     n: Annotated[int, typer.Option("--poses", help="Number of measurement poses to select.")] = 32,
     intervals: IntervalsOption = 13,

@@ -1,0 +1,78 @@
+"""`rxcomm iso9283-paths`: the robot's ISO 9283 test-plane paths, as path files for plan-cp and friends.
+
+Finds the largest cube (ISO 9283 §6.2) the robot reaches at the given TCP orientation (inside the
+`--cell` workspace when given) and writes its test paths (line, circles, rectangle: the rectangle also
+defines the pose test's P1–P5) to the directory `-o`. Was `plan-cp --iso9283 DIR` (a hidden alias now,
+with a deprecation note).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import numpy as np
+import typer
+from rich.markup import escape
+
+from rxcomm import console
+from rxcomm.io.files import atomic_write_text
+from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
+from rxcomm.options import CellFile, RobotDir, parse_numbers
+from rxcomm.schemas.cell import Box, Cell
+from rxcomm.stages.declarations import DECLARATIONS
+
+if TYPE_CHECKING:
+    from rxcomm.model.robot import Robot
+
+
+def write_iso9283(robot: Robot, out_dir: Path, cell: Path | None, rpy_deg: str) -> dict[str, object]:
+    """Find the robot's ISO 9283 test cube and write its test-plane paths to `out_dir`."""
+    from rxcomm.planning.iso9283 import iso9283_cube, iso9283_paths
+
+    rpy = np.radians(parse_numbers(rpy_deg, 3, "tcp-rpy-deg", "degrees"))
+    box = None
+    if cell is not None:
+        ws = read_yaml_model(cell, Cell).workspace
+        lo = list(ws.box.min_m)
+        lo[2] = max(lo[2], ws.floor_z_m + ws.floor_clearance_m)
+        box = Box(min_m=tuple(lo), max_m=ws.box.max_m)
+    with console.phase("iso9283-paths: searching the largest reachable ISO 9283 cube"):
+        cube = iso9283_cube(robot, tuple(rpy), workspace=box)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, spec in iso9283_paths(cube).items():
+        target = out_dir / f"{name}.yaml"
+        header = f"# ISO 9283 test path for {robot.name}, written by `rxcomm iso9283-paths`.\n"
+        data = spec.model_dump(mode="json", exclude_none=True)
+        if data["geometry"].get("points_m") is None:
+            data["geometry"].pop("full", None)  # only meaningful for the three-point form
+        if not data["limits"]:
+            data.pop("limits")
+        atomic_write_text(target, header + dump_yaml(data))
+        written.append(str(target))
+    facts = {
+        "cube_centre_m": cube.centre_m.tolist(),
+        "cube_side_m": cube.side_m,
+        **{f"{k}_m": v.tolist() for k, v in cube.points_m.items()},
+    }
+    console.summary_table(f"ISO 9283 test cube of {robot.name}", facts)
+    for f in written:
+        console.out.print(f"  wrote {escape(f)}")
+    return facts | {"files": written}
+
+
+@console.stage_command
+def command(
+    robot_dir: RobotDir,
+    output: Annotated[Path, typer.Option("-o", "--output", help="Directory to write the path files into.")],
+    cell: CellFile = None,
+    tcp_rpy_deg: Annotated[
+        str, typer.Option(help="TCP orientation on the paths: URDF roll,pitch,yaw in degrees.")
+    ] = "180,0,0",
+) -> dict[str, object]:
+    """Write the robot's ISO 9283 test-plane paths (line, circles, rectangle) as path files to a directory."""
+    from rxcomm.model.robot import load_robot
+
+    DECLARATIONS["iso9283-paths"].check(output=output, robot=robot_dir, cell=cell)
+    return write_iso9283(load_robot(robot_dir), Path(output), cell, tcp_rpy_deg)
