@@ -201,7 +201,10 @@ def command(
     model: ModelOption = "auto",
     dynamics: DynamicsOption = None,
 ) -> dict[str, object]:
-    """Identify the robot's geometric errors from tracker measurements; write the calibration."""
+    """Identify the robot's geometric errors from tracker measurements; write the calibration.
+
+    --cell: its nominal tracker_to_base and tracker noise (else from the measurements). --dynamics: its
+    holding torques bend the joints in the compliance model (default: the prior model)."""
     from rxcomm.calibration.artefact import calibration_artefact
     from rxcomm.calibration.fit import calibrate
     from rxcomm.calibration.measurements import read_measurements

@@ -59,7 +59,9 @@ def command(
     ] = False,
     plant: Plant = "own",
 ) -> None:
-    """Serve the simulated robot cell (drives, true dynamics, tracker) as a Modbus TCP drive gateway."""
+    """Serve the simulated robot cell (drives, true dynamics, tracker) as a Modbus TCP drive gateway.
+
+    --cell: the tracker's field of view (default: the cell.yaml beside the truth)."""
     q0 = console.checked(radians_text, q0, q0_deg, "start")
     run(
         truth,

@@ -167,7 +167,9 @@ def command(
     start_deg: Annotated[str | None, typer.Option(help="Fixed rest pose 'q1,…,q6' in degrees.")] = None,
     plot: Annotated[bool, typer.Option(help="Write OUTPUT.png: trajectory and tool path.")] = False,
 ) -> Excitation:
-    """Design the optimal exciting trajectory (min cond of the base regressor) within every limit."""
+    """Design the optimal exciting trajectory (min cond of the base regressor) within every limit.
+
+    --cell: its allowed_region bounds tool, wrist centre and elbow."""
     from rxcomm.model.robot import load_robot
 
     start = radians_text(start, start_deg, "start")

@@ -209,7 +209,8 @@ def command(
     plot: Annotated[bool, typer.Option("--plot", help="Write NAME.png beside the output.")] = False,
 ) -> None:
     """ISO 9283 criteria (AP/RP at P1–P5, AT/RT/AV/RV on the paths, CO on the rectangle) from run logs
-    with tracker data; criteria without a log are "not measured". Exit 2 on bad input.
+    with tracker data; criteria without a log are "not measured". Exit 2 on bad input. The base frame in
+    the tracker frame: --calibration's, else --cell's nominal layout.
 
     Example: rxcomm iso9283 --robot samples/rx130l --calibration calibration.yaml --pose-log poses.mcap
     --line-log line.mcap -o iso9283.yaml"""

@@ -498,7 +498,8 @@ def command(
     allow_inconsistent: AllowInconsistent = False,
     plant: Plant = "own",
 ) -> None:
-    """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque, record,
+    """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque (from
+    --dynamics, else the prior model; also the torque checks), record,
     report lag errors. Exit 2 bad input, 4 communication fault, 5 safety stop or a plan outside the
     limits / not at its start."""
     from rxcomm.model.artefact_checks import accept_artefacts

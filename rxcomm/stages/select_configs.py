@@ -192,7 +192,9 @@ def command(
     measure_baseline: MeasureBaselineOption = False,
     plot: Annotated[bool, typer.Option(help="Write NAME.png with the selected poses.")] = False,
 ) -> dict[str, object]:
-    """Select measurement poses that make the geometric error parameters well identifiable."""
+    """Select measurement poses that make the geometric error parameters well identifiable.
+
+    --cell: its workspace, self-collision margins and tracker (field of view, noise)."""
     from rxcomm.calibration.pose_selection import Criterion
     from rxcomm.io.yaml_io import write_yaml_artefact
     from rxcomm.model.robot import load_robot
