@@ -66,7 +66,9 @@ class Declaration:
     beside: tuple[Beside, ...] = ()
     positional: tuple[str, ...] = ()  # inputs given as arguments (in this order), not as options
     defaults: tuple[Beside, ...] = ()  # further outputs that default to a file beside -o
-    settings: str | None = None  # the settings model, "module:Class" (imported on use: `settings_model`)
+    # The settings model, "module:Class" under rxcomm: named, not imported, so that a command's code
+    # identity (rxcomm/code_identity.py reads module names) covers only what it runs; tests resolve it.
+    settings: str | None = None
 
     @property
     def kind(self) -> type[Artefact] | None:
@@ -123,7 +125,7 @@ class Declaration:
         if self.settings is None:
             return None
         module, _, name = self.settings.partition(":")
-        return getattr(importlib.import_module(module), name)
+        return getattr(importlib.import_module(f"{__package__.split('.')[0]}.{module}"), name)
 
 
 def _dashed(files: dict) -> dict:
@@ -139,7 +141,7 @@ DECLARATIONS: dict[str, Declaration] = {
         (Calibration,),
         outputs=("urdf-out", "mdh-out"),
         beside=(Beside("mdh-out CSV", ".csv", of="mdh-out"),),
-        settings="rxcomm.calibration.settings:CalibrateSettings",
+        settings="calibration.settings:CalibrateSettings",
     ),
     "excite": Declaration(
         ("robot", "cell"),
@@ -147,33 +149,33 @@ DECLARATIONS: dict[str, Declaration] = {
         outputs=("trajectory-out",),
         beside=(PLOT,),
         defaults=(Beside("trajectory-out", "-trajectory.mcap"),),  # excitation-trajectory.mcap
-        settings="rxcomm.schemas.excitation:ExcitationSettings",
+        settings="schemas.excitation:ExcitationSettings",
     ),
     "identify": Declaration(
         ("robot", "log", "validate"),
         (Dynamics,),
         outputs=("torques-out", "params-out"),
         beside=(PLOT,),
-        settings="rxcomm.identification.settings:IdentifySettings",
+        settings="identification.settings:IdentifySettings",
     ),
     "score": Declaration(
         ("robot", "dynamics", "log"),
         (Dynamics,),
         outputs=("torques-out",),
-        settings="rxcomm.identification.settings:IdentifySettings",
+        settings="identification.settings:IdentifySettings",
     ),
     "plan-cp": Declaration(
         ("robot", "path", "dynamics", "calibration"),
         **TRAJECTORY,
         beside=(PLOT,),
-        settings="rxcomm.planning.cp:CpSettings",
+        settings="planning.cp:CpSettings",
     ),
     "iso9283-paths": Declaration(("robot", "cell"), suffixes=("/",)),
     "plan-ptp": Declaration(
         ("robot", "dynamics", "calibration"),
         **TRAJECTORY,
         beside=(PLOT,),
-        settings="rxcomm.planning.ptp_problem:PtpOptions",
+        settings="planning.ptp_problem:PtpOptions",
     ),
     "plan-poses": Declaration(("robot", "paths", "calibration", "dynamics"), **TRAJECTORY),
     "plan-cycles": Declaration(("robot", "plan", "dynamics"), **TRAJECTORY, positional=("plan",)),
@@ -183,14 +185,14 @@ DECLARATIONS: dict[str, Declaration] = {
         suffixes=(".mcap", ".yaml"),  # a trajectory's run log; a pose list's measurements
         beside=(PLOT,),
         positional=("plan",),
-        settings="rxcomm.execution.session:RunSettings",
+        settings="execution.session:RunSettings",
     ),
     "iso9283": Declaration(
         ("robot", "pose-log", "line-log", "circle-log", "small-circle-log", "rectangle-log")
         + ("paths", "calibration", "cell"),
         (Iso9283,),
         beside=(PLOT,),
-        settings="rxcomm.acceptance.campaign:EvaluationSettings",
+        settings="acceptance.campaign:EvaluationSettings",
     ),
     "accept": Declaration(
         ("thresholds", "factory-log", "commissioned-log", "commissioned-equal-time-log")
@@ -209,5 +211,5 @@ DECLARATIONS: dict[str, Declaration] = {
     ),
     "truth": Declaration(("robot",)),
     "import-robot": Declaration(("model",), suffixes=("/",), positional=("model",)),
-    "cell-sim": Declaration(("truth", "cell"), suffixes=(), settings="rxcomm.cell.sim:SimSettings"),
+    "cell-sim": Declaration(("truth", "cell"), suffixes=(), settings="cell.sim:SimSettings"),
 }
