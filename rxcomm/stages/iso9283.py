@@ -84,17 +84,9 @@ def execute(
     unknown = set(path_logs) - set(LOG_OPTIONS)
     if unknown:
         raise InputError(f"no ISO 9283 test path {sorted(unknown)}", field="path_logs")
-    logs = {LOG_OPTIONS[t].replace("-", "_"): ps for t, ps in path_logs.items()}
-    DECLARATIONS["iso9283"].check(
-        output=output,
-        plot=plot,
-        robot=robot_dir,
-        pose_log=pose_logs,
-        **{name.replace("-", "_"): [] for name in LOG_OPTIONS.values()} | logs,
-        paths=paths_dir,
-        calibration=calibration,
-        cell=cell,
-    )
+    by_option = {option: path_logs.get(target, []) for target, option in LOG_OPTIONS.items()}
+    files = {"pose-log": pose_logs, "paths": paths_dir, "calibration": calibration, "cell": cell, **by_option}
+    DECLARATIONS["iso9283"].check(output=output, plot=plot, robot=robot_dir, **files)
     s = settings or EvaluationSettings()
     frame = base_frame(calibration, cell)
     robot = load_robot(robot_dir)
@@ -113,6 +105,8 @@ def execute(
         if len(speeds[c.target]) > 1:
             key += f"_at_{c.command_speed_m_per_s:.3g}_m_s"
         summary[key] = c.value if c.value is not None else "not measured"
+    logs = {f"pose log {i + 1}": p for i, p in enumerate(pose_logs)}  # the envelope's input names
+    logs |= {f"{t} log {i + 1}": p for t, ps in path_logs.items() for i, p in enumerate(ps)}
     inputs = {**logs, "urdf": robot.urdf_path, "drives": robot.drives_path}
     inputs |= {f"path {t}": paths_dir / f"{t}.yaml" for t in specs}
     if calibration is not None:
