@@ -39,12 +39,8 @@ def parameter_names_from(joint_names: list[str] | tuple[str, ...]) -> tuple[str,
     return tuple(f"{g}.{c}" for g in ("base", *joint_names, "tool") for c in COMPONENTS)
 
 
-def load_calibrated_robot(robot: Robot, path: str | Path) -> Robot:
-    """`robot` with a calibration artefact's geometric errors applied: its kinematics and IK honour
-    the calibration (planners take it with `--calibration`). The planners' torque model stays on the
-    robot given here: identified parameters are a model on the kinematics they were identified with,
-    and `run` computes its feed-forward and checks the torque limits there; on the calibrated
-    kinematics the M900's ISO line planned at 0.997 × J1's torque rate was 1.005 × in run's check."""
+def read_calibration(path: str | Path, robot: Robot) -> Calibration:
+    """calibration.yaml, refused (InputError naming the file) when made for other joints than `robot`'s."""
     art = read_yaml_artefact(path, Calibration)
     if tuple(art.joint_names) != robot.joint_names:
         raise InputError(
@@ -52,6 +48,16 @@ def load_calibrated_robot(robot: Robot, path: str | Path) -> Robot:
             file=path,
             field="joint_names",
         )
+    return art
+
+
+def load_calibrated_robot(robot: Robot, path: str | Path) -> Robot:
+    """`robot` with a calibration artefact's geometric errors applied: its kinematics and IK honour
+    the calibration (planners take it with `--calibration`). The planners' torque model stays on the
+    robot given here: identified parameters are a model on the kinematics they were identified with,
+    and `run` computes its feed-forward and checks the torque limits there; on the calibrated
+    kinematics the M900's ISO line planned at 0.997 × J1's torque rate was 1.005 × in run's check."""
+    art = read_calibration(path, robot)
     check_same_robot(robot, art.inputs, path)
     errors = ErrorModel.from_mapping(robot, {p.name: p.value for p in art.parameters}, file=str(path))
     return errors.apply(robot)

@@ -7,23 +7,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from rxcomm.errors import InputError
-
 
 def _calibrated(source: Path, robot_dir: Path) -> tuple[Any, Any]:
-    from rxcomm.io.yaml_io import read_yaml_artefact
+    from rxcomm.calibration.loading import read_calibration
     from rxcomm.model.geometric_errors import ErrorModel
     from rxcomm.model.robot import load_robot
-    from rxcomm.schemas.calibration import Calibration
 
     robot = load_robot(robot_dir)
-    art = read_yaml_artefact(source, Calibration)
-    if tuple(art.joint_names) != robot.joint_names:
-        raise InputError(
-            f"calibration is for joints {art.joint_names}, the robot has {list(robot.joint_names)}",
-            file=source,
-            field="joint_names",
-        )
+    art = read_calibration(source, robot)
     errors = ErrorModel.from_mapping(robot, {p.name: p.value for p in art.parameters}, file=str(source))
     return robot, errors
 
