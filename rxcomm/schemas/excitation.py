@@ -81,17 +81,27 @@ class ExcitationStart(Strict):
     seconds: float
 
 
+class ExcitationSummary(Strict):
+    """What a rxcomm/Excitation summary holds (units in the names; None: not measured)."""
+
+    cond: float
+    cond_raw: float
+    baseline_cond: float
+    duration_s: float
+    seconds: float
+    max_limit_ratio: float
+    cond_dense: float | None = None
+    improvement_ratio: float | None = None
+    worst_limit: str | None = None
+    n_base_params: int | None = None
+    starts_feasible: int | None = None
+
+
 class Excitation(Artefact):
     KIND = "rxcomm/Excitation"
     SCHEMA_VERSION = 1
-    REQUIRED_SUMMARY_KEYS = (
-        "cond",
-        "cond_raw",
-        "baseline_cond",
-        "duration_s",
-        "seconds",
-        "max_limit_ratio",
-    )
+    settings: ExcitationSettings
+    summary: ExcitationSummary
 
     robot: str = Field(description="robot name (URDF)")
     robot_joints: list[str]

@@ -190,7 +190,7 @@ def _write_exports(
     console.out.print(f"  MDH + zero offsets → {mdh_out}, {csv_path}")
     for note in kin.notes:
         console.out.print(f"  [yellow]note:[/yellow] {note}")
-    return {k: v for k, v in kin.summary.items() if k.startswith("mdh_")}
+    return kin.summary.model_dump(exclude={"n_sample_poses"})
 
 
 @console.stage_command

@@ -22,7 +22,7 @@ from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_ar
 from rxcomm.options import Iso9283Paths, RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Cell
-from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283
+from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283, Iso9283Summary
 from rxcomm.schemas.path import PathSpec
 
 if TYPE_CHECKING:
@@ -85,17 +85,8 @@ def execute(
     t2b = placement_to_se3(frame.xyz_m, frame.rpy_rad)
     cube, criteria, cond = evaluate(robot, specs, t2b, pose_logs, path_logs, s)
     n_measured = sum(c.value is not None for c in criteria)
-    summary: dict[str, Any] = {"n_criteria": len(criteria), "n_measured": n_measured}
-    # the pose test's conditions (ISO 9283 asks a report to state them)
-    summary |= {k: "not measured" if v is None else v for k, v in vars(cond).items()}
-    speeds: dict[str, set] = {}
-    for c in criteria:
-        speeds.setdefault(c.target, set()).add(c.command_speed_m_per_s)
-    for c in criteria:  # a path tested at several speeds: one key per speed
-        key = f"{c.key}_{c.target}"
-        if len(speeds[c.target]) > 1:
-            key += f"_at_{c.command_speed_m_per_s:.3g}_m_s"
-        summary[key] = c.value if c.value is not None else "not measured"
+    # the pose test's conditions (ISO 9283 asks a report to state them); the values are in `criteria`
+    summary = Iso9283Summary(n_criteria=len(criteria), n_measured=n_measured, **vars(cond))
     inputs = {**logs, "urdf": robot.urdf_path, "drives": robot.drives_path}
     inputs |= {f"path {t}": paths_dir / f"{t}.yaml" for t in specs}
     if calibration is not None:
