@@ -33,9 +33,7 @@ def synthetic_calibration(
     listed = names if names is not None else list(errors)
     chosen = "full+compliance" if compliance else "full"
     return Calibration(
-        **Calibration.envelope(
-            {}, {}, _zero_summary() | (summary or {})
-        ),
+        **Calibration.envelope({}, {}, _zero_summary() | (summary or {})),
         robot=robot.name,
         joint_names=list(robot.joint_names),
         measurement="pose",
