@@ -271,7 +271,7 @@ def test_stage_writes_configs_and_refuses_bad_cell(tmp_path):
     )
     assert r.exit_code == 0, r.output
     cfg = read_yaml_artefact(out, Configs)
-    assert [p.role for p in cfg.poses].count("fit") == 12 and cfg.summary["n_candidates"] == 800
+    assert [p.role for p in cfg.poses].count("fit") == 12 and cfg.summary.n_candidates == 800
     assert "baseline" not in [p.role for p in cfg.poses] and len(cfg.baseline_poses_rad) == 12
     for key in (
         "n_candidates",

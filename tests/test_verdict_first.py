@@ -197,6 +197,7 @@ def test_a_path_at_several_speeds_has_one_row_per_speed_and_the_set_says_what_it
         for v, k in ((0.5, 0.5), (0.1, 0.25))
     ]
     iso["criteria"] += slow
+    iso = Iso9283.model_validate(iso)
     t = path_table("commissioned state", iso)
     assert [r[:4] for r in t.rows] == [
         ["iso9283-line", "1 m/s", "10", "0.2 mm"],
