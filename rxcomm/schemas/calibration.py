@@ -166,18 +166,18 @@ class CalibrationSummary(Strict):
     """What a rxcomm/Calibration summary holds (units in the names; None: not measured)."""
 
     n_identifiable: int
-    fit_max_position_error_m: float
+    fit_max_position_error_m: float | None = Field(description="required; None: not measured")
     fit_max_orientation_error_rad: float | None = None
-    heldout_max_position_error_m: float
-    heldout_max_orientation_error_rad: float
-    nominal_heldout_max_position_error_m: float
+    heldout_max_position_error_m: float | None = Field(description="required; None: not measured")
+    heldout_max_orientation_error_rad: float | None = Field(description="required; None: not measured")
+    nominal_heldout_max_position_error_m: float | None = Field(description="required; None: not measured")
     nominal_heldout_max_orientation_error_rad: float | None = None
-    frames_only_heldout_max_position_error_m: float
+    frames_only_heldout_max_position_error_m: float | None = Field(description="required; None: not measured")
     frames_only_heldout_max_orientation_error_rad: float | None = None
     nominal_fit_max_position_error_m: float | None = None
     rigid_heldout_max_position_error_m: float | None = None
     model: str
-    tracker_position_sigma_m: float
+    tracker_position_sigma_m: float | None = Field(description="required; None: not measured")
     tracker_orientation_sigma_rad: float | None = None
     tracker_sigma_source: str | None = None
     n_undetermined: int | None = None
@@ -189,7 +189,7 @@ class CalibrationSummary(Strict):
     residual_scale: float | None = None
     jacobian_cond: float | None = None
     function_evaluations: int | None = None
-    seconds: float
+    seconds: float | None = Field(description="required; None: not measured")
     cv_rms_position_error_frames_m: float | None = None
     cv_rms_position_error_offsets_m: float | None = None
     cv_rms_position_error_full_m: float | None = None

@@ -55,9 +55,9 @@ class ConfigsSummary(Strict):
 
     n_candidates: int
     n_selected: int
-    observation_index: float
-    baseline_observation_index: float
-    improvement_ratio: float
+    observation_index: float | None = Field(description="required; None: not measured")
+    baseline_observation_index: float | None = Field(description="required; None: not measured")
+    improvement_ratio: float | None = Field(description="required; None: not measured")
     min_eig_improvement_ratio: float | None = None
     expected_position_error_m: float | None = None
     baseline_expected_position_error_m: float | None = None
@@ -67,13 +67,13 @@ class ConfigsSummary(Strict):
     evenly_spaced_expected_orientation_error_rad: float | None = None
     evenly_spaced_observation_index: float | None = None
     evenly_spaced_improvement_ratio: float | None = None
-    seconds: float
+    seconds: float | None = Field(description="required; None: not measured")
     n_baseline: int | None = None
     n_validation: int | None = None
     n_grid: int | None = None
     n_feasible: int | None = None
     n_identifiable: int | None = None
-    restart_indices: list[float] | None = None
+    restart_indices: list[float | None] | None = None
     grid_seconds: float | None = None
     selection_seconds: float | None = None
     rejected_workspace: int | None = None

@@ -169,20 +169,20 @@ class DynamicsSummary(Strict):
     """What a rxcomm/Dynamics summary holds (units in the names; None: not measured)."""
 
     n_base_params: int
-    validation_nrmse: list[float | None]
-    validation_rms_nm: list[float | None]
-    seconds: float
+    validation_nrmse: list[float | None] | None = Field(description="required; None: not measured")
+    validation_rms_nm: list[float | None] | None = Field(description="required; None: not measured")
+    seconds: float | None = Field(description="required; None: not measured")
     validation: str | None = None
     validation_r2: list[float | None] | None = None
     validation_scored_on: str | None = None
     validation_nrmse_normalisation: str | None = None
     validation_joints_not_scored: str | None = None
-    validation_rms_all_rows_nm: list[float] | None = None
+    validation_rms_all_rows_nm: list[float | None] | None = None
     validation_total_rms_moving_nm: float | None = None
     validation_total_rms_every_row_nm: float | None = None
-    validation_standstill_fraction: list[float] | None = None
-    validation_standstill_rms_nm: list[float] | None = None
-    validation_standstill_in_band_fraction: list[float] | None = None
+    validation_standstill_fraction: list[float | None] | None = None
+    validation_standstill_rms_nm: list[float | None] | None = None
+    validation_standstill_in_band_fraction: list[float | None] | None = None
     friction: str | None = None
     cutoff_hz: float | None = None
     rows_per_parameter: float | None = None
@@ -194,26 +194,26 @@ class DynamicsSummary(Strict):
     n_rows_rejected: int | None = None
     sample_hz: float | None = None
     source_hz: float | None = None
-    fit_rms_nm: list[float] | None = None
-    noise_sigma_nm: list[float] | None = None
+    fit_rms_nm: list[float | None] | None = None
+    noise_sigma_nm: list[float | None] | None = None
     max_relative_std: float | None = None
     median_relative_std: float | None = None
-    link_pseudo_inertia_min_eig_kgm2: list[float] | None = None
+    link_pseudo_inertia_min_eig_kgm2: list[float | None] | None = None
     n_inconsistent_links: int | None = None
     inconsistent_links: str | None = None
     negative_drive_parameters: str | None = None
     consistency_distance_sigma: float | None = None
     cv_folds: int | None = None
     cv_folds_scored: int | None = None
-    cv_rms_nm: list[float] | None = None
-    cv_nrmse: list[float] | None = None
-    cv_r2: list[float] | None = None
-    cv_fit_rms_nm: list[float] | None = None
+    cv_rms_nm: list[float | None] | None = None
+    cv_nrmse: list[float | None] | None = None
+    cv_r2: list[float | None] | None = None
+    cv_fit_rms_nm: list[float | None] | None = None
     cv_gap_s: float | None = None
     cv_scored_on: str | None = None
     cutoff_choice: str | None = None
-    cutoff_grid_hz: list[float] | None = None
-    cutoff_grid_cv_nrmse: list[float] | None = None
+    cutoff_grid_hz: list[float | None] | None = None
+    cutoff_grid_cv_nrmse: list[float | None] | None = None
 
 
 class Dynamics(Artefact):

@@ -84,12 +84,12 @@ class ExcitationStart(Strict):
 class ExcitationSummary(Strict):
     """What a rxcomm/Excitation summary holds (units in the names; None: not measured)."""
 
-    cond: float
-    cond_raw: float
-    baseline_cond: float
+    cond: float | None = Field(description="required; None: not measured")
+    cond_raw: float | None = Field(description="required; None: not measured")
+    baseline_cond: float | None = Field(description="required; None: not measured")
     duration_s: float
-    seconds: float
-    max_limit_ratio: float
+    seconds: float | None = Field(description="required; None: not measured")
+    max_limit_ratio: float | None = Field(description="required; None: not measured")
     cond_dense: float | None = None
     improvement_ratio: float | None = None
     worst_limit: str | None = None

@@ -57,9 +57,9 @@ class KinematicsSettings(Strict):
 class KinematicsSummary(Strict):
     """What a rxcomm/Kinematics summary holds (units in the names; None: not measured)."""
 
-    mdh_max_position_residual_m: float
+    mdh_max_position_residual_m: float | None = Field(description="required; None: not measured")
     mdh_max_orientation_residual_rad: float | None = None
-    mdh_beta_max_position_residual_m: float
+    mdh_beta_max_position_residual_m: float | None = Field(description="required; None: not measured")
     mdh_beta_max_orientation_residual_rad: float | None = None
     n_sample_poses: int
 

@@ -127,9 +127,9 @@ class RunLogSummary(Strict):
 
     underruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
     cell_overruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
-    max_lag_rad: list[float]
-    rms_lag_rad: list[float]
-    max_tcp_error_m: float
+    max_lag_rad: list[float | None] | None = Field(description="required; None: not measured")
+    rms_lag_rad: list[float | None] | None = Field(description="required; None: not measured")
+    max_tcp_error_m: float | None = Field(description="required; None: not measured")
     rms_tcp_error_m: float | None = None
     duration_s: float
     tau_squared_integral_nm2_s: float | None = None

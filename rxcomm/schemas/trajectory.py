@@ -12,9 +12,9 @@ class TrajectoryFigures(Strict):
     """What a rxcomm/Trajectory summary holds (units in the names; None: not measured)."""
 
     duration_s: float
-    solve_seconds: float
-    max_limit_ratio: float
-    active_fraction: float
+    solve_seconds: float | None = Field(description="required; None: not measured")
+    max_limit_ratio: float | None = Field(description="required; None: not measured")
+    active_fraction: float | None = Field(description="required; None: not measured")
     q_start: list[float]
     q_goal: list[float]
     n_cycles: int | None = None
