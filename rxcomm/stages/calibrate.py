@@ -258,7 +258,8 @@ def command(
     output.parent.mkdir(parents=True, exist_ok=True)
     exported = _write_exports(robot, res, inputs, urdf_out, mdh_out)
     art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)
-    art = art.model_copy(update={"summary": {**art.summary, **exported}})
+    figures = {**art.summary.model_dump(exclude_unset=True), **exported}
+    art = art.model_copy(update={"summary": type(art.summary).model_validate(figures)})
     write_yaml_artefact(output, art)
     console.summary_table(f"calibrate → {output}", art.summary)
     print_table(res)
