@@ -101,9 +101,11 @@ COMMANDS := $(foreach c,$(CODE_IDS),$(firstword $(subst =, ,$(c))))
 $(foreach c,$(COMMANDS),$(eval code_$(c) := $(call params,code-$(c),$(patsubst $(c)=%,%,$(filter \
 	$(c)=%,$(CODE_IDS))))))
 
-# Reads a trajectory summary's joint state for plan-ptp (the CP plan's end states).
-QOF        = $$($(PY) -c "import yaml; s = yaml.safe_load(open('$(1)'))['summary']; \
-	print(','.join(repr(v) for v in s['$(2)']))")
+# Reads a trajectory summary's joint state for plan-ptp (the CP plan's end states), through its model
+# (a renamed field fails here, naming the file and the field).
+QOF        = $$($(PY) -c "from rxcomm.io.yaml_io import read_yaml_artefact as read; \
+	from rxcomm.schemas.trajectory import TrajectorySummary as T; \
+	print(','.join(repr(v) for v in getattr(read('$(1)', T).summary, '$(2)')))")
 RUN_SIM   := --robot $(ROBOT) --truth $(TRUTH) --plant $(PLANT) --approach --interpolation-ratio 1
 
 $(B)/robot-info.txt: $(STAMP) $(ROBOT_FILES) $(call params,robot-info,$(ROBOT)) | $(B)
@@ -346,7 +348,8 @@ $(B)/iso9283.yaml: $(B)/run-poses.mcap $(B)/run-iso-line.mcap $(C_LINE_EXTRA) $(
 # The reference task at the factory's cycle time (issue 29): the commissioned CP and PtP plans slowed
 # uniformly in time to the factory runs' durations and run with feed-forward, so `accept` compares
 # electrical energy at equal time (a faster motion cannot spend less friction work on the same path).
-RUN_S = $$($(PY) -c "import yaml; print(yaml.safe_load(open('$(1)'))['summary']['duration_s'])")
+RUN_S = $$($(PY) -c "from rxcomm.io.yaml_io import read_yaml_artefact as read; \
+	from rxcomm.schemas.run_log import RunLog; print(read('$(1)', RunLog).summary.duration_s)")
 EQ_ARGS = --robot $(ROBOT) --cycles 1 --dynamics $(B)/dynamics.yaml
 $(B)/cp-at-factory-time.mcap: $(B)/cp.mcap $(B)/run-factory-cp.mcap $(B)/dynamics.yaml $(ROBOT_FILES) \
 		$(call params,cp-at-factory-time,$(EQ_ARGS))

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 import typer
+from pydantic import BaseModel
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import (
@@ -234,8 +235,11 @@ def phase(description: str) -> Phase:
     return Phase(description)
 
 
-def summary_table(title: str, rows: dict[str, object]) -> None:
-    """Print a stage's summary mapping as aligned `name  value` lines."""
+def summary_table(title: str, rows: dict[str, object] | BaseModel) -> None:
+    """Print a stage's summary (a mapping, or an artefact's summary model: the fields it was given)
+    as aligned `name  value` lines."""
+    if isinstance(rows, BaseModel):
+        rows = rows.model_dump(exclude_unset=True)
     out.print(f"[bold]{title}[/]")
     width = max((len(k) for k in rows), default=0)
     for k, v in rows.items():

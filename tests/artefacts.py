@@ -4,12 +4,19 @@ from __future__ import annotations
 
 from rxcomm.schemas.calibration import (
     Calibration,
+    CalibrationSummary,
     ComplianceEstimate,
     ModelSelection,
     ParameterEstimate,
     TrackerNoise,
 )
 from rxcomm.schemas.cell import Placement
+
+
+def _zero_summary() -> dict:
+    """The calibration summary's required figures, zero (the model: "full")."""
+    fields = CalibrationSummary.model_fields
+    return {n: 0 for n, f in fields.items() if f.is_required()} | {"model": "full"}
 
 
 def synthetic_calibration(
@@ -26,9 +33,7 @@ def synthetic_calibration(
     listed = names if names is not None else list(errors)
     chosen = "full+compliance" if compliance else "full"
     return Calibration(
-        **Calibration.envelope(
-            {}, {}, dict.fromkeys(Calibration.REQUIRED_SUMMARY_KEYS, 0.0) | (summary or {})
-        ),
+        **Calibration.envelope({}, {}, _zero_summary() | (summary or {})),
         robot=robot.name,
         joint_names=list(robot.joint_names),
         measurement="pose",

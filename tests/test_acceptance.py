@@ -11,6 +11,7 @@ from rxcomm.cli import app
 from rxcomm.io.yaml_io import load_yaml, read_yaml_model
 from rxcomm.schemas.acceptance import AcceptanceThresholds, Threshold
 from rxcomm.schemas.iso9283 import Iso9283
+from rxcomm.schemas.run_log import RunLogSummary
 
 ROOT = Path(__file__).resolve().parent.parent
 runner = CliRunner()
@@ -31,7 +32,7 @@ def iso(values: dict[tuple[str, str], float | None], speed: float | None = 1.0) 
         }
         for (k, t), v in values.items()
     ]
-    env = Iso9283.envelope({}, {}, {"n_criteria": len(criteria), "n_measured": 0})
+    env = Iso9283.envelope({}, {"paths": "paths"}, {"n_criteria": len(criteria), "n_measured": 0})
     return Iso9283(
         **env,
         robot="r",
@@ -70,12 +71,12 @@ def test_rows_by_hand():
     c_iso = iso({("AP_p", "P1"): 0.0001, ("AP_p", "P2"): 0.00025, ("AT_p", "iso9283-line"): 0.0006,
                  ("RP_l", "P1"): 0.00006})  # fmt: skip
     f_runs = [
-        {"duration_s": 4.0, "electrical_energy_j": 900.0},
-        {"duration_s": 3.0, "electrical_energy_j": None},
+        _run({"duration_s": 4.0, "electrical_energy_j": 900.0}),
+        _run({"duration_s": 3.0, "electrical_energy_j": None}),
     ]
     c_runs = [
-        {"duration_s": 1.5, "electrical_energy_j": 800.0},
-        {"duration_s": 1.0, "electrical_energy_j": 10.0},
+        _run({"duration_s": 1.5, "electrical_energy_j": 800.0}),
+        _run({"duration_s": 1.0, "electrical_energy_j": 10.0}),
     ]
     rows = acceptance_rows(ths, f_runs, c_runs, f_iso, c_iso)
     ap, at, ct, rp, el = rows
@@ -126,7 +127,7 @@ def test_missing_measurements_are_not_measured_never_pass():
     assert rows[0].verdict == "not measured"
     assert "measured at a command speed of 0.5 m/s only, not 1 m/s" in rows[0].note
     # a stopped run is no cycle time
-    assert task_value("cycle_time", [{"duration_s": 1.0, "outcome": "stopped"}]).value is None
+    assert task_value("cycle_time", [_run({"duration_s": 1.0, "outcome": "stopped"})]).value is None
     rows = acceptance_rows([t(criterion="AP_p", unit="m", max_commissioned=1.0)], [], [], None, iso({}))
     assert rows[0].verdict == "not measured"
 
@@ -268,3 +269,8 @@ def test_a_factory_that_cannot_reach_the_command_speed_is_said_so():
         "worst of 1: iso9283-line, 10 cycles; factory: measured at a command speed of 0.643 m/s only, "
         "not 1 m/s"
     )
+
+
+def _run(figures: dict) -> RunLogSummary:
+    """A run log summary holding only the figures a test sets."""
+    return RunLogSummary.model_construct(**figures)

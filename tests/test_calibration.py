@@ -260,15 +260,15 @@ def test_stage_load_calibration_and_ik_honour_it(tmp_path, rx_meas):
     # The MDH export is written with its CSV, and the residual it states is in the calibration's summary.
     kin = read_yaml_artefact(tmp_path / "mdh.yaml", Kinematics)
     assert "# Craig modified DH" in (tmp_path / "mdh.csv").read_text()
-    assert read_yaml_artefact(out, Calibration).summary["mdh_max_position_residual_m"] == (
+    assert read_yaml_artefact(out, Calibration).summary.mdh_max_position_residual_m == (
         kin.mdh.max_position_residual_m
     )
     assert "MDH + zero offsets" in r.output
     art = read_yaml_artefact(out, Calibration)
-    assert art.summary["n_identifiable"] == 30 and art.tracker_to_base_source == "measurements"
+    assert art.summary.n_identifiable == 30 and art.tracker_to_base_source == "measurements"
     assert art.tracker_noise.source == "measurements" and art.tracker_noise.position_sigma_m == 5e-5
-    assert art.model_selection.chosen == art.summary["model"] == "full"
-    assert art.summary["heldout_max_position_error_m"] < 0.3e-3
+    assert art.model_selection.chosen == art.summary.model == "full"
+    assert art.summary.heldout_max_position_error_m < 0.3e-3
     assert len(art.error_tables) == 6 and len(art.dropped) == 18
     assert all(p.std is not None for p in art.parameters if p.estimated)
     errors, t2b_loaded = load_calibration(out)
@@ -355,8 +355,8 @@ def test_baseline_poses_are_fitted_apart_and_judged_on_the_same_heldout_poses(tm
         "baseline_poses_worse_p_value",
         "baseline_poses_median_std_ratio",
     ):
-        assert art.summary[key] is not None
-    assert 0.7 < art.summary["baseline_poses_median_std_ratio"] < 1.4  # the same poses, as certain
+        assert getattr(art.summary, key) is not None
+    assert 0.7 < art.summary.baseline_poses_median_std_ratio < 1.4  # the same poses, as certain
     assert "baseline_poses" in run.output
 
 

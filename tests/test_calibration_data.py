@@ -166,8 +166,8 @@ def test_tracker_sigma_option_and_estimated_noise(tmp_path, robot, tool_off):
         "orientation_sigma_rad": 4e-4,
         "source": "option",
     }
-    assert art.summary["tracker_position_sigma_m"] == 2e-4 and "tracker noise (option)" in r.output
-    assert 0.15 < art.summary["residual_scale"] < 0.4  # the truth is 5e-5 / 1e-4: 4× smaller
+    assert art.summary.tracker_position_sigma_m == 2e-4 and "tracker noise (option)" in r.output
+    assert 0.15 < art.summary.residual_scale < 0.4  # the truth is 5e-5 / 1e-4: 4× smaller
     r = CliRunner().invoke(app, base)
     assert r.exit_code == 0, r.output
     art = read_yaml_artefact(out, Calibration)

@@ -135,7 +135,7 @@ def test_tcp_on_the_last_link_works_with_urdf_out(tmp_path, rx):
     args = ["calibrate", "--robot", str(rdir), "--measurements", str(meas), "-o", str(out)]
     r = CliRunner().invoke(app, [*args, "--urdf-out", str(urdf)])
     assert r.exit_code == 0, r.output
-    assert read_yaml_artefact(out, Calibration).summary["model"].startswith("full")
+    assert read_yaml_artefact(out, Calibration).summary.model.startswith("full")
     errors, _ = load_calibration(out)
     assert np.linalg.norm(errors.twist("tool")) > 1e-4  # the truth's tool error is in it
     calibrated = load_robot(rdir, urdf=urdf)

@@ -143,7 +143,7 @@ def test_params_out_csv_and_scoring_an_auto_model(tmp_path, rx130l, noisy_log):
     assert res.exit_code == 0, res.output
     assert "cv_rms_nm (5 of 5 held-out folds)" in res.output and "cutoff_choice" in res.output
     art = read_yaml_artefact(out, Dynamics)
-    assert art.settings["cutoff_hz"] == "auto" and art.summary["cutoff_hz"] in (5.0, 10.0, 20.0, 40.0)
+    assert art.settings.cutoff_hz == "auto" and art.summary.cutoff_hz in (5.0, 10.0, 20.0, 40.0)
     with open(table, encoding="utf-8") as f:
         assert f.readline().startswith("# base dynamic parameters ± 1 sigma of rx130l (dynamics.yaml); wls")
         rows = list(csv.DictReader(f))
@@ -160,7 +160,7 @@ def test_params_out_csv_and_scoring_an_auto_model(tmp_path, rx130l, noisy_log):
     from rxcomm.stages.identify import score_run
 
     val = score_run(SAMPLES / "rx130l", out, log)  # rows 1/(2·cutoff) apart: decimated at 2 × cutoff
-    assert np.median(np.diff(val.t)) == pytest.approx(0.5 / art.summary["cutoff_hz"], rel=0.02)
+    assert np.median(np.diff(val.t)) == pytest.approx(0.5 / art.summary.cutoff_hz, rel=0.02)
     res = CliRunner().invoke(app, [*args[:-2], "-o", str(tmp_path / "d2.yaml"), "--cutoff-hz", "ten"])
     assert res.exit_code == 2 and "cutoff-hz" in res.output
 
@@ -175,5 +175,5 @@ def test_friction_option_overrides_drives_yaml_through_the_stage(tmp_path, noisy
     res = CliRunner().invoke(app, [*args, "-o", str(out)])
     assert res.exit_code == 0, res.output
     art = read_yaml_artefact(out, Dynamics)
-    assert art.summary["n_base_params"] == 59
+    assert art.summary.n_base_params == 59
     assert not any("motor" in b.name for b in art.base_parameters)

@@ -43,6 +43,7 @@ from rxcomm.io.trajectory import load_trajectory_mcap
 from rxcomm.model.dynamics import prior_parameters
 from rxcomm.reporting.markdown import render_sections
 from rxcomm.reporting.runs import execution_section
+from rxcomm.schemas.run_log import RunLogSummary
 from rxcomm.stages import run as run_stage
 
 from .conftest import ROOT, SAMPLES
@@ -436,7 +437,7 @@ def test_virtual_time_run_says_underruns_and_lead_are_not_applicable(tmp_path, r
     assert console.count(NOT_APPLICABLE_VIRTUAL) >= 3  # underruns, cell_overruns, min_lead_s rows
     meta = yaml.safe_load(out.with_suffix(".yaml").read_text())
     assert meta["summary"]["underruns"] == NOT_APPLICABLE_VIRTUAL
-    section = render_sections("r", "", [execution_section(summary, None, None)])
+    section = render_sections("r", "", [execution_section(RunLogSummary.model_validate(summary), None, None)])
     assert f"| underruns | {NOT_APPLICABLE_VIRTUAL} |" in section
     assert f"| min buffered lead while feeding | {NOT_APPLICABLE_VIRTUAL} |" in section
     traj, _ = load_trajectory_mcap(plan)

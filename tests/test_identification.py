@@ -371,11 +371,11 @@ def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
     assert res.exit_code == 0, res.output
     assert out.with_suffix(".png").stat().st_size > 20_000  # Fig. 5b with its residual panels
     art = read_yaml_artefact(out, Dynamics)
-    assert art.summary["validation"].startswith("held out: last 20 % of each of 5 blocks")
+    assert art.summary.validation.startswith("held out: last 20 % of each of 5 blocks")
     # 59 + the coupled wrist motor's Coulomb and viscous friction (drives.yaml default: both)
-    assert art.summary["n_base_params"] == len(art.base_parameters) == 61
-    assert art.summary["friction"] == "both"
-    assert len(art.summary["validation_nrmse"]) == 6 and max(art.summary["validation_nrmse"]) < 0.05
+    assert art.summary.n_base_params == len(art.base_parameters) == 61
+    assert art.summary.friction == "both"
+    assert len(art.summary.validation_nrmse) == 6 and max(art.summary.validation_nrmse) < 0.05
     # what plan-cp, plan-ptp and run load reproduces the identified torques
     params = load_dynamics(out, rx130l)
     tau_pred = RobotDynamics(rx130l, params).inverse_dynamics(q[::500], qd[::500], qdd[::500])
@@ -470,7 +470,7 @@ def test_csv_with_encoder_offsets_a_reversed_axis_and_the_wrist_coupling(tmp_pat
     res = CliRunner().invoke(app, ["identify", "--robot", str(d), "--log", str(path), "-o", str(out)])
     assert res.exit_code == 0, res.output
     art = read_yaml_artefact(out, Dynamics)
-    assert max(v for v in art.summary["validation_nrmse"] if v is not None) < 1e-2
+    assert max(v for v in art.summary.validation_nrmse if v is not None) < 1e-2
     # the same file read with the offsets forgotten puts the robot outside its limits: exit 2
     no_offsets = _robot_copy(
         tmp_path / "plain", [("drives.yaml", "gear_ratio: 140,", "gear_ratio: 140, motor_sign: -1,")]
@@ -589,8 +589,8 @@ def test_scoring_a_model_on_a_log_reproduces_its_validation(
 
     csv = tmp_path / "torques.csv"
     val = score_run(SAMPLES / "rx130l", out, vlog, torques_csv=csv)  # the model's own 12 Hz and 20 Hz
-    np.testing.assert_allclose(val.rms_nm, made["validation_rms_nm"], rtol=1e-9)
-    np.testing.assert_allclose(val.r2, made["validation_r2"], rtol=1e-9)
+    np.testing.assert_allclose(val.rms_nm, made.validation_rms_nm, rtol=1e-9)
+    np.testing.assert_allclose(val.r2, made.validation_r2, rtol=1e-9)
     table = np.loadtxt(csv, delimiter=",", comments="#", skiprows=2)
     assert table.shape == (len(val.t), 1 + 3 * 6)
     np.testing.assert_allclose(table[:, 7:13], val.predicted, rtol=1e-8, atol=1e-8)
@@ -672,9 +672,9 @@ def test_recovery_from_a_motor_side_csv(tmp_path, rx130l, truth_rx, bset_rx, opt
     )
     assert res.exit_code == 0, res.output
     art = read_yaml_artefact(out, Dynamics)
-    nrmse = np.array(art.summary["validation_nrmse"])
+    nrmse = np.array(art.summary.validation_nrmse)
     assert np.all(nrmse[:3] <= 0.05) and np.all(nrmse[3:] <= 0.10), nrmse
-    assert art.summary["validation"] == "log: iso.csv"
+    assert art.summary.validation == "log: iso.csv"
     assert (tmp_path / "dynamics.png").stat().st_size > 10_000
     truth_b = bset_rx.project(truth)
     est = np.array([b.value for b in art.base_parameters])
@@ -749,7 +749,7 @@ def test_end_to_end_on_the_simulated_cell(tmp_path, rx130l, truth_rx, bset_rx):
     logs = ["--log", str(tmp_path / "exc-log.mcap"), "--validate", str(tmp_path / "val-log.mcap")]
     ok("identify", "--robot", rx, *logs, "-o", str(out))
     art = read_yaml_artefact(out, Dynamics)
-    nrmse = np.array(art.summary["validation_nrmse"])
+    nrmse = np.array(art.summary.validation_nrmse)
     assert np.all(nrmse[:3] <= 0.05) and np.all(nrmse[3:] <= 0.10), nrmse
     # Base parameters: every one within 3σ of the truth's, and the σ honest (z scores of unit rms; σ
     # that ignored the torque/position skew of the trace or the stick phases gave 5σ on J2 friction).

@@ -119,14 +119,14 @@ def test_scoring_a_model_writes_it_with_the_new_figures(tmp_path, rx130l, stands
     assert r.exit_code == 0, r.output
     assert "every row" in r.output and "standstill_in_band" in r.output
     art = read_yaml_artefact(model, Dynamics)
-    assert art.summary["cutoff_choice"].startswith("auto")
+    assert art.summary.cutoff_choice.startswith("auto")
     score = ["score", "--robot", str(SAMPLES / "rx130l"), "--dynamics", str(model), "--log", str(path)]
     r = CliRunner().invoke(app, [*score, "-o", str(scored)])
     assert r.exit_code == 0, r.output
     out = read_yaml_artefact(scored, Dynamics)
     assert out.base_parameters == art.base_parameters
-    assert out.summary["validation"] == f"log: {path.name}" and out.inputs["validate"] == sha256_file(path)
-    assert out.summary["validation_total_rms_every_row_nm"] > 0
+    assert out.summary.validation == f"log: {path.name}" and out.inputs["validate"] == sha256_file(path)
+    assert out.summary.validation_total_rms_every_row_nm > 0
 
 
 def test_feed_forward_at_a_planned_standstill_has_no_coulomb_term(rx130l):

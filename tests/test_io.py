@@ -49,10 +49,19 @@ class DemoSettings(BaseModel):
     tol_m: float = 1e-5
 
 
+class DemoSummary(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    n_selected: int
+    err_m: float | None = None
+    ok: bool | None = None
+    per_joint_rad: list[float] | None = None
+
+
 class Demo(Artefact):
     KIND: ClassVar[str] = "rxcomm/Demo"
     SCHEMA_VERSION: ClassVar[int] = 1
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ("n_selected",)
+    settings: DemoSettings
+    summary: DemoSummary
     joints: list[Joint]
     params_m: list[float]
 
@@ -85,9 +94,9 @@ def test_yaml_round_trip_keeps_types_order_and_hashes(tmp_path: Path) -> None:
     back = read_yaml_artefact(out, Demo)
     assert back == art
     assert back.inputs["robot"] == hashlib.sha256(b"<robot name='r'/>").hexdigest()
-    assert back.settings == {"n_poses": 32, "tol_m": 1e-5}
-    assert type(back.summary["n_selected"]) is int and back.summary["ok"] is True
-    assert back.summary["err_m"] == 1.25e-4 and back.summary["per_joint_rad"] == [
+    assert back.settings.model_dump() == {"n_poses": 32, "tol_m": 1e-5}
+    assert type(back.summary.n_selected) is int and back.summary.ok is True
+    assert back.summary.err_m == 1.25e-4 and back.summary.per_joint_rad == [
         0.0,
         1.0,
         2.0,
@@ -121,7 +130,7 @@ def test_yaml_round_trip_keeps_types_order_and_hashes(tmp_path: Path) -> None:
         (lambda d: d["joints"][1].update(offest_rad=0.0), "joints.1.offest_rad", "unknown key"),
         (lambda d: d["joints"][0].update(offset_rad="abc"), "joints.0.offset_rad", "valid number"),
         (lambda d: d["inputs"].update(robot="xyz"), "inputs.robot", "pattern"),
-        (lambda d: d["summary"].pop("n_selected"), "summary", "n_selected"),
+        (lambda d: d["summary"].pop("n_selected"), "summary.n_selected", "missing"),
         (lambda d: d.update(created="2025-01-01T00:00:00"), "created", "time zone"),
     ],
 )

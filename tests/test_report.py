@@ -3,6 +3,10 @@ paper's figures beside ours, and says "not measured" for what the build lacks.""
 
 import base64
 import re
+from pathlib import Path
+
+import pytest
+import yaml
 
 from rxcomm.reporting import html, markdown
 from rxcomm.reporting.calibration import (
@@ -23,6 +27,24 @@ from rxcomm.reporting.targets import (
     stage_verdicts,
     verdict_note,
 )
+from rxcomm.schemas.acceptance import Acceptance
+from rxcomm.schemas.acceptance import VerdictRow as AcceptanceRow
+from rxcomm.schemas.calibration import CalibrationSummary
+from rxcomm.schemas.dynamics import DynamicsSummary
+from rxcomm.schemas.run_log import RunLog, RunLogSummary
+from rxcomm.schemas.trajectory import TrajectoryFigures
+
+
+def _p(model, figures: dict):
+    """A summary holding only the figures a test sets (the others unset, as `model_construct` leaves
+    them): the sections read attributes of the kind's model, as they do from an artefact."""
+    unset = {n: None for n, f in model.model_fields.items() if f.is_required()}
+    return model.model_construct(**(unset | figures))
+
+
+def _logs(runs: dict) -> dict:
+    """Run logs as the report holds them (RunLog models) from their top-level fields."""
+    return {n: RunLog.model_construct(**r) for n, r in runs.items()}
 
 
 def test_calibration_table_has_papers_numbers_and_ours_in_mm_and_degrees():
@@ -63,7 +85,9 @@ def test_calibration_table_has_papers_numbers_and_ours_in_mm_and_degrees():
 def test_render_shows_ours_in_the_stage_and_the_paper_beside_ours_at_the_end():
     ff = {"max_lag_rad": [1e-4] * 6, "max_tcp_error_m": 1e-4, "underruns": 0}
     noff = {"max_lag_rad": [1e-3] * 6, "max_tcp_error_m": 2e-3, "underruns": 0}
-    text = render_sections("t", "p", [execution_section(ff, noff, "run-ff.png")])
+    text = render_sections(
+        "t", "p", [execution_section(_p(RunLogSummary, ff), _p(RunLogSummary, noff), "run-ff.png")]
+    )
     stage, paper = text.split("## Comparison with the paper")
     assert "| lag reduction by feed-forward (worst joint) | ×10.0 |" in stage and "model-based ≪" not in stage
     assert "| lag reduction by feed-forward (worst joint) | ×10.0 | Fig. 2: model-based ≪ standard |" in paper
@@ -79,7 +103,7 @@ def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_meas
         "frames_only_heldout_max_position_error_m": 5e-3,
         "seconds": 0.1,
     }
-    assert "naive" not in render_sections("t", "p", [calibration_section(s, [])])
+    assert "naive" not in render_sections("t", "p", [calibration_section(_p(CalibrationSummary, s), [])])
     s |= {
         "n_baseline_poses": 32,
         "heldout_rms_position_error_m": 9e-5,
@@ -89,7 +113,7 @@ def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_meas
         "baseline_poses_worse_p_value": 2.5e-7,
         "baseline_poses_median_std_ratio": 4.1,
     }
-    text = render_sections("t", "p", [calibration_section(s, [])])
+    text = render_sections("t", "p", [calibration_section(_p(CalibrationSummary, s), [])])
     assert "| 0.15 / 0.32 mm, 0.0172 / 0.0344 ° |" in text
     assert "0.09 / 0.16 mm; p = 2.5e-07" in text and "×4.1" in text
 
@@ -107,7 +131,7 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
         "rows_per_parameter": 12.4,
         "seconds": 0.2,
     }
-    text = render_sections("t", "p", [dynamics_section(s, None)])
+    text = render_sections("t", "p", [dynamics_section(_p(DynamicsSummary, s), None)])
     assert "[0.64, 0.39, 0.13, not scored, 0.046, 0.076] N·m" in text
     assert "[0.2, 0.1, 0.1, not scored, 0.4, 1.2] %" in text
     assert "0.9999, 0.9989]" in text and "no standstill" in text and "10 Hz; 12.4" in text
@@ -120,7 +144,7 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
         "cutoff_hz": 40.0,
         "cutoff_choice": "auto: least mean cross-validated held-out NRMSE (5 Hz: 0.45 %, 40 Hz: 0.14 %)",
     }
-    text = render_sections("t", "p", [dynamics_section(s, None)])
+    text = render_sections("t", "p", [dynamics_section(_p(DynamicsSummary, s), None)])
     assert "[0.45, 0.4, 0.17, 0.04, 0.019, 0.02] N·m / [0.49, 0.42, 0.18, 0.042, 0.022, 0.021] N·m" in text
     assert (
         "40 Hz (auto: least mean cross-validated held-out NRMSE (5 Hz: 0.45 %, 40 Hz: 0.14 %)); 12.4" in text
@@ -141,7 +165,7 @@ def test_a_limit_ratio_above_one_is_flagged_within_tolerance_or_as_a_violation()
     missing = ratio_verdict("cp", None, 1e-3, "run")
     assert missing.verdict is Verdict.not_measured and missing.measured == "not measured"
     # the same flag beside the figure in the stage section
-    sec = trajectory_section("cp", _TRAJ | {"max_limit_ratio": 1.0006}, None, "1.04 s")
+    sec = trajectory_section("cp", _p(TrajectoryFigures, _TRAJ | {"max_limit_ratio": 1.0006}), None, "1.04 s")
     assert "1.0006 (0.06 % above the limit: within the tolerance" in render_sections("t", "", [sec])
 
 
@@ -154,7 +178,7 @@ def test_trajectory_section_names_the_binding_limit_and_every_limits_ratio():
         "max_acceleration_ratio": 0.99,
         "worst_limit": "acceleration joint_4",
     }
-    text = render_sections("t", "", [trajectory_section("cp", s, None, "1.04 s")])
+    text = render_sections("t", "", [trajectory_section("cp", _p(TrajectoryFigures, s), None, "1.04 s")])
     assert "| max ratio per limit | velocity 0.9490, acceleration 0.9900 |" in text
     assert "| binding limit | acceleration joint_4 |" in text
 
@@ -180,6 +204,10 @@ def test_stage_verdicts_against_the_targets():
         "run-ptp.yaml": {"summary": {"outcome": "stopped", "underruns": 2}},
         "sim.yaml": {"summary": {"outcome": "completed", "underruns": "not applicable (virtual time)"}},
     }
+    models = {"calibration": CalibrationSummary, "dynamics": DynamicsSummary, "cp": TrajectoryFigures}
+    models |= {"ptp": TrajectoryFigures, "run-ff": RunLogSummary, "run-noff": RunLogSummary}
+    summaries = {k: _p(models[k], v) for k, v in summaries.items()}
+    runs = {n: RunLog.model_construct(summary=_p(RunLogSummary, r["summary"])) for n, r in runs.items()}
     rows = {r.criterion.split(":")[0] + r.criterion[-12:]: r for r in stage_verdicts(summaries, runs)}
     by = list(rows.values())
     pos, ori, r2, ff, exc, cp, ptp, run = by
@@ -237,7 +265,7 @@ PNG = base64.b64decode(
 
 
 def test_html_is_self_contained_opens_with_the_verdict_and_embeds_every_figure():
-    verdict = stage_verdicts({"cp": {"max_limit_ratio": 1.0025}}, {})
+    verdict = stage_verdicts({"cp": _p(TrajectoryFigures, {"max_limit_ratio": 1.0025})}, {})
     sections = [
         Section("Stage A", [Figure("x", "1 mm", "2 mm")], image="a.png"),
         Section("Stage B", [Figure("y", "not measured")], image="gone.png"),
@@ -284,22 +312,23 @@ def test_report_of_an_empty_build_says_not_measured_and_writes_both_files(tmp_pa
 def test_the_preamble_says_what_the_run_logs_ran_on():
     from rxcomm.reporting.runs import ran_on
 
-    sim = {"embedded_cell": True, "gateway": "127.0.0.1:40123"}
-    real = {"embedded_cell": False, "gateway": "192.168.0.10:502"}
+    sim = {"embedded_cell": True, "gateway": "127.0.0.1:40123", "settings": {}}
+    real = {"embedded_cell": False, "gateway": "192.168.0.10:502", "settings": {}}
     assert (
-        ran_on({"a.yaml": sim, "b.yaml": sim}) == "the simulated cell `run` started itself (2 of 2 run logs)"
+        ran_on(_logs({"a.yaml": sim, "b.yaml": sim}))
+        == "the simulated cell `run` started itself (2 of 2 run logs)"
     )
     # a real gateway is named by its address, never called the simulated cell
-    assert ran_on({"a.yaml": real}) == "the gateway at 192.168.0.10:502 (1 of 1 run logs)"
+    assert ran_on(_logs({"a.yaml": real})) == "the gateway at 192.168.0.10:502 (1 of 1 run logs)"
     # a log that names its plant says which (an older log without one does not guess)
     mj = {**sim, "settings": {"plant": "mujoco"}}
-    assert ran_on({"a.yaml": mj, "b.yaml": mj}) == (
+    assert ran_on(_logs({"a.yaml": mj, "b.yaml": mj})) == (
         "the simulated cell `run` started itself, MuJoCo plant (2 of 2 run logs)"
     )
     assert "rxcomm's own plant (1 of 2" in ran_on(
-        {"a.yaml": mj, "b.yaml": {**sim, "settings": {"plant": "own"}}}
+        _logs({"a.yaml": mj, "b.yaml": {**sim, "settings": {"plant": "own"}}})
     )
-    both = ran_on({"a.yaml": sim, "b.yaml": real, "c.yaml": real})
+    both = ran_on(_logs({"a.yaml": sim, "b.yaml": real, "c.yaml": real}))
     assert both == (
         "the simulated cell `run` started itself (1 of 3 run logs) and the gateway at 192.168.0.10:502 "
         "(2 of 3 run logs)"
@@ -315,21 +344,25 @@ def test_stiffness_from_identified_torques_is_shown_beside_the_prior_torques():
         "frames_only_heldout_max_position_error_m": 5e-3,
         "seconds": 0.1,
         "compliance_torque_model": "identified",
-        "stiffness_J3_nm_per_rad": 4.3e5,
-        "stiffness_J3_std_nm_per_rad": 4e4,
+        "stiffness_nm_per_rad": {"J3": 4.3e5},
+        "stiffness_std_nm_per_rad": {"J3": 4e4},
     }
-    prior = {"stiffness_J3_nm_per_rad": 5.6e5, "stiffness_J3_std_nm_per_rad": 5e4}
+    prior = _p(
+        CalibrationSummary, {"stiffness_nm_per_rad": {"J3": 5.6e5}, "stiffness_std_nm_per_rad": {"J3": 5e4}}
+    )
     s |= {
         "mdh_max_position_residual_m": 1.47e-3,
         "mdh_max_orientation_residual_rad": 1.39e-3,
         "mdh_beta_max_position_residual_m": 1.4e-15,
     }
-    text = render_sections("t", "p", [calibration_section(s, [], prior=prior)])
+    text = render_sections("t", "p", [calibration_section(_p(CalibrationSummary, s), [], prior=prior)])
     assert "cannot express (max over sampled poses) | 1.47 mm, 1.39 mrad; with Hayati's β 1.4e-12 mm" in text
     assert "J3 stiffness (from gravity sag, identified holding torques) | 0.43 ± 0.04 MN·m/rad" in text
     assert "J3 stiffness, same measurements, prior holding torques | 0.56 ± 0.05 MN·m/rad" in text
     # A prior pass without a stiffness (its model chose no compliance) says so, never 0.
-    text = render_sections("t", "p", [calibration_section(s, [], prior={})])
+    text = render_sections(
+        "t", "p", [calibration_section(_p(CalibrationSummary, s), [], prior=_p(CalibrationSummary, {}))]
+    )
     assert "prior holding torques | not measured" in text
 
 
@@ -348,7 +381,9 @@ def test_the_acceptance_rows_open_the_verdict_with_factory_commissioned_and_rati
         ],
         "summary": {"verdict": "FAIL", "n_pass": 1, "n_fail": 1, "n_not_measured": 1},
     }  # fmt: skip
-    rows = acceptance_verdict(acceptance)
+    rows = acceptance_verdict(
+        Acceptance.model_construct(rows=[AcceptanceRow(**r) for r in acceptance["rows"]])
+    )
     assert [r.verdict for r in rows] == [Verdict.passed, Verdict.not_measured, Verdict.failed]
     verdict = [*rows, *stage_verdicts({}, {})]
     report = Report("r", "preamble", verdict, [Section("Stage A", [Figure("x", "1 mm")])])
@@ -364,3 +399,37 @@ def test_the_acceptance_rows_open_the_verdict_with_factory_commissioned_and_rati
     assert "| electrical_energy | 268.3 J | 407.8 J | 1.52 | ratio ≤ 1 | fail | sum of 2 run(s) |" in lines
     # the acceptance rows come first, before the stage targets
     assert md.index("| AP_p |") < md.index("| electrical_energy |") < md.index("| calibration")
+
+
+def test_a_renamed_summary_field_fails_the_report_naming_file_and_field(tmp_path, rx130l):
+    """Issue 28: a summary field renamed (by a producer or by hand) is an error naming the file and the
+    field, never a figure the report prints as "not measured"."""
+    from rxcomm.errors import InputError
+    from rxcomm.io.yaml_io import write_yaml_artefact
+    from rxcomm.stages.report import build_report
+    from tests.artefacts import synthetic_calibration
+
+    art = synthetic_calibration(rx130l, {"base.tx": 1e-4})
+    data = art.model_dump(mode="json")
+    data["summary"]["heldout_max_position_error_mm"] = data["summary"].pop("heldout_max_position_error_m")
+    write_yaml_artefact(tmp_path / "calibration.yaml", art)
+    report, _ = build_report(tmp_path)  # the file as written reads
+    (tmp_path / "calibration.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(InputError) as err:
+        build_report(tmp_path)
+    assert "calibration.yaml" in str(err.value.file)
+    assert "heldout_max_position_error_m" in str(err.value)
+
+
+def test_report_and_accept_code_read_summaries_as_attributes():
+    """Issue 28's grep: no summary read by key in the report or accept code."""
+    root = Path(__file__).resolve().parents[1] / "rxcomm"
+    files = [root / "stages" / "report.py", root / "stages" / "accept.py"]
+    files += sorted((root / "reporting").glob("*.py")) + sorted((root / "acceptance").glob("*.py"))
+    hits = [
+        f"{f.name}:{i}"
+        for f in files
+        for i, line in enumerate(f.read_text().splitlines(), 1)
+        if "summary.get(" in line or '["summary"][' in line or "['summary'][" in line
+    ]
+    assert not hits

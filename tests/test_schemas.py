@@ -10,6 +10,7 @@ from pydantic import BaseModel
 from rxcomm.schemas import ARTEFACT_MODELS
 from rxcomm.schemas.envelope import ENVELOPE_FIELDS, Artefact
 from rxcomm.schemas.generate import SCHEMA_DIR, drift, file_name, load_model, main, render
+from rxcomm.schemas.strict import Strict
 
 REGEN = ".venv/bin/python -m rxcomm.schemas.generate"
 
@@ -32,7 +33,11 @@ def test_registered_model_is_strict_and_pinned(ref: str) -> None:
         # code_identity is optional: artefacts written before it still read
         assert set(ENVELOPE_FIELDS) - {"code_identity"} <= set(schema["required"])
         assert set(ENVELOPE_FIELDS) <= set(schema["properties"])
-        assert schema["properties"]["summary"].get("required", []) == list(cls.REQUIRED_SUMMARY_KEYS)
+        # summary and settings are models of their own (issue 28): a $ref, never an open mapping
+        typed = ("summary",) if cls.SETTINGS_UNTYPED else ("summary", "settings")
+        for name in typed:
+            prop = schema["properties"][name]
+            assert "additionalProperties" not in prop, f"{ref}: {name} is an untyped mapping"
 
 
 def test_kinds_and_file_names_are_unique() -> None:
@@ -46,6 +51,8 @@ def test_file_names() -> None:
     class RunLog(Artefact):
         KIND = "rxcomm/RunLog"
         SCHEMA_VERSION = 1
+        settings: Strict
+        summary: Strict
 
     class CellConfig(BaseModel):
         pass
@@ -65,3 +72,20 @@ def test_check_mode_reports_drift(tmp_path, capsys: pytest.CaptureFixture[str]) 
     err = capsys.readouterr().err
     assert first.name in err and "stale.schema.json" in err and "python -m rxcomm.schemas.generate" in err
     assert render(load_model(ARTEFACT_MODELS[0])) == render(load_model(ARTEFACT_MODELS[0]))
+
+
+def test_a_kind_with_an_untyped_summary_or_settings_is_refused() -> None:
+    """Issue 28: every kind narrows summary and settings to models; a dict fails when it is defined."""
+    with pytest.raises(TypeError, match="Loose.summary must be a pydantic model"):
+
+        class Loose(Artefact):
+            KIND = "rxcomm/Loose"
+            SCHEMA_VERSION = 1
+            settings: Strict
+
+    with pytest.raises(TypeError, match="Loose2.settings must be a pydantic model"):
+
+        class Loose2(Artefact):
+            KIND = "rxcomm/Loose2"
+            SCHEMA_VERSION = 1
+            summary: Strict

@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 from rxcomm.cli import app
 from rxcomm.io.yaml_io import load_yaml, write_yaml_artefact
 from rxcomm.schemas.iso9283 import CRITERIA_UNITS, POSE_CRITERIA, POSES, Iso9283
+from rxcomm.schemas.run_log import RunLogSummary
 
 from .test_acceptance import _run_log
 
@@ -53,7 +54,7 @@ def _iso(ap: float, rp: float, at: float, *, pose_cycles: int = 5) -> Iso9283:
         "measuring_window_s": 0.75,
     }
     return Iso9283(
-        **Iso9283.envelope({}, {"measure_fraction": 0.5}, summary),
+        **Iso9283.envelope({}, {"measure_fraction": 0.5, "paths": "paths"}, summary),
         robot="rx130l",
         cube={
             "centre_m": (1, 0, 1),
@@ -196,6 +197,7 @@ def test_a_path_at_several_speeds_has_one_row_per_speed_and_the_set_says_what_it
         for v, k in ((0.5, 0.5), (0.1, 0.25))
     ]
     iso["criteria"] += slow
+    iso = Iso9283.model_validate(iso)
     t = path_table("commissioned state", iso)
     assert [r[:4] for r in t.rows] == [
         ["iso9283-line", "1 m/s", "10", "0.2 mm"],
@@ -215,12 +217,12 @@ def test_energy_at_the_factory_cycle_time_is_judged_only_at_that_time():
 
     th = [Threshold(criterion="electrical_energy_at_factory_time", unit="J", max_ratio=1.0)]
     factory = [
-        {"duration_s": 4.0, "electrical_energy_j": 900.0},
-        {"duration_s": 3.0, "electrical_energy_j": 600.0},
+        _run({"duration_s": 4.0, "electrical_energy_j": 900.0}),
+        _run({"duration_s": 3.0, "electrical_energy_j": 600.0}),
     ]
     slowed = [
-        {"duration_s": 4.02, "electrical_energy_j": 700.0},
-        {"duration_s": 3.0, "electrical_energy_j": 450.0},
+        _run({"duration_s": 4.02, "electrical_energy_j": 700.0}),
+        _run({"duration_s": 3.0, "electrical_energy_j": 450.0}),
     ]
     (row,) = acceptance_rows(th, factory, [], None, None, slowed)
     # 1150 J at 7.02 s (within 2 % of 7 s) against 1500 J: ratio 0.767, PASS
@@ -228,8 +230,8 @@ def test_energy_at_the_factory_cycle_time_is_judged_only_at_that_time():
     assert row.ratio == pytest.approx(1150 / 1500) and "at 7.02 s (factory 7 s)" in row.note
     # slowed to the wrong time (the optimal 2.1 s): not an equal-time comparison, not measured
     fast = [
-        {"duration_s": 1.2, "electrical_energy_j": 800.0},
-        {"duration_s": 0.9, "electrical_energy_j": 500.0},
+        _run({"duration_s": 1.2, "electrical_energy_j": 800.0}),
+        _run({"duration_s": 0.9, "electrical_energy_j": 500.0}),
     ]
     (row,) = acceptance_rows(th, factory, [], None, None, fast)
     assert row.verdict == "not measured" and "run at 2.1 s, not the factory's 7 s" in row.note
@@ -237,6 +239,11 @@ def test_energy_at_the_factory_cycle_time_is_judged_only_at_that_time():
     assert row.verdict == "not measured" and "no run of the commissioned task at the factory" in row.note
     # more energy at equal time fails
     (row,) = acceptance_rows(
-        th, factory, [], None, None, [{"duration_s": 7.0, "electrical_energy_j": 1600.0}]
+        th, factory, [], None, None, [_run({"duration_s": 7.0, "electrical_energy_j": 1600.0})]
     )
     assert row.verdict == "FAIL"
+
+
+def _run(figures: dict) -> RunLogSummary:
+    """A run log summary holding only the figures a test sets."""
+    return RunLogSummary.model_construct(**figures)

@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from pydantic import Field
 from scipy.spatial.transform import Rotation
 
 from rxcomm.acceptance.alignment import velocity_on_grid
@@ -41,29 +40,11 @@ from rxcomm.model.kinematics import frame_placement
 from rxcomm.model.robot import Robot
 from rxcomm.planning.iso9283 import Iso9283Cube, cube_from_rectangle
 from rxcomm.planning.paths import build_curve, rpy_matrix
-from rxcomm.schemas.iso9283 import CRITERIA_UNITS, POSES, Criterion
+from rxcomm.schemas.iso9283 import CRITERIA_UNITS, POSES, Criterion, EvaluationSettings
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.run_log import TRACKER_TOPIC
-from rxcomm.schemas.strict import Strict
 
 COMMAND_SPEED_STEP_S = 0.004  # s between the FK samples of the command speed
-
-
-class EvaluationSettings(Strict):
-    """How attained poses and paths are taken from the logs for the ISO 9283 criteria (not to be confused
-    with `rxcomm.execution.campaign.CampaignSettings`, how a pose campaign is measured)."""
-
-    min_dwell_s: float = Field(0.2, gt=0, description="a dwell: zero commanded velocity at least this, s")
-    measure_fraction: float = Field(
-        0.5, gt=0, le=1, description="the attained pose: mean of the dwell's last fraction of samples"
-    )
-    match_m: float = Field(0.02, gt=0, description="a dwell is at Pi when its command TCP is this near, m")
-    n_points: int = Field(200, ge=10, description="command points along a path (normal planes)")
-    corner_zone_m: float = Field(0.1, gt=0, description="corner overshoot zone after each corner, m")
-    velocity_window_s: float = Field(0.01, gt=0, description="tracker speed: central difference ±, s")
-    skip_first_dwell: bool = Field(
-        True, description="the plan's first dwell (at P1, before cycle 1) is the start, not a cycle"
-    )
 
 
 @dataclass(frozen=True)

@@ -8,11 +8,12 @@ was not measured stays None and its verdict is "not measured", never PASS and ne
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from rxcomm.schemas.acceptance import TASK_CRITERIA, Threshold, VerdictRow
 from rxcomm.schemas.iso9283 import Iso9283
+from rxcomm.schemas.run_log import RunLogSummary
 
 SPEED_TOLERANCE = 0.05  # an ISO path criterion matches a threshold's command speed within ±5 %
 TASK_SUMMARY_KEYS = {
@@ -32,7 +33,7 @@ class Measured:
     note: str = ""
 
 
-def task_value(criterion: str, runs: Sequence[Mapping]) -> Measured:
+def task_value(criterion: str, runs: Sequence[RunLogSummary]) -> Measured:
     """A reference-task figure: the sum over its runs' summaries (a missing or null figure in any
     run, or no run at all, is not measured; a run that did not complete is not measured either)."""
     if not runs:
@@ -40,9 +41,9 @@ def task_value(criterion: str, runs: Sequence[Mapping]) -> Measured:
     key = TASK_SUMMARY_KEYS[criterion]
     total = 0.0
     for i, s in enumerate(runs):
-        if s.get("outcome", "completed") != "completed":
-            return Measured(None, f"run {i + 1} ended {s.get('outcome')!r}")
-        v = s.get(key)
+        if (s.outcome or "completed") != "completed":
+            return Measured(None, f"run {i + 1} ended {s.outcome!r}")
+        v = getattr(s, key)
         if v is None:
             return Measured(None, f"run {i + 1} has no {key}")
         total += float(v)
@@ -133,7 +134,9 @@ def verdict_row(t: Threshold, factory: Measured, commissioned: Measured) -> Verd
     )
 
 
-def equal_time_value(factory_runs: Sequence[Mapping], equal_time_runs: Sequence[Mapping]) -> Measured:
+def equal_time_value(
+    factory_runs: Sequence[RunLogSummary], equal_time_runs: Sequence[RunLogSummary]
+) -> Measured:
     """The commissioned task's electrical energy at the factory's cycle time: the sum over its
     slowed runs, "not measured" when there are none or their cycle time is not the factory's."""
     if not equal_time_runs:
@@ -150,11 +153,11 @@ def equal_time_value(factory_runs: Sequence[Mapping], equal_time_runs: Sequence[
 
 def acceptance_rows(
     thresholds: Sequence[Threshold],
-    factory_runs: Sequence[Mapping],
-    commissioned_runs: Sequence[Mapping],
+    factory_runs: Sequence[RunLogSummary],
+    commissioned_runs: Sequence[RunLogSummary],
     factory_iso: Iso9283 | None,
     commissioned_iso: Iso9283 | None,
-    equal_time_runs: Sequence[Mapping] = (),
+    equal_time_runs: Sequence[RunLogSummary] = (),
 ) -> list[VerdictRow]:
     """One verdict row per threshold, in the thresholds' order. `equal_time_runs`: the commissioned
     reference task slowed to the factory's cycle time (electrical_energy_at_factory_time)."""

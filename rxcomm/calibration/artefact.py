@@ -153,11 +153,12 @@ def _summary(robot: Robot, res: CalibrationResult, torque_model: str, source: st
     }
     for c in res.candidates:
         summary[f"cv_rms_position_error_{c.name.replace('+', '_')}_m"] = c.cv_rms_position_m
-    for est in compliance_estimates(robot, res.fit):
-        summary[f"stiffness_{est.joint}_nm_per_rad"] = est.stiffness_nm_per_rad
-        summary[f"stiffness_{est.joint}_std_nm_per_rad"] = (
-            None if est.stiffness_nm_per_rad is None else est.std * est.stiffness_nm_per_rad**2
-        )
+    estimates = compliance_estimates(robot, res.fit)
+    summary["stiffness_nm_per_rad"] = {est.joint: est.stiffness_nm_per_rad for est in estimates}
+    summary["stiffness_std_nm_per_rad"] = {
+        est.joint: None if est.stiffness_nm_per_rad is None else est.std * est.stiffness_nm_per_rad**2
+        for est in estimates
+    }
     base = res.baseline
     if base is not None:
         ids = list(res.identifiable.indices)

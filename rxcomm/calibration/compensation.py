@@ -37,7 +37,7 @@ def compliance_torque_params(
 ) -> DynamicParameters | None:
     """The torque model the compliance was fitted with (the artefact's summary, `calibrate` writes it
     there): the identified one (must be given) or the prior (None)."""
-    if calibration.summary.get("compliance_torque_model") != "identified":
+    if calibration.summary.compliance_torque_model != "identified":
         return None
     if identified is None:
         raise InputError(

@@ -136,7 +136,7 @@ def kinematics_csv(art: Kinematics) -> str:
             buf.write(f"# {key} {frame}: xyz_m {list(p.xyz_m)} rpy_rad {list(p.rpy_rad)}\n")
         buf.write(
             f"# {key} residual: max position {form.max_position_residual_m:.6g} m, max orientation "
-            f"{form.max_orientation_residual_rad:.6g} rad over {art.summary['n_sample_poses']} poses\n"
+            f"{form.max_orientation_residual_rad:.6g} rad over {art.summary.n_sample_poses} poses\n"
         )
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["form", "joint", *FIELDS, "zero_offset_rad", "zero_offset_deg"])

@@ -1,7 +1,7 @@
 """The report's sections for pose selection and geometric calibration (paper §3.1–3.4, Table 2):
 headline figures, held-out errors per axis, parameters ± σ, the joint stiffness.
 
-Pure functions over the summaries of configs.yaml and calibration.yaml (plain mappings).
+Pure functions over the summaries of configs.yaml and calibration.yaml (their models).
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ from rxcomm.reporting.document import (
     Table,
 )
 from rxcomm.reporting.values import fmt, plus_minus
+from rxcomm.schemas.calibration import CalibrationSummary
+from rxcomm.schemas.configs import ConfigsSummary
 
 # Paper Table 2 (RX130L, 3D-Creator tracker): max |e| before → after, x y z in mm, α β γ in degrees.
 PAPER_TABLE2_MAX = {
@@ -29,28 +31,28 @@ PAPER_TABLE2_MAX = {
 }
 
 
-def configs_section(s: Mapping, image: str | None, criterion: str = "det-root") -> Section:
+def configs_section(s: ConfigsSummary, image: str | None, criterion: str = "det-root") -> Section:
     return Section(
         "Optimal measurement poses (paper §3.3)",
         [
-            Figure("candidates → selected", f"{s['n_candidates']} → {s['n_selected']}", "≈ 4000 → 32"),
+            Figure("candidates → selected", f"{s.n_candidates} → {s.n_selected}", "≈ 4000 → 32"),
             Figure(
                 f"observation index ({criterion}, in average candidates): selected / naive (linear scan)",
-                f"{fmt(s['observation_index'], digits=4)} / {fmt(s['baseline_observation_index'], digits=4)}",
+                f"{fmt(s.observation_index, digits=4)} / {fmt(s.baseline_observation_index, digits=4)}",
             ),
             Figure(
                 "improvement over the linear scan: σ_min ratio (the paper's index) / " + criterion,
-                f"×{fmt(s.get('min_eig_improvement_ratio'))} / ×{fmt(s['improvement_ratio'])}",
+                f"×{fmt(s.min_eig_improvement_ratio)} / ×{fmt(s.improvement_ratio)}",
                 "×18.5 (σ_min, vs a linear scan)",
             ),
             Figure(
                 "expected rms position error after calibration: selected / linear scan / evenly spaced "
                 "candidates",
-                f"{fmt(s.get('expected_position_error_m'), 1e3)} / "
-                f"{fmt(s.get('baseline_expected_position_error_m'), 1e3)} / "
-                f"{fmt(s.get('evenly_spaced_expected_position_error_m'), 1e3)} mm",
+                f"{fmt(s.expected_position_error_m, 1e3)} / "
+                f"{fmt(s.baseline_expected_position_error_m, 1e3)} / "
+                f"{fmt(s.evenly_spaced_expected_position_error_m, 1e3)} mm",
             ),
-            Figure("compute time", fmt(s["seconds"], unit="s"), "about 5 min"),
+            Figure("compute time", fmt(s.seconds, unit="s"), "about 5 min"),
         ],
         image,
         note="The naive baseline is the paper's linear scan: one joint swept at a time from the centre "
@@ -129,41 +131,41 @@ def compliance_table(compliance: Sequence[Mapping]) -> Table | None:
     )
 
 
-def baseline_pose_figures(s: Mapping) -> list[Figure]:
+def baseline_pose_figures(s: CalibrationSummary) -> list[Figure]:
     """Held-out errors of the calibration from the naive poses beside the selected poses', when the
     campaign measured both (select-configs --measure-baseline)."""
-    if "n_baseline_poses" not in s:
+    if s.n_baseline_poses is None:
         return []
-    p = s.get("baseline_poses_worse_p_value")
+    p = s.baseline_poses_worse_p_value
     return [
         Figure(
             "held-out max position, orientation error calibrating from the selected / the naive "
             "(linear scan) poses",
-            f"{fmt(s['heldout_max_position_error_m'], 1e3)} / "
-            f"{fmt(s.get('baseline_poses_heldout_max_position_error_m'), 1e3)} mm, "
-            f"{fmt(s.get('heldout_max_orientation_error_rad'), 180 / np.pi)} / "
-            f"{fmt(s.get('baseline_poses_heldout_max_orientation_error_rad'), 180 / np.pi)} °",
+            f"{fmt(s.heldout_max_position_error_m, 1e3)} / "
+            f"{fmt(s.baseline_poses_heldout_max_position_error_m, 1e3)} mm, "
+            f"{fmt(s.heldout_max_orientation_error_rad, 180 / np.pi)} / "
+            f"{fmt(s.baseline_poses_heldout_max_orientation_error_rad, 180 / np.pi)} °",
         ),
         Figure(
             "held-out rms position error, selected / naive; naive worse pose by pose (one-sided "
             "signed-rank test on the weighted residuals)",
-            f"{fmt(s.get('heldout_rms_position_error_m'), 1e3)} / "
-            f"{fmt(s.get('baseline_poses_heldout_rms_position_error_m'), 1e3)} mm; "
+            f"{fmt(s.heldout_rms_position_error_m, 1e3)} / "
+            f"{fmt(s.baseline_poses_heldout_rms_position_error_m, 1e3)} mm; "
             + ("no fit" if p is None else f"p = {p:.2g}"),
         ),
         Figure(
             "parameter σ from the naive poses / from the selected (median)",
-            f"×{fmt(s.get('baseline_poses_median_std_ratio'))}",
+            f"×{fmt(s.baseline_poses_median_std_ratio)}",
         ),
     ]
 
 
 def calibration_section(
-    s: Mapping,
+    s: CalibrationSummary,
     tables: Sequence[Mapping],
     parameters: Sequence[Mapping] = (),
     compliance: Sequence[Mapping] = (),
-    prior: Mapping | None = None,
+    prior: CalibrationSummary | None = None,
 ) -> Section:
     """The summary's figures, Table 2, the parameters ± σ and the joint stiffness (calibration.yaml);
     `prior`: the summary of the same calibration with the prior model's holding torques, if made."""
@@ -171,25 +173,25 @@ def calibration_section(
     return Section(
         "Geometric calibration (paper §3.1–3.4, Table 2)",
         [
-            Figure("identifiable parameters", str(s["n_identifiable"]), "39 → 30 by QR"),
+            Figure("identifiable parameters", str(s.n_identifiable), "39 → 30 by QR"),
             Figure(
                 "held-out max position error: nominal → calibrated",
-                f"{fmt(s['nominal_heldout_max_position_error_m'], 1e3)} → "
-                f"{fmt(s['heldout_max_position_error_m'], 1e3)} mm",
+                f"{fmt(s.nominal_heldout_max_position_error_m, 1e3)} → "
+                f"{fmt(s.heldout_max_position_error_m, 1e3)} mm",
                 "max per axis 19.0 → 0.41 mm",
             ),
             Figure(
                 "held-out max orientation error after",
-                fmt(np.degrees(s["heldout_max_orientation_error_rad"]), unit="°"),
+                fmt(np.degrees(s.heldout_max_orientation_error_rad), unit="°"),
                 "0.19°",
             ),
             Figure(
                 "base + tool frames only (honest baseline)",
-                fmt(s["frames_only_heldout_max_position_error_m"], 1e3, unit="mm"),
+                fmt(s.frames_only_heldout_max_position_error_m, 1e3, unit="mm"),
             ),
             *baseline_pose_figures(s),
             *model_figures(s, prior),
-            Figure("compute time", fmt(s["seconds"], unit="s")),
+            Figure("compute time", fmt(s.seconds, unit="s")),
         ],
         tables=[t for t in named if t is not None],
         note="Errors are measured on held-out poses the fit never saw, at the tracker noise above; the "
@@ -197,54 +199,52 @@ def calibration_section(
     )
 
 
-def model_figures(s: Mapping, prior: Mapping | None = None) -> list[Figure]:
+def model_figures(s: CalibrationSummary, prior: CalibrationSummary | None = None) -> list[Figure]:
     """The tracker noise used, the model the data chose, the rigid model beside it, the stiffness
     (and, from `prior`, the stiffness the prior model's holding torques give)."""
     out = []
-    if "tracker_position_sigma_m" in s:
-        ori = s.get("tracker_orientation_sigma_rad")
+    if s.tracker_position_sigma_m is not None:
+        ori = s.tracker_orientation_sigma_rad
         out.append(
             Figure(
-                f"tracker noise used ({s.get('tracker_sigma_source', '?')})",
-                f"{fmt(s['tracker_position_sigma_m'], 1e3, unit='mm')}"
+                f"tracker noise used ({s.tracker_sigma_source or '?'})",
+                f"{fmt(s.tracker_position_sigma_m, 1e3, unit='mm')}"
                 + ("" if ori is None else f", {fmt(ori, 1e3, unit='mrad')}"),
             )
         )
-    if "model" in s:
-        out.append(Figure("error model chosen (5-fold cross-validation)", str(s["model"])))
-    if s.get("rigid_heldout_max_position_error_m") is not None:
+    if s.model is not None:
+        out.append(Figure("error model chosen (5-fold cross-validation)", str(s.model)))
+    if s.rigid_heldout_max_position_error_m is not None:
         out.append(
             Figure(
                 "held-out max position error, rigid full model",
-                fmt(s["rigid_heldout_max_position_error_m"], 1e3, unit="mm"),
+                fmt(s.rigid_heldout_max_position_error_m, 1e3, unit="mm"),
             )
         )
-    for key, value in s.items():
-        if key.startswith("stiffness_") and key.endswith("_nm_per_rad") and "_std_" not in key:
-            joint = key[len("stiffness_") : -len("_nm_per_rad")]
-            std = s.get(f"stiffness_{joint}_std_nm_per_rad")
-            torques = s.get("compliance_torque_model", "prior")
+    for joint, value in s.stiffness_nm_per_rad.items():
+        std = s.stiffness_std_nm_per_rad.get(joint)
+        torques = s.compliance_torque_model or "prior"
+        out.append(
+            Figure(
+                f"{joint} stiffness (from gravity sag, {torques} holding torques)",
+                f"{fmt(value, 1e-6)} ± {fmt(std, 1e-6)} MN·m/rad",
+            )
+        )
+        if prior is not None and torques != "prior":
+            p, p_std = prior.stiffness_nm_per_rad.get(joint), prior.stiffness_std_nm_per_rad.get(joint)
             out.append(
                 Figure(
-                    f"{joint} stiffness (from gravity sag, {torques} holding torques)",
-                    f"{fmt(value, 1e-6)} ± {fmt(std, 1e-6)} MN·m/rad",
+                    f"{joint} stiffness, same measurements, prior holding torques",
+                    "not measured" if p is None else f"{fmt(p, 1e-6)} ± {fmt(p_std, 1e-6)} MN·m/rad",
                 )
             )
-            if prior is not None and torques != "prior":
-                p, p_std = prior.get(key), prior.get(f"stiffness_{joint}_std_nm_per_rad")
-                out.append(
-                    Figure(
-                        f"{joint} stiffness, same measurements, prior holding torques",
-                        "not measured" if p is None else f"{fmt(p, 1e-6)} ± {fmt(p_std, 1e-6)} MN·m/rad",
-                    )
-                )
-    if s.get("mdh_max_position_residual_m") is not None:
+    if s.mdh_max_position_residual_m is not None:
         out.append(
             Figure(
                 "what the plain MDH export cannot express (max over sampled poses)",
-                f"{fmt(s['mdh_max_position_residual_m'], 1e3, unit='mm')}, "
-                f"{fmt(s.get('mdh_max_orientation_residual_rad'), 1e3, unit='mrad')}; with Hayati's β "
-                f"{fmt(s.get('mdh_beta_max_position_residual_m'), 1e3, unit='mm')}",
+                f"{fmt(s.mdh_max_position_residual_m, 1e3, unit='mm')}, "
+                f"{fmt(s.mdh_max_orientation_residual_rad, 1e3, unit='mrad')}; with Hayati's β "
+                f"{fmt(s.mdh_beta_max_position_residual_m, 1e3, unit='mm')}",
             )
         )
     return out

@@ -18,19 +18,23 @@ from rxcomm.reporting.document import (
     ratio_note,
 )
 from rxcomm.reporting.values import fmt, plus_minus
+from rxcomm.schemas.dynamics import DynamicsSummary
+from rxcomm.schemas.excitation import ExcitationSummary
 
 
-def excitation_section(s: Mapping, image: str | None, tol: Tolerance = DEFAULT_TOLERANCE) -> Section:
+def excitation_section(
+    s: ExcitationSummary, image: str | None, tol: Tolerance = DEFAULT_TOLERANCE
+) -> Section:
     return Section(
         "Optimal exciting trajectory (paper §4.2)",
         [
-            Figure("cond(W), unit-norm columns", fmt(s["cond"]), "N = 5, ω_f = 0.8 rad/s, k = 80"),
-            Figure("random feasible Fourier trajectory (median)", fmt(s["baseline_cond"])),
-            Figure("cond(W) unnormalised", fmt(s.get("cond_raw"))),
-            Figure("densely sampled max limit ratio", ratio_note(s.get("max_limit_ratio"), *tol)),
-            Figure("binding limit", fmt(s.get("worst_limit"))),
-            Figure("duration", fmt(s["duration_s"], unit="s")),
-            Figure("compute time", fmt(s["seconds"], unit="s")),
+            Figure("cond(W), unit-norm columns", fmt(s.cond), "N = 5, ω_f = 0.8 rad/s, k = 80"),
+            Figure("random feasible Fourier trajectory (median)", fmt(s.baseline_cond)),
+            Figure("cond(W) unnormalised", fmt(s.cond_raw)),
+            Figure("densely sampled max limit ratio", ratio_note(s.max_limit_ratio, *tol)),
+            Figure("binding limit", fmt(s.worst_limit)),
+            Figure("duration", fmt(s.duration_s, unit="s")),
+            Figure("compute time", fmt(s.seconds, unit="s")),
         ],
         image,
     )
@@ -55,9 +59,9 @@ def _per_joint(
     return f"[{text}]" + (f" {unit}" if unit else "")
 
 
-def _cutoff_choice(s: Mapping) -> str:
+def _cutoff_choice(s: DynamicsSummary) -> str:
     """ " (auto: why)" for a cut-off chosen from the data; nothing for one given."""
-    choice = str(s.get("cutoff_choice") or "")
+    choice = str(s.cutoff_choice or "")
     return f" ({choice})" if choice.startswith("auto") else ""
 
 
@@ -103,43 +107,44 @@ def friction_table(friction: Sequence[Mapping]) -> Table | None:
 
 
 def dynamics_section(
-    s: Mapping, image: str | None, parameters: Sequence[Mapping] = (), friction: Sequence[Mapping] = ()
+    s: DynamicsSummary,
+    image: str | None,
+    parameters: Sequence[Mapping] = (),
+    friction: Sequence[Mapping] = (),
 ) -> Section:
     tables = [t for t in (dynamics_parameter_table(parameters), friction_table(friction)) if t]
-    cutoff = s.get("cutoff_hz")
-    rows = s.get("rows_per_parameter")
+    cutoff = s.cutoff_hz
+    rows = s.rows_per_parameter
     return Section(
         "Dynamic identification (paper §4.1, §4.3, Fig. 5b)",
         [
-            Figure(
-                "base parameters (friction model)", f"{s['n_base_params']} ({s.get('friction', 'joint')})"
-            ),
+            Figure("base parameters (friction model)", f"{s.n_base_params} ({s.friction or 'joint'})"),
             Figure(
                 "validation RMS prediction error per joint, moving rows (headline)",
-                _per_joint(s["validation_rms_nm"], unit="N·m"),
+                _per_joint(s.validation_rms_nm, unit="N·m"),
             ),
             Figure(
                 "validation NRMSE per joint",
-                _per_joint(s["validation_nrmse"], 100, "%"),
+                _per_joint(s.validation_nrmse, 100, "%"),
                 "Fig. 5b: close match",
             ),
-            Figure("validation R² per joint", _per_joint(s.get("validation_r2"), decimals=4)),
+            Figure("validation R² per joint", _per_joint(s.validation_r2, decimals=4)),
             Figure(
                 "standstill rows inside the stiction band, per joint",
-                _per_joint(s.get("validation_standstill_in_band_fraction"), none="no standstill"),
+                _per_joint(s.validation_standstill_in_band_fraction, none="no standstill"),
             ),
             Figure(
                 "fit RMS error per joint beside the cross-validated held-out RMS (contiguous folds)",
-                f"{_per_joint(s.get('fit_rms_nm'), unit='N·m')} / "
-                f"{_per_joint(s.get('cv_rms_nm') if s.get('cv_folds_scored') else None, unit='N·m')}",
+                f"{_per_joint(s.fit_rms_nm, unit='N·m')} / "
+                f"{_per_joint(s.cv_rms_nm if s.cv_folds_scored else None, unit='N·m')}",
             ),
             Figure(
                 "low-pass cut-off; fit rows per base parameter",
                 f"{fmt(cutoff, unit='Hz')}{_cutoff_choice(s)}; {fmt(rows)}",
             ),
-            Figure("compute time", fmt(s["seconds"], unit="s")),
+            Figure("compute time", fmt(s.seconds, unit="s")),
         ],
         image,
-        note=f"validated on {s.get('validation', '?')}; a joint that did not move there is not scored.",
+        note=f"validated on {s.validation or '?'}; a joint that did not move there is not scored.",
         tables=tables,
     )

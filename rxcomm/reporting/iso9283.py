@@ -17,7 +17,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from rxcomm.reporting.document import NOT_MEASURED, Section, Table
-from rxcomm.schemas.iso9283 import PATHS, POSE_CRITERIA, POSES
+from rxcomm.schemas.calibration import CalibrationSummary
+from rxcomm.schemas.iso9283 import PATHS, POSE_CRITERIA, POSES, Criterion, Iso9283
+from rxcomm.schemas.run_log import RunLog
 
 ISO_POSE_CYCLES = 30  # ISO 9283 §7.2.1: 30 cycles of the pose test
 ISO_PATH_CYCLES = 10  # §8.2: 10 cycles of each path test
@@ -25,50 +27,48 @@ STATES = (("factory", "factory state"), ("commissioned", "commissioned state"))
 PATH_KEYS = ("AT_p", "RT_p", "AV", "RV", "CO")
 
 
-def _value(c: Mapping | None) -> str:
+def _value(c: Criterion | None) -> str:
     """One criterion's value in the report's units: mm, degrees (the standard's), % of command speed."""
-    if c is None or c.get("value") is None:
+    if c is None or c.value is None:
         return NOT_MEASURED
-    v = float(c["value"])
-    if c["unit"] == "m":
+    v = float(c.value)
+    if c.unit == "m":
         return f"{v * 1e3:.3g} mm"
-    if c["unit"] == "rad":
+    if c.unit == "rad":
         return f"{np.degrees(v):.3g}°"
     return f"{v * 100:.3g} %"
 
 
-def _by(iso: Mapping | None) -> dict[tuple[str, str], Mapping]:
-    return {} if iso is None else {(c["key"], c["target"]): c for c in iso["criteria"]}
+def _by(iso: Iso9283 | None) -> dict[tuple[str, str], Criterion]:
+    return {} if iso is None else {(c.key, c.target): c for c in iso.criteria}
 
 
-def pose_table(state: str, iso: Mapping | None) -> Table:
+def pose_table(state: str, iso: Iso9283 | None) -> Table:
     """P1–P5 × (AP_p, AP_a, AP_b, AP_c, RP_l, RP_a, RP_b, RP_c), with the cycles each rests on."""
     by = _by(iso)
     rows = []
     for p in POSES:
-        cycles = next(
-            (by[k, p]["cycles"] for k in POSE_CRITERIA if (k, p) in by and by[k, p]["cycles"]), None
-        )
+        cycles = next((by[k, p].cycles for k in POSE_CRITERIA if (k, p) in by and by[k, p].cycles), None)
         rows.append([p, *(_value(by.get((k, p))) for k in POSE_CRITERIA), str(cycles or NOT_MEASURED)])
     caption = f"pose accuracy and repeatability (ISO 9283 §7.2), {state}"
     return Table(caption, ["pose", *POSE_CRITERIA, "cycles"], rows)
 
 
-def path_table(state: str, iso: Mapping | None) -> Table:
+def path_table(state: str, iso: Iso9283 | None) -> Table:
     """One row per test path and command speed: AT_p, RT_p, AV, RV, CO (— where the path has no
     corner), with its command speed and cycles."""
     rows = []
     for target in PATHS:
-        crit = [c for c in (iso or {}).get("criteria", []) if c["target"] == target]
-        speeds = sorted({c.get("command_speed_m_per_s") for c in crit}, key=lambda v: -(v or 0.0))
+        crit = [c for c in (iso.criteria if iso else []) if c.target == target]
+        speeds = sorted({c.command_speed_m_per_s for c in crit}, key=lambda v: -(v or 0.0))
         for speed in speeds:
-            by = {c["key"]: c for c in crit if c.get("command_speed_m_per_s") == speed}
+            by = {c.key: c for c in crit if c.command_speed_m_per_s == speed}
             first = next(iter(by.values()))
             rows.append(
                 [
                     target,
                     NOT_MEASURED if speed is None else f"{speed:.3g} m/s",
-                    str(first.get("cycles") or NOT_MEASURED),
+                    str(first.cycles or NOT_MEASURED),
                     *("—" if k not in by else _value(by[k]) for k in PATH_KEYS),
                 ]
             )
@@ -76,27 +76,27 @@ def path_table(state: str, iso: Mapping | None) -> Table:
     return Table(caption, ["path", "command speed", "cycles", *PATH_KEYS], rows)
 
 
-def _tracker(iso: Mapping | None, runs: Mapping[str, Mapping]) -> str:
+def _tracker(iso: Iso9283 | None, runs: Mapping[str, RunLog]) -> str:
     """The tracker the state's logs were measured with: source and rate, from the run logs it names."""
     if iso is None:
         return NOT_MEASURED
-    names = {n for c in iso["criteria"] for n in (c.get("log") or "").split(",") if n}
+    names = {n for c in iso.criteria for n in (c.log or "").split(",") if n}
     seen = set()
     for n in sorted(names):
-        tr = (runs.get(n.removesuffix(".mcap") + ".yaml") or {}).get("tracker")
+        log = runs.get(n.removesuffix(".mcap") + ".yaml")
+        tr = None if log is None else log.tracker
         if tr:
-            seen.add(f"{tr['source']} at {tr['rate_hz']:.4g} Hz")
+            seen.add(f"{tr.source} at {tr.rate_hz:.4g} Hz")
     return "; ".join(sorted(seen)) or NOT_MEASURED
 
 
-def _pose_conditions(iso: Mapping | None) -> tuple[str, str, str]:
+def _pose_conditions(iso: Iso9283 | None) -> tuple[str, str, str]:
     """(cycles, dwell, measuring window) of a state's pose test."""
     if iso is None:
         return NOT_MEASURED, NOT_MEASURED, NOT_MEASURED
-    cycles = [c["cycles"] for c in iso["criteria"] if c["target"] in POSES and c["cycles"]]
-    s = iso.get("summary", {})
-    dwell, window = s.get("pose_dwell_s"), s.get("measuring_window_s")
-    frac = iso.get("settings", {}).get("measure_fraction")
+    cycles = [c.cycles for c in iso.criteria if c.target in POSES and c.cycles]
+    dwell, window = iso.summary.pose_dwell_s, iso.summary.measuring_window_s
+    frac = iso.settings.measure_fraction
     n = NOT_MEASURED if not cycles else f"{min(cycles)} (ISO 9283: {ISO_POSE_CYCLES})"
     d = NOT_MEASURED if not isinstance(dwell, float | int) else f"{dwell:.3g} s"
     w = NOT_MEASURED if not isinstance(window, float | int) else f"{window:.3g} s"
@@ -105,28 +105,22 @@ def _pose_conditions(iso: Mapping | None) -> tuple[str, str, str]:
     return n, d, w
 
 
-def _path_conditions(iso: Mapping | None) -> str:
+def _path_conditions(iso: Iso9283 | None) -> str:
     if iso is None:
         return NOT_MEASURED
     parts = [
-        f"{c['target']} {c['command_speed_m_per_s']:.3g} m/s × {c['cycles']}"
-        for c in iso["criteria"]
-        if c["target"] in PATHS and c["key"] == "AT_p" and c["value"] is not None
+        f"{c.target} {c.command_speed_m_per_s:.3g} m/s × {c.cycles}"
+        for c in iso.criteria
+        if c.target in PATHS and c.key == "AT_p" and c.value is not None
     ]
     return "; ".join(parts) or NOT_MEASURED
 
 
-def reduced(isos: Sequence[Mapping | None]) -> str:
+def reduced(isos: Sequence[Iso9283 | None]) -> str:
     """Which test set this is: the standard's counts, or what a reduced chain left out."""
-    cycles = [
-        c["cycles"] for iso in isos if iso for c in iso["criteria"] if c["cycles"] and c["value"] is not None
-    ]
-    pose = [
-        c["cycles"] for iso in isos if iso for c in iso["criteria"] if c["target"] in POSES and c["cycles"]
-    ]
-    path = [
-        c["cycles"] for iso in isos if iso for c in iso["criteria"] if c["target"] in PATHS and c["cycles"]
-    ]
+    cycles = [c.cycles for iso in isos if iso for c in iso.criteria if c.cycles and c.value is not None]
+    pose = [c.cycles for iso in isos if iso for c in iso.criteria if c.target in POSES and c.cycles]
+    path = [c.cycles for iso in isos if iso for c in iso.criteria if c.target in PATHS and c.cycles]
     if not cycles:
         return "no ISO 9283 test in this build"
     short = []
@@ -136,9 +130,9 @@ def reduced(isos: Sequence[Mapping | None]) -> str:
         short.append(f"{min(path)} path cycles instead of {ISO_PATH_CYCLES}")
     per_path: dict[str, set] = {}
     for iso in isos:
-        for c in (iso or {}).get("criteria", []):
-            if c["target"] in PATHS and c["key"] == "AT_p" and c["value"] is not None:
-                per_path.setdefault(c["target"], set()).add(c["command_speed_m_per_s"])
+        for c in iso.criteria if iso else []:
+            if c.target in PATHS and c.key == "AT_p" and c.value is not None:
+                per_path.setdefault(c.target, set()).add(c.command_speed_m_per_s)
     if any(len(v) < 3 for v in per_path.values()):
         one = sorted(t for t, v in per_path.items() if len(v) < 3)
         short.append(
@@ -152,11 +146,14 @@ def reduced(isos: Sequence[Mapping | None]) -> str:
 
 
 def conditions_table(
-    factory: Mapping | None, commissioned: Mapping | None, runs: Mapping, cal: Mapping | None
+    factory: Iso9283 | None,
+    commissioned: Iso9283 | None,
+    runs: Mapping[str, RunLog],
+    cal: CalibrationSummary | None,
 ) -> Table:
     """The test conditions ISO 9283 asks a report to state, per state."""
     f_pose, c_pose = _pose_conditions(factory), _pose_conditions(commissioned)
-    sigma = (cal or {}).get("tracker_position_sigma_m")
+    sigma = None if cal is None else cal.tracker_position_sigma_m
     noise = NOT_MEASURED if sigma is None else f"{sigma * 1e6:.3g} µm per axis (1σ, the calibration's)"
     load = "none mounted: 0 % of the rated load (the simulated cell carries no payload)"
     rows = [
@@ -177,10 +174,10 @@ def conditions_table(
 
 
 def iso9283_sections(
-    factory: Mapping | None,
-    commissioned: Mapping | None,
-    runs: Mapping[str, Mapping] | None = None,
-    calibration_summary: Mapping | None = None,
+    factory: Iso9283 | None,
+    commissioned: Iso9283 | None,
+    runs: Mapping[str, RunLog] | None = None,
+    calibration_summary: CalibrationSummary | None = None,
 ) -> list[Section]:
     """The ISO 9283 section of the report: conditions, then the pose and path tables of each state."""
     tables = [conditions_table(factory, commissioned, runs or {}, calibration_summary)]

@@ -18,11 +18,13 @@ from rxcomm.reporting.document import (
     ratio_note,
 )
 from rxcomm.reporting.values import fmt
+from rxcomm.schemas.run_log import RunLog, RunLogSummary
+from rxcomm.schemas.trajectory import TrajectoryFigures
 
 LIMITS = ("position", "velocity", "acceleration", "torque", "torque_rate")
 
 
-def ran_on(runs: Mapping[str, Mapping]) -> str:
+def ran_on(runs: Mapping[str, RunLog]) -> str:
     """What the run logs say they ran on (their `embedded_cell`, the plant in their settings, and
     `gateway`): the simulated cell `run` started itself, per plant where a log names it (older logs
     do not), and/or the gateways by address (a real cell, or a `rxcomm cell-sim` served apart: the
@@ -32,12 +34,12 @@ def ran_on(runs: Mapping[str, Mapping]) -> str:
     cells: dict[str, int] = {}
     gateways: dict[str, int] = {}
     for r in runs.values():
-        if r.get("embedded_cell"):
-            plant = (r.get("settings") or {}).get("plant")
+        if r.embedded_cell:
+            plant = (r.settings or {}).get("plant")
             key = "" if plant is None else f", {PLANT_NAMES.get(plant, plant)} plant"
             cells[key] = cells.get(key, 0) + 1
         else:
-            gateways[str(r.get("gateway"))] = gateways.get(str(r.get("gateway")), 0) + 1
+            gateways[str(r.gateway)] = gateways.get(str(r.gateway), 0) + 1
     n_runs = len(runs)
     parts = [
         f"the simulated cell `run` started itself{k} ({n} of {n_runs} run logs)"
@@ -51,48 +53,54 @@ PLANT_NAMES = {"own": "rxcomm's own", "mujoco": "MuJoCo"}  # the embedded cell's
 
 
 def trajectory_section(
-    title: str, s: Mapping, image: str | None, paper_duration: str, tol: Tolerance = DEFAULT_TOLERANCE
+    title: str,
+    s: TrajectoryFigures,
+    image: str | None,
+    paper_duration: str,
+    tol: Tolerance = DEFAULT_TOLERANCE,
 ) -> Section:
     per_limit = ", ".join(
-        f"{k.replace('_', ' ')} {s[f'max_{k}_ratio']:.4f}" for k in LIMITS if f"max_{k}_ratio" in s
+        f"{k.replace('_', ' ')} {getattr(s, f'max_{k}_ratio'):.4f}"
+        for k in LIMITS
+        if getattr(s, f"max_{k}_ratio") is not None
     )
     return Section(
         title,
         [
-            Figure("duration", fmt(s["duration_s"], digits=4, unit="s"), paper_duration),
-            Figure("max limit ratio, sampled at the drive cycle", ratio_note(s["max_limit_ratio"], *tol)),
+            Figure("duration", fmt(s.duration_s, digits=4, unit="s"), paper_duration),
+            Figure("max limit ratio, sampled at the drive cycle", ratio_note(s.max_limit_ratio, *tol)),
             Figure("max ratio per limit", per_limit or NOT_MEASURED),
-            Figure("binding limit", fmt(s.get("worst_limit"))),
-            Figure("fraction of time with a limit active", fmt(s["active_fraction"]), "≈ 1 (time-optimal)"),
-            Figure("solve time", fmt(s["solve_seconds"], unit="s")),
+            Figure("binding limit", fmt(s.worst_limit)),
+            Figure("fraction of time with a limit active", fmt(s.active_fraction), "≈ 1 (time-optimal)"),
+            Figure("solve time", fmt(s.solve_seconds, unit="s")),
         ],
         image,
     )
 
 
-def ptp_vs_cp_figure(cp: Mapping, ptp: Mapping) -> Figure:
+def ptp_vs_cp_figure(cp: TrajectoryFigures, ptp: TrajectoryFigures) -> Figure:
     return Figure(
         "PtP / CP duration between the same end states",
-        fmt(ptp["duration_s"] / cp["duration_s"]),
+        fmt(ptp.duration_s / cp.duration_s),
         "0.67 s / 1.04 s = 0.64",
     )
 
 
-def execution_section(ff: Mapping, noff: Mapping | None, image: str | None) -> Section:
+def execution_section(ff: RunLogSummary, noff: RunLogSummary | None, image: str | None) -> Section:
     figs = [
-        Figure("max joint lag with feed-forward", fmt(ff["max_lag_rad"], 1e3, unit="mrad")),
-        Figure("max TCP error with feed-forward", fmt(ff["max_tcp_error_m"], 1e3, unit="mm")),
-        Figure("underruns", fmt(ff["underruns"])),
-        Figure("min buffered lead while feeding", fmt(ff.get("min_lead_s"), unit="s")),
-        Figure("cell cycle overruns", fmt(ff.get("cell_overruns"))),
+        Figure("max joint lag with feed-forward", fmt(ff.max_lag_rad, 1e3, unit="mrad")),
+        Figure("max TCP error with feed-forward", fmt(ff.max_tcp_error_m, 1e3, unit="mm")),
+        Figure("underruns", fmt(ff.underruns)),
+        Figure("min buffered lead while feeding", fmt(ff.min_lead_s, unit="s")),
+        Figure("cell cycle overruns", fmt(ff.cell_overruns)),
     ]
     if noff is not None:
         figs += [
-            Figure("max joint lag without feed-forward", fmt(noff["max_lag_rad"], 1e3, unit="mrad")),
-            Figure("max TCP error without feed-forward", fmt(noff["max_tcp_error_m"], 1e3, unit="mm")),
+            Figure("max joint lag without feed-forward", fmt(noff.max_lag_rad, 1e3, unit="mrad")),
+            Figure("max TCP error without feed-forward", fmt(noff.max_tcp_error_m, 1e3, unit="mm")),
             Figure(
                 "lag reduction by feed-forward (worst joint)",
-                f"×{max(noff['max_lag_rad']) / max(ff['max_lag_rad']):.1f}",
+                f"×{max(noff.max_lag_rad) / max(ff.max_lag_rad):.1f}",
                 "Fig. 2: model-based ≪ standard",
             ),
         ]
@@ -103,24 +111,24 @@ def _worst(values: Sequence[float] | None, scale: float) -> str:
     return NOT_MEASURED if not values else f"{max(values) * scale:.3g}"
 
 
-def runs_section(runs: Mapping[str, Mapping], images: Sequence[str]) -> Section:
+def runs_section(runs: Mapping[str, RunLog], images: Sequence[str]) -> Section:
     """Every executed run of the build (run log name → its RunLog artefact), one row each."""
     header = ["run log", "feed-forward", "outcome", "duration [s]", "max lag, worst joint [mrad]"]
     header += ["rms lag, worst joint [mrad]", "max TCP error [mm]", "underruns", "min lead [s]"]
     rows = []
     for name, art in runs.items():
-        s = art["summary"]
+        s = art.summary
         rows.append(
             [
                 name,
-                str(art.get("feedforward", NOT_MEASURED)),
-                fmt(s.get("outcome")) + (f" ({s['stop_reason']})" if s.get("stop_reason") else ""),
-                fmt(s["duration_s"], digits=4),
-                _worst(s["max_lag_rad"], 1e3),
-                _worst(s["rms_lag_rad"], 1e3),
-                fmt(s["max_tcp_error_m"], 1e3),
-                fmt(s["underruns"]),
-                fmt(s.get("min_lead_s")),
+                str(art.feedforward),
+                fmt(s.outcome) + (f" ({s.stop_reason})" if s.stop_reason else ""),
+                fmt(s.duration_s, digits=4),
+                _worst(s.max_lag_rad, 1e3),
+                _worst(s.rms_lag_rad, 1e3),
+                fmt(s.max_tcp_error_m, 1e3),
+                fmt(s.underruns),
+                fmt(s.min_lead_s),
             ]
         )
     return Section(
@@ -144,19 +152,19 @@ TASK_RUNS = {
 }
 
 
-def energy_section(runs: Mapping[str, Mapping]) -> Section:
+def energy_section(runs: Mapping[str, RunLog]) -> Section:
     """The reference task's cycle time and electrical energy (bus, `model.energy`) and ∫τᵀτ in each
     state: the commissioned time–energy points with the factory's beside them (issue 29). A state
     whose runs the build lacks is "not measured"."""
     rows = []
     for what, names in TASK_RUNS.items():
-        got = [runs.get(n, {}).get("summary") for n in names]
-        if not all(got) or any(g.get("outcome") != "completed" for g in got):
+        got = [runs[n].summary for n in names if n in runs]
+        if len(got) < len(names) or any(g.outcome != "completed" for g in got):
             rows.append([what, NOT_MEASURED, NOT_MEASURED, NOT_MEASURED])
             continue
-        t = sum(g["duration_s"] for g in got)
-        e = [g.get("electrical_energy_j") for g in got]
-        tau2 = sum(g["tau_squared_integral_nm2_s"] for g in got)
+        t = sum(g.duration_s for g in got)
+        e = [g.electrical_energy_j for g in got]
+        tau2 = sum(g.tau_squared_integral_nm2_s for g in got)
         rows.append(
             [what, fmt(t, digits=4, unit="s"), fmt(None if None in e else sum(e), digits=4, unit="J"),
              fmt(tau2, digits=4, unit="N²·m²·s")]

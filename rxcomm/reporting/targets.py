@@ -10,6 +10,7 @@ Inputs are artefact summaries (plain mappings); None is a stage the build lacks,
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from pydantic import Field
@@ -23,7 +24,10 @@ from rxcomm.reporting.document import (
     VerdictRow,
     ratio_verdict,
 )
-from rxcomm.schemas.acceptance import VerdictRow as AcceptanceRow
+from rxcomm.schemas.acceptance import Acceptance
+from rxcomm.schemas.calibration import CalibrationSummary
+from rxcomm.schemas.dynamics import DynamicsSummary
+from rxcomm.schemas.run_log import RunLog, RunLogSummary
 from rxcomm.schemas.strict import Strict
 
 
@@ -47,13 +51,12 @@ def _at_most(criterion: str, value: float | None, target: float, scale: float, u
     return VerdictRow(criterion, f"{value * scale:.3g} {unit}", threshold, verdict, note)
 
 
-def calibration_rows(s: Mapping | None, t: StageTargets) -> list[VerdictRow]:
-    s = s or {}
-    ori = s.get("heldout_max_orientation_error_rad")
+def calibration_rows(s: CalibrationSummary | None, t: StageTargets) -> list[VerdictRow]:
+    ori = None if s is None else s.heldout_max_orientation_error_rad
     return [
         _at_most(
             "calibration: held-out max position error",
-            s.get("heldout_max_position_error_m"),
+            None if s is None else s.heldout_max_position_error_m,
             t.heldout_max_position_error_m,
             1e3,
             "mm",
@@ -68,37 +71,37 @@ def calibration_rows(s: Mapping | None, t: StageTargets) -> list[VerdictRow]:
     ]
 
 
-def identification_row(s: Mapping | None, t: StageTargets) -> VerdictRow:
+def identification_row(s: DynamicsSummary | None, t: StageTargets) -> VerdictRow:
     criterion, threshold = "identification: validation R², worst moving joint", f"≥ {t.validation_r2_min:g}"
-    scored = [r for r in (s or {}).get("validation_r2") or [] if r is not None]
+    scored = [r for r in (s.validation_r2 if s else None) or [] if r is not None]
     if not scored:
         return VerdictRow(criterion, NOT_MEASURED, threshold, Verdict.not_measured)
     worst = min(scored)
     ok = worst >= t.validation_r2_min
-    n = len((s or {})["validation_r2"])
+    n = len(s.validation_r2)
     note = f"{len(scored)} of {n} joints moved on the validation data"
     return VerdictRow(criterion, f"{worst:.4f}", threshold, Verdict.passed if ok else Verdict.failed, note)
 
 
-def feedforward_row(ff: Mapping | None, noff: Mapping | None, t: StageTargets) -> VerdictRow:
+def feedforward_row(ff: RunLogSummary | None, noff: RunLogSummary | None, t: StageTargets) -> VerdictRow:
     criterion = "execution: max joint lag without / with feed-forward (worst joint)"
     threshold = f"≥ ×{t.lag_reduction_min:g}"
     if ff is None or noff is None:
         return VerdictRow(criterion, NOT_MEASURED, threshold, Verdict.not_measured)
-    with_ff, without = max(ff["max_lag_rad"]), max(noff["max_lag_rad"])
+    with_ff, without = max(ff.max_lag_rad), max(noff.max_lag_rad)
     ratio = without / with_ff
     ok = ratio >= t.lag_reduction_min
     note = f"{without * 1e3:.3g} → {with_ff * 1e3:.3g} mrad"
     return VerdictRow(criterion, f"×{ratio:.1f}", threshold, Verdict.passed if ok else Verdict.failed, note)
 
 
-def runs_row(runs: Mapping[str, Mapping]) -> VerdictRow:
+def runs_row(runs: Mapping[str, RunLog]) -> VerdictRow:
     criterion, threshold = "every run completed, no setpoint underrun", "all completed, 0 underruns"
     if not runs:
         return VerdictRow(criterion, NOT_MEASURED, threshold, Verdict.not_measured)
-    done = [n for n, a in runs.items() if a["summary"].get("outcome") == "completed"]
+    done = [n for n, a in runs.items() if a.summary.outcome == "completed"]
     # a run in virtual time has no deadline to miss: its underruns are a string saying so, not 0
-    counted = {n: a["summary"]["underruns"] for n, a in runs.items()}
+    counted = {n: a.summary.underruns for n, a in runs.items()}
     counted = {n: u for n, u in counted.items() if isinstance(u, int | float)}
     underruns = int(sum(counted.values()))
     ok = len(done) == len(runs) and underruns == 0
@@ -118,8 +121,8 @@ def runs_row(runs: Mapping[str, Mapping]) -> VerdictRow:
 
 
 def stage_verdicts(
-    summaries: Mapping[str, Mapping | None],
-    runs: Mapping[str, Mapping],
+    summaries: Mapping[str, Any],
+    runs: Mapping[str, RunLog],
     tolerances: Mapping[str, Tolerance] | None = None,
     targets: StageTargets | None = None,
 ) -> list[VerdictRow]:
@@ -130,7 +133,7 @@ def stage_verdicts(
 
     def plan(key: str, what: str) -> VerdictRow:
         s = summaries.get(key)
-        ratio = None if s is None else s.get("max_limit_ratio")
+        ratio = None if s is None else s.max_limit_ratio
         return ratio_verdict(f"{what}: max limit ratio", ratio, *tol.get(key, DEFAULT_TOLERANCE))
 
     return [
@@ -153,12 +156,12 @@ def verdict_note(rows: Sequence[VerdictRow], what: str = "criteria") -> str:
     )
 
 
-def headline(acceptance: Mapping | None) -> str:
+def headline(acceptance: Acceptance | None) -> str:
     """The report's first line: the verdict of an `rxcomm/Acceptance` artefact (plain data) as
     `rxcomm accept` prints it; a build without one is not accepted, and says why."""
     if acceptance is None:
         return f"{NOT_ACCEPTED} — not measured: no verdict.yaml in this build (`rxcomm accept`)"
-    return verdict_line([AcceptanceRow.model_validate(r) for r in acceptance["rows"]])
+    return verdict_line([r for r in acceptance.rows])
 
 
 def _accept_value(x: float | None, unit: str) -> str:
@@ -173,7 +176,7 @@ def _accept_value(x: float | None, unit: str) -> str:
 ACCEPT_VERDICT = {"PASS": Verdict.passed, "FAIL": Verdict.failed, "not measured": Verdict.not_measured}
 
 
-def acceptance_verdict(acceptance: Mapping | None) -> list[VerdictRow]:
+def acceptance_verdict(acceptance: Acceptance | None) -> list[VerdictRow]:
     """The verdict rows of an `rxcomm/Acceptance` artefact (`rxcomm accept`, plain data): factory,
     commissioned, ratio, threshold per criterion; one "not measured" row when the build has none."""
     if acceptance is None:
@@ -184,20 +187,18 @@ def acceptance_verdict(acceptance: Mapping | None) -> list[VerdictRow]:
             )
         ]  # fmt: skip
     out = []
-    for r in acceptance["rows"]:
-        bounds = (
-            [] if r["max_commissioned"] is None else [f"≤ {_accept_value(r['max_commissioned'], r['unit'])}"]
-        )
-        bounds += [] if r["max_ratio"] is None else [f"ratio ≤ {r['max_ratio']:g}"]
+    for r in acceptance.rows:
+        bounds = [] if r.max_commissioned is None else [f"≤ {_accept_value(r.max_commissioned, r.unit)}"]
+        bounds += [] if r.max_ratio is None else [f"ratio ≤ {r.max_ratio:g}"]
         out.append(
             VerdictRow(
-                criterion=r["criterion"],
-                measured=_accept_value(r["commissioned"], r["unit"]),
+                criterion=r.criterion,
+                measured=_accept_value(r.commissioned, r.unit),
                 threshold=", ".join(bounds),
-                verdict=ACCEPT_VERDICT[r["verdict"]],
-                note=r["note"],
-                factory=_accept_value(r["factory"], r["unit"]),
-                ratio="—" if r["ratio"] is None else f"{r['ratio']:.3g}",
+                verdict=ACCEPT_VERDICT[r.verdict],
+                note=r.note,
+                factory=_accept_value(r.factory, r.unit),
+                ratio="—" if r.ratio is None else f"{r.ratio:.3g}",
             )
         )
     return out

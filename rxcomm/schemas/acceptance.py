@@ -103,11 +103,32 @@ class VerdictRow(Strict):
     note: str = Field("", description="why not measured, or what the value rests on")
 
 
+class AcceptanceSettings(Strict):
+    """The run logs the verdict was taken from (file names)."""
+
+    factory_logs: list[str] = []
+    commissioned_logs: list[str] = []
+    commissioned_equal_time_logs: list[str] = []
+
+
+class AcceptanceSummary(Strict):
+    """What a rxcomm/Acceptance summary holds (units in the names; None: not measured)."""
+
+    verdict: str
+    accepted: bool | None = None
+    verdict_line: str | None = None
+    n_criteria: int | None = None
+    n_pass: int
+    n_fail: int
+    n_not_measured: int
+
+
 class Acceptance(Artefact):
     """Factory vs commissioned, criterion by criterion, with the verdict."""
 
     KIND = "rxcomm/Acceptance"
     SCHEMA_VERSION = 1
-    REQUIRED_SUMMARY_KEYS = ("verdict", "n_pass", "n_fail", "n_not_measured")
+    settings: AcceptanceSettings
+    summary: AcceptanceSummary
 
     rows: list[VerdictRow]

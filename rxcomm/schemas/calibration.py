@@ -117,20 +117,104 @@ class ComplianceEstimate(Strict):
     stiffness_nm_per_rad: float | None = Field(description="1 / compliance; None when not positive")
 
 
+class CalibrateSettings(Strict):
+    """Options of `calibrate` (the stage's settings, recorded in the artefact)."""
+
+    holdout_fraction: float | None = Field(
+        None,
+        ge=0.0,
+        lt=1.0,
+        description="fraction of the fit-role poses held out (seeded); default 0 if the file has "
+        "validation poses, else 0.25",
+    )
+    seed: int = 0
+    loss: Literal["linear", "soft_l1", "huber", "cauchy"] = Field(
+        "linear", description="robust loss on the weighted residuals (scale 3σ); linear = plain LM"
+    )
+    outlier_sigma: float = Field(
+        5.0, gt=0, description="flag a pose with a residual beyond this many robust σ"
+    )
+    drop_outliers: bool = True
+    position_sigma_m: float | None = Field(
+        None, gt=0, description="tracker position noise (1σ, m); default the file's, else estimated"
+    )
+    orientation_sigma_rad: float | None = Field(
+        None, gt=0, description="tracker orientation noise (1σ, rad); default the file's, else estimated"
+    )
+    point_in_tcp_m: tuple[float, float, float] | None = Field(
+        None, description="measured point in the TCP frame (position-only probes); default the TCP origin"
+    )
+    max_iterations: int = Field(100, ge=1)
+    cv_folds: int = Field(5, ge=2, description="folds of the cross-validation that chooses the model")
+    model: Literal["auto", "frames", "offsets", "full", "full+compliance"] = Field(
+        "auto", description="error model; auto: the richest model offered, regularised by the priors"
+    )
+    regularise: bool = Field(
+        True,
+        description="priors from manufacturing tolerances on the joint errors (calibration.priors): "
+        "few noisy poses shrink toward the frames-only answer",
+    )
+    compliance: bool = Field(True, description="offer joint-compliance candidates to the model selection")
+    undetermined_std_ratio: float = Field(
+        5.0,
+        gt=0,
+        description="name a parameter whose σ at the TCP (m; rad × reach) exceeds this many position σ",
+    )
+
+
+class CalibrationSummary(Strict):
+    """What a rxcomm/Calibration summary holds (units in the names; None: not measured)."""
+
+    n_identifiable: int
+    fit_max_position_error_m: float | None = Field(description="required; None: not measured")
+    fit_max_orientation_error_rad: float | None = None
+    heldout_max_position_error_m: float | None = Field(description="required; None: not measured")
+    heldout_max_orientation_error_rad: float | None = Field(description="required; None: not measured")
+    nominal_heldout_max_position_error_m: float | None = Field(description="required; None: not measured")
+    nominal_heldout_max_orientation_error_rad: float | None = None
+    frames_only_heldout_max_position_error_m: float | None = Field(description="required; None: not measured")
+    frames_only_heldout_max_orientation_error_rad: float | None = None
+    nominal_fit_max_position_error_m: float | None = None
+    rigid_heldout_max_position_error_m: float | None = None
+    model: str
+    tracker_position_sigma_m: float | None = Field(description="required; None: not measured")
+    tracker_orientation_sigma_rad: float | None = None
+    tracker_sigma_source: str | None = None
+    n_undetermined: int | None = None
+    compliance_torque_model: str | None = None
+    heldout_rms_position_error_m: float | None = None
+    n_fit: int | None = None
+    n_heldout: int | None = None
+    n_outliers: int | None = None
+    residual_scale: float | None = None
+    jacobian_cond: float | None = None
+    function_evaluations: int | None = None
+    seconds: float | None = Field(description="required; None: not measured")
+    cv_rms_position_error_frames_m: float | None = None
+    cv_rms_position_error_offsets_m: float | None = None
+    cv_rms_position_error_full_m: float | None = None
+    cv_rms_position_error_full_compliance_m: float | None = None
+    n_baseline_poses: int | None = None
+    baseline_poses_heldout_max_position_error_m: float | None = None
+    baseline_poses_heldout_max_orientation_error_rad: float | None = None
+    baseline_poses_heldout_rms_position_error_m: float | None = None
+    baseline_poses_worse_p_value: float | None = None
+    baseline_poses_median_std_ratio: float | None = None
+    mdh_max_position_residual_m: float | None = None
+    mdh_max_orientation_residual_rad: float | None = None
+    mdh_beta_max_position_residual_m: float | None = None
+    mdh_beta_max_orientation_residual_rad: float | None = None
+    stiffness_nm_per_rad: dict[str, float | None] = Field(
+        {}, description="joint name -> fitted stiffness, N·m/rad (None: not positive)"
+    )
+    stiffness_std_nm_per_rad: dict[str, float | None] = Field({}, description="joint name -> its 1σ, N·m/rad")
+
+
 class Calibration(Artefact):
     KIND = "rxcomm/Calibration"
     SCHEMA_VERSION = 2
-    REQUIRED_SUMMARY_KEYS = (
-        "n_identifiable",
-        "fit_max_position_error_m",
-        "heldout_max_position_error_m",
-        "heldout_max_orientation_error_rad",
-        "nominal_heldout_max_position_error_m",
-        "frames_only_heldout_max_position_error_m",
-        "tracker_position_sigma_m",
-        "model",
-        "seconds",
-    )
+    settings: CalibrateSettings
+    summary: CalibrationSummary
 
     robot: str
     joint_names: list[str]

@@ -37,17 +37,58 @@ class ConfigPose(Strict):
     )
 
 
+class ConfigsSettings(Strict):
+    """Options of `select-configs` (recorded as used)."""
+
+    n: int = Field(description="poses selected")
+    intervals: int = Field(description="grid intervals per joint of the candidate grid")
+    max_candidates: int = Field(description="candidates kept from the grid (0: all)")
+    criterion: Literal["min-eig", "det-root", "cond"]
+    restarts: int
+    n_validation: int = Field(description="held-out validation poses added")
+    seed: int
+    measure_baseline: bool = Field(description="the linear-scan baseline poses are measured too")
+
+
+class ConfigsSummary(Strict):
+    """What a rxcomm/Configs summary holds (units in the names; None: not measured)."""
+
+    n_candidates: int
+    n_selected: int
+    observation_index: float | None = Field(description="required; None: not measured")
+    baseline_observation_index: float | None = Field(description="required; None: not measured")
+    improvement_ratio: float | None = Field(description="required; None: not measured")
+    min_eig_improvement_ratio: float | None = None
+    expected_position_error_m: float | None = None
+    baseline_expected_position_error_m: float | None = None
+    evenly_spaced_expected_position_error_m: float | None = None
+    expected_orientation_error_rad: float | None = None
+    baseline_expected_orientation_error_rad: float | None = None
+    evenly_spaced_expected_orientation_error_rad: float | None = None
+    evenly_spaced_observation_index: float | None = None
+    evenly_spaced_improvement_ratio: float | None = None
+    seconds: float | None = Field(description="required; None: not measured")
+    n_baseline: int | None = None
+    n_validation: int | None = None
+    n_grid: int | None = None
+    n_feasible: int | None = None
+    n_identifiable: int | None = None
+    restart_indices: list[float | None] | None = None
+    grid_seconds: float | None = None
+    selection_seconds: float | None = None
+    rejected_workspace: int | None = None
+    rejected_self_collision: int | None = None
+    rejected_tracker_range: int | None = None
+    rejected_tracker_cone: int | None = None
+    rejected_probe_facing: int | None = None
+    rejected_joint_limits: int | None = None
+
+
 class Configs(Artefact):
     KIND = "rxcomm/Configs"
     SCHEMA_VERSION = 2
-    REQUIRED_SUMMARY_KEYS = (
-        "n_candidates",
-        "n_selected",
-        "observation_index",
-        "baseline_observation_index",
-        "improvement_ratio",
-        "seconds",
-    )
+    settings: ConfigsSettings
+    summary: ConfigsSummary
 
     robot: str
     joint_names: list[str]

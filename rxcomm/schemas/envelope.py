@@ -1,19 +1,23 @@
 """The artefact envelope every rxcomm artefact carries (architecture §3).
 
 Subclasses are the artefacts of the stages. They set ``KIND`` (``"rxcomm/Calibration"``) and
-``SCHEMA_VERSION``, optionally ``REQUIRED_SUMMARY_KEYS`` (class variables, declared here once: a
-subclass assigns them without annotation, as it does ``model_config``), and add their data fields
+``SCHEMA_VERSION`` (class variables, declared here once: a subclass assigns them without annotation,
+as it does ``model_config``), narrow ``summary`` and ``settings`` to their own models (`Strict`:
+an unknown or renamed key is an error naming it; units in the field names; an optional field is
+None when not measured, and an older file without it still reads), and add their data fields
 after the envelope fields::
 
     class Calibration(Artefact):
         KIND = "rxcomm/Calibration"
         SCHEMA_VERSION = 1
-        REQUIRED_SUMMARY_KEYS = ("n_identifiable", "seconds")
+        settings: CalibrateSettings
+        summary: CalibrationSummary
         params_m: list[float]
 
     cal = Calibration(**Calibration.envelope({"robot": urdf_path}, settings, summary), params_m=[...])
 
-The bare ``Artefact`` (no ``KIND``) validates the envelope fields of any kind; the MCAP reader uses it.
+A kind that leaves ``summary`` or ``settings`` a dict is refused when its class is defined. The bare
+``Artefact`` (no ``KIND``) validates the envelope fields of any kind; the MCAP reader uses it.
 The summary YAML beside an MCAP (a trajectory, a run log) derives from ``McapSummary``, which adds the
 MCAP's file name and hash after the envelope. A base of kinds that is no kind itself says
 ``__abstract__ = True``.
@@ -23,7 +27,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any, ClassVar
+from typing import Annotated, Any, ClassVar, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
 
@@ -46,14 +50,20 @@ ENVELOPE_FIELDS = (
 
 
 def _schema_extra(schema: dict[str, Any], cls: type) -> None:
-    """Pin ``kind``/``schema_version`` and the required summary keys in the generated JSON Schema."""
+    """Pin ``kind``/``schema_version`` in the generated JSON Schema."""
     props = schema.get("properties", {})
     if kind := getattr(cls, "KIND", None):
         props["kind"]["const"] = kind
     if (version := getattr(cls, "SCHEMA_VERSION", None)) is not None:
         props["schema_version"]["const"] = version
-    if keys := getattr(cls, "REQUIRED_SUMMARY_KEYS", ()):
-        props["summary"]["required"] = list(keys)
+
+
+def _is_model(annotation: Any) -> bool:
+    """A pydantic model, or a union of them (a kind written by several stages)."""
+    if isinstance(annotation, type):
+        return issubclass(annotation, BaseModel)
+    args = get_args(annotation)
+    return bool(args) and all(_is_model(a) for a in args)
 
 
 class Artefact(BaseModel):
@@ -63,7 +73,9 @@ class Artefact(BaseModel):
 
     KIND: ClassVar[str]
     SCHEMA_VERSION: ClassVar[int]
-    REQUIRED_SUMMARY_KEYS: ClassVar[tuple[str, ...]] = ()
+    # A kind whose settings are still recorded as a plain mapping (issue 28's remaining debt); its
+    # summary is typed all the same.
+    SETTINGS_UNTYPED: ClassVar[bool] = False
 
     kind: str
     schema_version: int
@@ -76,6 +88,7 @@ class Artefact(BaseModel):
         "(rxcomm/code_identity.py)",
     )
     inputs: dict[str, Sha256Hex]
+    # The bare envelope (any kind) only: every kind narrows both to its models.
     settings: dict[str, Any]
     summary: dict[str, SummaryValue]
 
@@ -88,6 +101,9 @@ class Artefact(BaseModel):
             getattr(cls, "SCHEMA_VERSION", None), int
         ):
             raise TypeError(f"{cls.__name__} must set KIND (a str) and SCHEMA_VERSION (an int)")
+        for name in ("summary",) if cls.SETTINGS_UNTYPED else ("summary", "settings"):
+            if not _is_model(cls.model_fields[name].annotation):
+                raise TypeError(f"{cls.__name__}.{name} must be a pydantic model (units in its field names)")
 
     @model_validator(mode="before")
     @classmethod
@@ -118,19 +134,12 @@ class Artefact(BaseModel):
             raise ValueError("created must carry a time zone (UTC, e.g. 2025-01-31T12:00:00Z)")
         return v.astimezone(UTC)
 
-    @field_validator("summary")
-    @classmethod
-    def _required_summary(cls, v: dict[str, SummaryValue]) -> dict[str, SummaryValue]:
-        if missing := [k for k in cls.REQUIRED_SUMMARY_KEYS if k not in v]:
-            raise ValueError(f"summary misses required keys {missing}")
-        return v
-
     @classmethod
     def envelope(
         cls,
         inputs: dict[str, str | Path],
         settings: BaseModel | dict[str, Any] | None = None,
-        summary: dict[str, Any] | None = None,
+        summary: BaseModel | dict[str, Any] | None = None,
     ) -> dict[str, Any]:
         """Envelope fields for a new artefact of this class: hashes ``inputs`` (name -> file path),
         dumps ``settings`` as JSON-able, stamps ``created`` (UTC, now), ``rxcomm.__version__`` and the
@@ -147,7 +156,9 @@ class Artefact(BaseModel):
             "code_identity": code_identity(),
             "inputs": {name: sha256_file(p) for name, p in inputs.items()},
             "settings": settings_d,
-            "summary": to_plain(dict(summary or {})),
+            "summary": summary.model_dump(mode="json")
+            if isinstance(summary, BaseModel)
+            else to_plain(dict(summary or {})),
         }
 
     def envelope_dict(self) -> dict[str, Any]:

@@ -81,17 +81,27 @@ class ExcitationStart(Strict):
     seconds: float
 
 
+class ExcitationSummary(Strict):
+    """What a rxcomm/Excitation summary holds (units in the names; None: not measured)."""
+
+    cond: float | None = Field(description="required; None: not measured")
+    cond_raw: float | None = Field(description="required; None: not measured")
+    baseline_cond: float | None = Field(description="required; None: not measured")
+    duration_s: float
+    seconds: float | None = Field(description="required; None: not measured")
+    max_limit_ratio: float | None = Field(description="required; None: not measured")
+    cond_dense: float | None = None
+    improvement_ratio: float | None = None
+    worst_limit: str | None = None
+    n_base_params: int | None = None
+    starts_feasible: int | None = None
+
+
 class Excitation(Artefact):
     KIND = "rxcomm/Excitation"
     SCHEMA_VERSION = 1
-    REQUIRED_SUMMARY_KEYS = (
-        "cond",
-        "cond_raw",
-        "baseline_cond",
-        "duration_s",
-        "seconds",
-        "max_limit_ratio",
-    )
+    settings: ExcitationSettings
+    summary: ExcitationSummary
 
     robot: str = Field(description="robot name (URDF)")
     robot_joints: list[str]

@@ -83,12 +83,45 @@ class BaseFrame(Strict):
     )
 
 
+class EvaluationSettings(Strict):
+    """How attained poses and paths are taken from the logs for the ISO 9283 criteria (not to be confused
+    with `rxcomm.execution.campaign.CampaignSettings`, how a pose campaign is measured)."""
+
+    min_dwell_s: float = Field(0.2, gt=0, description="a dwell: zero commanded velocity at least this, s")
+    measure_fraction: float = Field(
+        0.5, gt=0, le=1, description="the attained pose: mean of the dwell's last fraction of samples"
+    )
+    match_m: float = Field(0.02, gt=0, description="a dwell is at Pi when its command TCP is this near, m")
+    n_points: int = Field(200, ge=10, description="command points along a path (normal planes)")
+    corner_zone_m: float = Field(0.1, gt=0, description="corner overshoot zone after each corner, m")
+    velocity_window_s: float = Field(0.01, gt=0, description="tracker speed: central difference ±, s")
+    skip_first_dwell: bool = Field(
+        True, description="the plan's first dwell (at P1, before cycle 1) is the start, not a cycle"
+    )
+
+
+class Iso9283Settings(EvaluationSettings):
+    """The evaluation settings as recorded, with the test paths' directory."""
+
+    paths: str = Field(description="the directory of the ISO 9283 test paths (`rxcomm plan-cp --iso9283`)")
+
+
+class Iso9283Summary(Strict):
+    """What a rxcomm/Iso9283 summary holds (units in the names; None: not measured)."""
+
+    n_criteria: int
+    n_measured: int
+    pose_dwell_s: float | None = None
+    measuring_window_s: float | None = None
+
+
 class Iso9283(Artefact):
     """ISO 9283 criteria measured by the tracker on one state of the robot."""
 
     KIND = "rxcomm/Iso9283"
     SCHEMA_VERSION = 1
-    REQUIRED_SUMMARY_KEYS = ("n_criteria", "n_measured")
+    settings: Iso9283Settings
+    summary: Iso9283Summary
 
     robot: str
     cube: CubeDefinition

@@ -45,14 +45,30 @@ class ZeroOffset(Strict):
     note: str | None = None
 
 
+class KinematicsSettings(Strict):
+    """How the MDH forms were fitted and checked."""
+
+    fit_poses: int
+    check_poses: int
+    seed: int
+    length_m: float = Field(description="characteristic length weighing orientation against position, m")
+
+
+class KinematicsSummary(Strict):
+    """What a rxcomm/Kinematics summary holds (units in the names; None: not measured)."""
+
+    mdh_max_position_residual_m: float | None = Field(description="required; None: not measured")
+    mdh_max_orientation_residual_rad: float | None = None
+    mdh_beta_max_position_residual_m: float | None = Field(description="required; None: not measured")
+    mdh_beta_max_orientation_residual_rad: float | None = None
+    n_sample_poses: int
+
+
 class Kinematics(Artefact):
     KIND = "rxcomm/Kinematics"
     SCHEMA_VERSION = 1
-    REQUIRED_SUMMARY_KEYS = (
-        "mdh_max_position_residual_m",
-        "mdh_beta_max_position_residual_m",
-        "n_sample_poses",
-    )
+    settings: KinematicsSettings
+    summary: KinematicsSummary
 
     robot: str
     joint_names: list[str]

@@ -39,10 +39,28 @@ class MeasuredPose(Strict):
         return self
 
 
+class MeasurementsSummary(Strict):
+    """What a rxcomm/Measurements summary holds (units in the names; None: not measured)."""
+
+    n_poses: int
+    n_valid: int
+    n_planned: int | None = None
+    underruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
+    cell_overruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
+    max_move_lag_rad: float | None = None
+    max_tracker_attempts: int | None = None
+    interpolation_ratio: int | None = None
+    outcome: str | None = None
+    stop_reason: str | None = None
+    stop_note: str | None = None
+    seconds: float | None = None
+
+
 class Measurements(Artefact):
     KIND = "rxcomm/Measurements"
     SCHEMA_VERSION = 1
-    REQUIRED_SUMMARY_KEYS = ("n_poses", "n_valid")
+    SETTINGS_UNTYPED = True  # issue 28: stage settings plus nested models not yet in the schema layer
+    summary: MeasurementsSummary
 
     robot: str = Field(description="robot name (URDF)")
     joint_names: list[str]

@@ -122,18 +122,43 @@ class TrackerChannel(Strict):
     )
 
 
+class RunLogSummary(Strict):
+    """What a rxcomm/RunLog summary holds (units in the names; None: not measured)."""
+
+    underruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
+    cell_overruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
+    max_lag_rad: list[float | None] | None = Field(description="required; None: not measured")
+    rms_lag_rad: list[float | None] | None = Field(description="required; None: not measured")
+    max_tcp_error_m: float | None = Field(description="required; None: not measured")
+    rms_tcp_error_m: float | None = None
+    duration_s: float
+    tau_squared_integral_nm2_s: float | None = None
+    electrical_energy_j: float | None = None
+    outcome: str | None = None
+    stop_reason: str | None = None
+    stop_note: str | None = None
+    interpolation_ratio: int | None = None
+    sample_s: float | None = None
+    n_setpoints: int | None = None
+    n_records: int | None = None
+    lost_records: int | None = None
+    busy_replies: int | None = None
+    min_lead_s: float | str | None = Field(None, description="s in real time; a note in virtual time")
+    round_trip_probe_p50_s: float | None = None
+    round_trip_p50_s: float | None = None
+    round_trip_p99_s: float | None = None
+    cpu_share: float | None = None
+    approach_s: float | None = None
+    planned_duration_s: float | None = Field(None, description="while running: the plan's duration")
+
+
 class RunLog(McapSummary):
     """Envelope + summary of a run log MCAP, plus how to read it."""
 
     KIND = "rxcomm/RunLog"
     SCHEMA_VERSION = 1
-    REQUIRED_SUMMARY_KEYS = (
-        "underruns",
-        "max_lag_rad",
-        "rms_lag_rad",
-        "max_tcp_error_m",
-        "duration_s",
-    )
+    SETTINGS_UNTYPED = True  # issue 28: stage settings plus nested models not yet in the schema layer
+    summary: RunLogSummary
 
     joint_names: list[str]
     cycle_s: float = Field(gt=0, description="drive cycle of the gateway, s")

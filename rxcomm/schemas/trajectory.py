@@ -5,6 +5,57 @@ from __future__ import annotations
 from pydantic import Field
 
 from rxcomm.schemas.envelope import McapSummary
+from rxcomm.schemas.strict import Strict
+
+
+class TrajectoryFigures(Strict):
+    """What a rxcomm/Trajectory summary holds (units in the names; None: not measured)."""
+
+    duration_s: float
+    solve_seconds: float | None = Field(description="required; None: not measured")
+    max_limit_ratio: float | None = Field(description="required; None: not measured")
+    active_fraction: float | None = Field(description="required; None: not measured")
+    q_start: list[float]
+    q_goal: list[float]
+    n_cycles: int | None = None
+    cycle_duration_s: float | None = None
+    time_scale: float | None = None
+    seconds: float | None = None
+    method: str | None = None
+    path_length_m: float | None = None
+    tau_squared_integral_nm2_s: float | None = None
+    max_tcp_speed_m_s: float | None = None
+    min_tcp_speed_mid_m_s: float | None = None
+    singularity_margin: float | None = None
+    singularity_margin_at_m: float | None = None
+    max_path_deviation_m: float | None = None
+    toppra_duration_s: float | None = None
+    toppra_seconds: float | None = None
+    ik_seconds: float | None = None
+    refinements: int | None = None
+    worst_limit: str | None = None
+    nlp_seconds: float | None = None
+    nlp_iterations: int | None = None
+    nlp_status: str | None = None
+    max_position_ratio: float | None = None
+    max_velocity_ratio: float | None = None
+    max_acceleration_ratio: float | None = None
+    max_torque_ratio: float | None = None
+    max_torque_rate_ratio: float | None = None
+    cond: float | None = None
+    catalogue_acceleration_bound: str | None = None
+    max_filter_deviation_m: float | None = None
+    max_tcp_speed_ratio: float | None = None
+    dwell_s: float | None = None
+    order: str | None = None
+    limits_checked: str | None = None
+    fallback: bool | None = None
+    build_seconds: float | None = None
+    iterations: int | None = None
+    solver_status: str | None = None
+    objective: float | None = None
+    warm_start_duration_s: float | None = None
+    resolves: int | None = None
 
 
 class TrajectorySummary(McapSummary):
@@ -15,14 +66,8 @@ class TrajectorySummary(McapSummary):
 
     KIND = "rxcomm/Trajectory"
     SCHEMA_VERSION = 1
-    REQUIRED_SUMMARY_KEYS = (
-        "duration_s",
-        "solve_seconds",
-        "max_limit_ratio",
-        "active_fraction",
-        "q_start",
-        "q_goal",
-    )
+    SETTINGS_UNTYPED = True  # issue 28: stage settings plus nested models not yet in the schema layer
+    summary: TrajectoryFigures
 
     topic: str = Field(description="MCAP topic of the samples")
     n_samples: int = Field(ge=1)

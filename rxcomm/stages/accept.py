@@ -23,7 +23,7 @@ from rxcomm import console
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs, mcap_summary_path
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
-from rxcomm.schemas.acceptance import Acceptance, AcceptanceThresholds
+from rxcomm.schemas.acceptance import Acceptance, AcceptanceSummary, AcceptanceThresholds
 from rxcomm.schemas.iso9283 import Iso9283
 from rxcomm.schemas.run_log import RunLog
 
@@ -33,10 +33,10 @@ def _summary_file(log: Path) -> Path:
     return mcap_summary_path(log) if log.suffix == ".mcap" else log
 
 
-def print_verdict(summary: dict, rows) -> None:
+def print_verdict(summary: AcceptanceSummary, rows) -> None:
     """The verdict first, one line (make and CI gate on summary.accepted; the exit code is 0 either
     way), then the criteria, factory → commissioned."""
-    console.out.print(str(summary["verdict_line"]), markup=False, highlight=False)
+    console.out.print(summary.verdict_line, markup=False, highlight=False)
     console.out.print("acceptance criteria, factory → commissioned:")
     for r in rows:
         ratio = "—" if r.ratio is None else f"{r.ratio:.3g}"
@@ -160,6 +160,6 @@ def command(
     used = {k: Path(v) for k, v in inputs.items() if v is not None}
     artefact = Acceptance(**Acceptance.envelope(used, settings, summary), rows=rows)
     write_yaml_artefact(output, artefact)
-    print_verdict(summary, rows)
+    print_verdict(artefact.summary, rows)
     console.out.print(f"verdict → {output}")
     return summary

@@ -181,7 +181,7 @@ def _write_exports(
     console.out.print(f"  MDH + zero offsets → {mdh_out}, {csv_path}")
     for note in kin.notes:
         console.out.print(f"  [yellow]note:[/yellow] {note}")
-    return {k: v for k, v in kin.summary.items() if k.startswith("mdh_")}
+    return kin.summary.model_dump(exclude={"n_sample_poses"})
 
 
 @console.stage_command
@@ -252,7 +252,8 @@ def command(
     output.parent.mkdir(parents=True, exist_ok=True)
     exported = _write_exports(robot, res, inputs, urdf_out, mdh_out)
     art = calibration_artefact(robot, res, inputs, urdf_out, noise_source)
-    art = art.model_copy(update={"summary": {**art.summary, **exported}})
+    figures = {**art.summary.model_dump(exclude_unset=True), **exported}
+    art = art.model_copy(update={"summary": type(art.summary).model_validate(figures)})
     write_yaml_artefact(output, art)
     console.summary_table(f"calibrate → {output}", art.summary)
     print_table(res)

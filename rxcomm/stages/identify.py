@@ -348,10 +348,10 @@ def score_run(
     fields = IdentifySettings.model_fields
     for k in ("cutoff_hz", "decimate_hz", "min_speed_rad_s", "friction", "filter_order", "torque_lag_s"):
         given = values.get(k, fields[k].default)
-        if given == fields[k].default and art.settings.get(k) is not None:
-            values[k] = art.settings[k]
+        if given == fields[k].default and getattr(art.settings, k) is not None:
+            values[k] = getattr(art.settings, k)
     if values.get("cutoff_hz") == "auto":  # the model's chosen cut-off and its decimation
-        values["cutoff_hz"] = art.summary.get("cutoff_hz")
+        values["cutoff_hz"] = art.summary.cutoff_hz
     opts = _settings(values)
     if opts.friction is not None:
         robot = robot.with_friction(opts.friction)
@@ -369,7 +369,9 @@ def score_run(
         scored = art.model_copy(
             update={
                 "inputs": {**art.inputs, "validate": sha256_file(log)},
-                "summary": {**art.summary, **validation_summary(val, robot.joint_names)},
+                "summary": art.summary.model_validate(
+                    {**art.summary.model_dump(), **validation_summary(val, robot.joint_names)}
+                ),
             }
         )
         Path(output).parent.mkdir(parents=True, exist_ok=True)

@@ -21,7 +21,7 @@ from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_ar
 from rxcomm.options import CELL, Iso9283Paths, RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.cell import Cell
-from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283
+from rxcomm.schemas.iso9283 import BaseFrame, CubeDefinition, Iso9283, Iso9283Summary
 from rxcomm.schemas.path import PathSpec
 from rxcomm.stages.declarations import DECLARATIONS
 
@@ -94,17 +94,8 @@ def execute(
     t2b = placement_to_se3(frame.xyz_m, frame.rpy_rad)
     cube, criteria, cond = evaluate(robot, specs, t2b, pose_logs, path_logs, s)
     n_measured = sum(c.value is not None for c in criteria)
-    summary: dict[str, Any] = {"n_criteria": len(criteria), "n_measured": n_measured}
-    # the pose test's conditions (ISO 9283 asks a report to state them)
-    summary |= {k: "not measured" if v is None else v for k, v in vars(cond).items()}
-    speeds: dict[str, set] = {}
-    for c in criteria:
-        speeds.setdefault(c.target, set()).add(c.command_speed_m_per_s)
-    for c in criteria:  # a path tested at several speeds: one key per speed
-        key = f"{c.key}_{c.target}"
-        if len(speeds[c.target]) > 1:
-            key += f"_at_{c.command_speed_m_per_s:.3g}_m_s"
-        summary[key] = c.value if c.value is not None else "not measured"
+    # the pose test's conditions (ISO 9283 asks a report to state them); the values are in `criteria`
+    summary = Iso9283Summary(n_criteria=len(criteria), n_measured=n_measured, **vars(cond))
     logs = {f"pose log {i + 1}": p for i, p in enumerate(pose_logs)}  # the envelope's input names
     logs |= {f"{t} log {i + 1}": p for t, ps in path_logs.items() for i, p in enumerate(ps)}
     inputs = {**logs, "urdf": robot.urdf_path, "drives": robot.drives_path}

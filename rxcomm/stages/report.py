@@ -13,9 +13,10 @@ import os
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from pydantic import BaseModel
 
 from rxcomm import __version__, console
 from rxcomm.errors import InputError
@@ -70,11 +71,17 @@ ARTEFACTS: dict[str, tuple[type[Artefact], str]] = {
 EXECUTED_BY = {"cp": "run-ff.yaml", "ptp": "run-ptp.yaml", "excitation": "excite-log.yaml"}
 
 
-def _load(path: Path, model: type[Artefact]) -> dict | None:
-    """The artefact as plain data, validated by its schema (InputError names file and field)."""
+def _load(path: Path, model: type[Artefact]) -> Any:
+    """The artefact validated by its schema (InputError names file and field: a renamed summary
+    field fails here, never reads as "not measured"), or None if the build has none."""
     if not path.exists():
         return None
-    return read_yaml_artefact(path, model).model_dump(mode="json")
+    return read_yaml_artefact(path, model)
+
+
+def _dump(items: Sequence[BaseModel]) -> list[dict]:
+    """A table's rows as plain data for the section builders."""
+    return [i.model_dump(mode="json") for i in items]
 
 
 def _img(build: Path, name: str) -> str | None:
@@ -89,43 +96,41 @@ def _plot(build: Path, artefact: str, command: str | None = None) -> str | None:
     return None if plot is None else _img(build, plot.path(artefact).name)
 
 
-def run_logs(build: Path) -> dict[str, dict]:
+def run_logs(build: Path) -> dict[str, RunLog]:
     """Every run log of the build (kind rxcomm/RunLog), by file name, validated."""
     out = {}
     for path in sorted(build.glob("*.yaml")):
         data = load_yaml(path)
         if isinstance(data, dict) and data.get("kind") == RunLog.KIND:
-            out[path.name] = read_yaml_artefact(path, RunLog).model_dump(mode="json")
+            out[path.name] = read_yaml_artefact(path, RunLog)
     return out
 
 
-def _tolerances(runs: dict[str, dict]) -> dict[str, Tolerance]:
+def _tolerances(runs: dict[str, RunLog]) -> dict[str, Tolerance]:
     out = {}
     for key, log in EXECUTED_BY.items():
-        tol = runs.get(log, {}).get("settings", {}).get("limit_tolerance")
+        tol = runs[log].settings.get("limit_tolerance") if log in runs else None
         if tol is not None:
             out[key] = (float(tol), f"`run`'s limit_tolerance in {log}")
     return out
 
 
-def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[Section]:
+def _stage_sections(build: Path, a: dict[str, Any], tol: dict) -> list[Section]:
     """One section per stage artefact present, in chain order."""
-    s = {k: (v or {}).get("summary") for k, v in a.items()}
+    s = {k: None if v is None else v.summary for k, v in a.items()}
     cfg, cal, dyn = a["configs.yaml"], a["calibration.yaml"], a["dynamics.yaml"]
     out: dict[str, Section] = {}
     if cfg:
-        out["configs.yaml"] = configs_section(
-            s["configs.yaml"], _plot(build, "configs.yaml"), cfg["criterion"]
-        )
+        out["configs.yaml"] = configs_section(s["configs.yaml"], _plot(build, "configs.yaml"), cfg.criterion)
     if cal:
         # The prior-torque pass of the same measurements (optional: not every chain makes it).
         prior = _load(build / "calibration-prior.yaml", Calibration)
         out["calibration.yaml"] = calibration_section(
-            cal["summary"],
-            cal["error_tables"],
-            cal["parameters"],
-            cal.get("compliance", []),
-            None if prior is None else prior["summary"],
+            cal.summary,
+            _dump(cal.error_tables),
+            _dump(cal.parameters),
+            _dump(cal.compliance),
+            None if prior is None else prior.summary,
         )
     if s["excitation.yaml"]:
         exc_tol = tol.get("excitation", DEFAULT_TOLERANCE)
@@ -134,7 +139,7 @@ def _stage_sections(build: Path, a: dict[str, dict | None], tol: dict) -> list[S
         )
     if dyn:
         out["dynamics.yaml"] = dynamics_section(
-            dyn["summary"], _plot(build, "dynamics.yaml"), dyn["base_parameters"], dyn["friction"]
+            dyn.summary, _plot(build, "dynamics.yaml"), _dump(dyn.base_parameters), _dump(dyn.friction)
         )
     for key, paper in (("cp", "1.04 s (straight line passing near a singularity)"), ("ptp", "0.67 s")):
         if s[f"{key}.yaml"]:
@@ -174,7 +179,7 @@ def build_report(
     sections.append(exports_section(load_yaml(parity) if parity.is_file() else None))
     keys = {"calibration": "calibration.yaml", "dynamics": "dynamics.yaml", "excitation": "excitation.yaml"}
     keys |= {"cp": "cp.yaml", "ptp": "ptp.yaml", "run-ff": "run-ff.yaml", "run-noff": "run-noff.yaml"}
-    summaries = {k: (a.get(name) or {}).get("summary") for k, name in keys.items()}
+    summaries = {k: None if a.get(name) is None else a[name].summary for k, name in keys.items()}
     checks = stage_verdicts(summaries, runs, tol)
     iso = iso9283_sections(
         _load(build / "iso9283-factory.yaml", Iso9283),
@@ -182,7 +187,8 @@ def build_report(
         runs,
         summaries["calibration"],
     )
-    robot = (a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"] or {}).get("robot")
+    named = a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"]
+    robot = None if named is None else named.robot
     preamble = (
         ("The robot (named by no artefact here)" if robot is None else f"Robot `{robot}`")
         + f" commissioned against {ran_on(runs)} by rxcomm {__version__} on "

@@ -1,4 +1,4 @@
-"""The summary head every trajectory-writing stage gives (`TrajectorySummary.REQUIRED_SUMMARY_KEYS`).
+"""The summary head every trajectory-writing stage gives (`TrajectoryFigures`' required fields).
 
 Not a subcommand: the plan stages (plan-ptp, plan-cycles, plan-poses) share it.
 """
