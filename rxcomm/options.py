@@ -29,6 +29,13 @@ TRAJECTORY_OUTPUT = typer.Option("-o", "--output", help="Output trajectory NAME.
 IdentifiedDynamics = Annotated[
     Path | None, typer.Option(help="Identified dynamics.yaml (default: the robot's prior model).")
 ]
+# plan-cp, plan-ptp, plan-cycles, run: an identified payload on the flange (identify-payload).
+PayloadOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--payload", help="Identified payload.yaml (identify-payload): added to the model's last link."
+    ),
+]
 TimeWeight = Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")]
 # plan-cp, plan-ptp, run: artefacts that claim another robot or an impossible one (issue 27).
 OtherRobot = Annotated[

@@ -104,3 +104,27 @@ def load_payload(path: str | Path, robot: Robot) -> FlangeInertia:
             field="flange_frame",
         )
     return FlangeInertia(art.mass_kg, np.array(art.com_m, float), inertia_matrix(art.inertia_com_kgm2))
+
+
+def model_parameters(
+    robot: Robot, dynamics: str | Path | None, payload: str | Path | None
+) -> DynamicParameters | None:
+    """The planners' and run's torque model: the identified `dynamics.yaml` (the prior without) with an
+    identified `payload.yaml` on the last link; None when neither is given (the caller's prior)."""
+    from rxcomm.model.base_parameters import load_dynamics
+    from rxcomm.model.dynamics import prior_parameters
+
+    if dynamics is None and payload is None:
+        return None
+    params = prior_parameters(robot) if dynamics is None else load_dynamics(dynamics, robot)
+    return params if payload is None else with_payload(robot, params, load_payload(payload, robot))
+
+
+def model_inputs(dynamics: str | Path | None, payload: str | Path | None) -> dict[str, Path]:
+    """The envelope inputs of a torque model: dynamics and payload files, those given."""
+    return {k: Path(v) for k, v in (("dynamics", dynamics), ("payload", payload)) if v is not None}
+
+
+def model_name(dynamics: str | Path | None, payload: str | Path | None) -> str:
+    """What a plan's torques came from: "identified" or "prior", "+ payload" when one was added."""
+    return ("identified" if dynamics is not None else "prior") + (" + payload" if payload is not None else "")

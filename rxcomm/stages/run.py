@@ -60,20 +60,25 @@ def load_model(
         params, name = prior_parameters(robot), "prior"
     if payload is None:
         return params, name
-    return with_payload(robot, params, load_payload(payload, robot)), f"{name} + payload"
+    return with_payload(robot, params, load_payload(payload, robot)), name  # the log's inputs name it
 
 
-def _cell_and_payload_files(
-    gateway: str | None, truth: Path | None, robot_dir: Path, truth_payload: Path | None, payload: Path | None
+def _model_and_cell_files(
+    gateway: str | None,
+    truth: Path | None,
+    robot_dir: Path,
+    truth_payload: Path | None,
+    dynamics: Path | None,
+    payload: Path | None,
 ) -> dict[str, Path | None]:
-    """The files run reads besides plan and model: the embedded cell's truth (and --truth-payload, which
-    only an embedded cell can carry), --payload."""
+    """The files run reads besides the plan: the model (--dynamics, --payload) and the embedded cell's
+    truth (and --truth-payload, which only an embedded cell can carry)."""
     if gateway is not None and truth_payload is not None:
         raise InputError(
             "--truth-payload loads the embedded simulated cell, not a --gateway", field="truth-payload"
         )
     truth = None if gateway is not None else (truth or Path(robot_dir) / "truth.yaml")
-    return {"truth": truth, "truth-payload": truth_payload, "payload": payload}
+    return {"dynamics": dynamics, "payload": payload, "truth": truth, "truth-payload": truth_payload}
 
 
 def load_poses(path: Path) -> Configs:
@@ -259,8 +264,7 @@ def execute(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {
             "plan": plan,
-            "dynamics": dynamics,
-            **_cell_and_payload_files(gateway, truth, robot_dir, truth_payload, payload),
+            **_model_and_cell_files(gateway, truth, robot_dir, truth_payload, dynamics, payload),
             "compare": compare,
             "calibration": calibration,
             **robot_files(robot_dir),
