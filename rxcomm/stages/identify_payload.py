@@ -42,7 +42,8 @@ def plot_payload(robot: Robot, result: PayloadResult, path: Path) -> Path:
         ax.plot(without.t, without.measured[:, j] - without.predicted[:, j], lw=1.0, label="measured − model")
         ax.plot(without.t, loaded.predicted[:, j] - without.predicted[:, j], lw=1.0, ls="--", label="payload")
         r0, r1 = without.rms_nm[j], loaded.rms_nm[j]
-        ax.set_title(f"{robot.joint_names[j]}: RMS {r0:.3g} → {r1:.3g} N·m with the payload", fontsize=9)
+        scored = f"RMS {r0:.3g} → {r1:.3g} N·m with the payload" if np.isfinite(r0) else "not scored: still"
+        ax.set_title(f"{robot.joint_names[j]}: {scored}", fontsize=9)
         ax.set_ylabel("N·m")
         ax.grid(alpha=0.3)
     if robot.n % 2:
