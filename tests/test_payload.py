@@ -260,3 +260,25 @@ def test_identify_payload_recovers_the_cells_hidden_payload(tmp_path, name):
     assert mass_err < 0.02
     assert com_err < 0.002
     assert art.validation.total_rms_with_nm < 0.5 * art.validation.total_rms_without_nm
+
+
+def test_the_own_plant_carries_the_truth_payload_on_the_last_link():
+    from rxcomm.cell.sim import simulated_cell
+
+    truth, load = SAMPLES / "rx130l" / "truth.yaml", SAMPLES / "rx130l" / "truth-payload.yaml"
+    own, own0 = simulated_cell(truth, payload_path=load), simulated_cell(truth)
+    assert own.plant.model.inertias[6].mass == pytest.approx(own0.plant.model.inertias[6].mass + 5.0)
+
+
+@pytest.mark.process
+def test_the_mujoco_plant_carries_the_truth_payload():
+    pytest.importorskip("mujoco")
+    from rxcomm.cell.sim import simulated_cell
+
+    truth, load = SAMPLES / "rx130l" / "truth.yaml", SAMPLES / "rx130l" / "truth-payload.yaml"
+    muj, muj0 = (
+        simulated_cell(truth, plant="mujoco", payload_path=load),
+        simulated_cell(truth, plant="mujoco"),
+    )
+    mass, mass0 = muj.plant.built.model.body_mass, muj0.plant.built.model.body_mass
+    assert float(mass.sum() - mass0.sum()) == pytest.approx(5.0)
