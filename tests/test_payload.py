@@ -282,3 +282,23 @@ def test_the_mujoco_plant_carries_the_truth_payload():
     )
     mass, mass0 = muj.plant.built.model.body_mass, muj0.plant.built.model.body_mass
     assert float(mass.sum() - mass0.sum()) == pytest.approx(5.0)
+
+
+def test_controller_forms_rebuild_the_inertia():
+    """Principal moments and axes give back I_c; the flange-origin inertia is I_c + m(|c|²E − ccᵀ)."""
+    from rxcomm.identification.payload_artefact import controller_form
+
+    form = controller_form(LOAD)
+    w, x, y, z = form.principal_axes_wxyz
+    rot = pin.Quaternion(w, x, y, z).toRotationMatrix()
+    np.testing.assert_allclose(
+        rot @ np.diag(form.principal_moments_kgm2) @ rot.T, LOAD.inertia_com_kgm2, atol=1e-12
+    )
+    assert np.linalg.det(rot) == pytest.approx(1.0)
+    m, (cx, cy, cz) = LOAD.mass_kg, LOAD.com_m
+    assert form.inertia_flange_kgm2["xz"] == pytest.approx(LOAD.inertia_com_kgm2[0, 2] - m * cx * cz)
+    assert form.inertia_flange_kgm2["zz"] == pytest.approx(
+        LOAD.inertia_com_kgm2[2, 2] + m * (cx * cx + cy * cy)
+    )
+    assert form.com_mm == pytest.approx((15.0, -10.0, 100.0))
+    assert form.physically_consistent
