@@ -83,6 +83,12 @@ STAGES: dict[str, Stage] = {
         "Score an identified dynamics.yaml on another log without refitting: identify's validation figures.",
         "rxcomm score --robot samples/rx130l --dynamics build/dynamics.yaml --log build/validation-log.mcap",
     ),
+    "identify-payload": Stage(
+        "identify_payload",
+        "Identify a payload on the flange (mass, centre of mass, inertia ± σ) with the robot model fixed.",
+        "rxcomm identify-payload --robot samples/rx130l --log build/excite-log-payload.mcap "
+        "--dynamics build/dynamics.yaml --validate build/validation-log-payload.mcap -o build/payload.yaml",
+    ),
     "plan-cp": Stage(
         "plan_cp",
         "Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`.",

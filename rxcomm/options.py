@@ -41,6 +41,21 @@ CELL = typer.Option(
 )
 CellFile = Annotated[Path | None, CELL]
 JointLog = typer.Option("--log", help="Run log MCAP (rxcomm run) or a robot CSV (docs/identify-csv.md).")
+# identify, identify-payload: a log scored without refitting.
+ValidateOption = Annotated[
+    Path | None,
+    typer.Option(
+        help="Validation log: another motion (e.g. ISO 9283) scored without refitting; without it identify "
+        "holds out the last 20 % of each of 5 blocks of LOG, identify-payload reports no validation."
+    ),
+]
+# plan-cp, plan-ptp, plan-cycles, run: an identified payload on the flange (identify-payload).
+PayloadOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--payload", help="Identified payload.yaml (identify-payload): added to the model's last link."
+    ),
+]
 TimeWeight = Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")]
 # plan-cp, plan-ptp, run: artefacts that claim another robot or an impossible one (issue 27).
 OtherRobot = Annotated[

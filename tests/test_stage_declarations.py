@@ -42,7 +42,7 @@ def test_a_stage_checks_exactly_its_declared_files(tmp_path):
     from rxcomm.errors import InputError
 
     with pytest.raises(InputError, match="is also the input plan"):
-        decl.check(output=plan.with_suffix(".yaml"), robot=robot, plan=plan, dynamics=None)
+        decl.check(output=plan.with_suffix(".yaml"), robot=robot, plan=plan, dynamics=None, payload=None)
 
 
 def test_files_written_beside_come_from_the_declaration():

@@ -185,12 +185,14 @@ def simulated_cell(
     q0: Sequence[float] | None = None,
     settings: SimSettings | None = None,
     plant: str = "own",
+    payload_path: str | Path | None = None,
 ) -> SimulatedCell:
-    """A `SimulatedCell` from a truth file (`q0` overrides `settings.q0_rad`) on `plant` (`PLANTS`)."""
+    """A `SimulatedCell` from a truth file (`q0` overrides `settings.q0_rad`) on `plant` (`PLANTS`);
+    `payload_path`: a `rxcomm/CellPayload` file replacing the truth's payload."""
     s = settings or SimSettings()
     if q0 is not None:
         s = s.model_copy(update={"q0_rad": tuple(float(x) for x in q0)})
-    return cell_class(plant)(load_truth(truth_path, cell_path), s)
+    return cell_class(plant)(load_truth(truth_path, cell_path, payload_path), s)
 
 
 class MujocoCell(SimulatedCell):
@@ -232,14 +234,17 @@ def start_embedded_cell(
     settings: SimSettings | None = None,
     server_config: ServerConfig | None = None,
     plant: str = "own",
+    payload_path: str | Path | None = None,
 ) -> CellServer:
     """Serve a simulated cell on 127.0.0.1 (port 0: ephemeral, see `.port`); returns the STARTED server.
 
     The caller stops it (`server.stop()`, or use it as a context manager). Virtual time unless
     `realtime`. `plant`: "own" or "mujoco" (`cell_class`). `server_config` overrides host/port/time
-    mode and the gateway's sizes entirely.
+    mode and the gateway's sizes entirely. `payload_path`: the payload it carries instead of the truth's.
     """
-    backend = simulated_cell(truth_path, cell_path=cell_path, q0=q0, settings=settings, plant=plant)
+    backend = simulated_cell(
+        truth_path, cell_path=cell_path, q0=q0, settings=settings, plant=plant, payload_path=payload_path
+    )
     cfg = server_config or ServerConfig(
         port=port, time_mode=TimeMode.REALTIME if realtime else TimeMode.VIRTUAL
     )

@@ -25,9 +25,10 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
+from rxcomm.cell.truth import loaded_parameters
 from rxcomm.errors import InputError
 from rxcomm.io.tracker_csv import TrackerExport
-from rxcomm.model.dynamics import RobotDynamics, truth_parameters
+from rxcomm.model.dynamics import RobotDynamics
 from rxcomm.model.geometric_errors import ErrorModel, measured_pose, placement_to_se3, predict_poses
 from rxcomm.model.kinematics import quaternion_wxyz
 from rxcomm.model.robot import Robot
@@ -88,7 +89,7 @@ class SimulatedTracker:
             self._compliance[robot_nominal.joint_names.index(name)] = 1.0 / k
         self._dyn = None
         if np.any(self._compliance):
-            self._dyn = RobotDynamics(self._robot_true, truth_parameters(robot_nominal, truth))
+            self._dyn = RobotDynamics(self._robot_true, loaded_parameters(robot_nominal, truth))
 
     def link_angles(self, q: np.ndarray) -> np.ndarray:
         """The links' angles with the motors (encoders) at `q`: sagged by the compliance (rad)."""

@@ -23,4 +23,6 @@ ARTEFACT_MODELS: list[str] = [
     "rxcomm.schemas.iso9283:Iso9283",
     "rxcomm.schemas.acceptance:AcceptanceThresholds",
     "rxcomm.schemas.acceptance:Acceptance",
+    "rxcomm.schemas.payload:Payload",
+    "rxcomm.schemas.payload:CellPayload",
 ]

@@ -9,6 +9,7 @@ from typing import Literal
 
 from pydantic import Field
 
+from rxcomm.schemas.payload import PayloadMount
 from rxcomm.schemas.strict import Strict
 
 
@@ -78,3 +79,6 @@ class CellTruth(Strict):
     geometry: GeometryTruth
     dynamics: DynamicsTruth
     noise: NoiseTruth
+    payload: PayloadMount | None = Field(
+        None, description="the load mounted on the flange (absent: none); `run --truth-payload` swaps it"
+    )

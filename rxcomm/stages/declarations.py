@@ -29,6 +29,7 @@ from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.excitation import Excitation
 from rxcomm.schemas.iso9283 import Iso9283
 from rxcomm.schemas.measurements import Measurements
+from rxcomm.schemas.payload import Payload
 from rxcomm.schemas.run_log import RunLog
 from rxcomm.schemas.trajectory import TrajectorySummary
 
@@ -164,23 +165,29 @@ DECLARATIONS: dict[str, Declaration] = {
         outputs=("torques-out",),
         settings="identification.settings:IdentifySettings",
     ),
+    "identify-payload": Declaration(
+        ("robot", "log", "dynamics", "validate"),
+        (Payload,),
+        beside=(PLOT,),
+        settings="identification.settings:IdentifySettings",
+    ),
     "plan-cp": Declaration(
-        ("robot", "path", "dynamics", "calibration"),
+        ("robot", "path", "dynamics", "payload", "calibration"),
         **TRAJECTORY,
         beside=(PLOT,),
         settings="planning.cp:CpSettings",
     ),
     "iso9283-paths": Declaration(("robot", "cell"), suffixes=("/",)),
     "plan-ptp": Declaration(
-        ("robot", "dynamics", "calibration"),
+        ("robot", "dynamics", "payload", "calibration"),
         **TRAJECTORY,
         beside=(PLOT,),
         settings="planning.ptp_problem:PtpOptions",
     ),
     "plan-poses": Declaration(("robot", "paths", "calibration", "dynamics"), **TRAJECTORY),
-    "plan-cycles": Declaration(("robot", "plan", "dynamics"), **TRAJECTORY, positional=("plan",)),
+    "plan-cycles": Declaration(("robot", "plan", "dynamics", "payload"), **TRAJECTORY, positional=("plan",)),
     "run": Declaration(
-        ("robot", "plan", "dynamics", "truth", "compare", "calibration"),
+        ("robot", "plan", "dynamics", "payload", "truth", "truth-payload", "compare", "calibration"),
         (RunLog, Measurements),
         suffixes=(".mcap", ".yaml"),  # a trajectory's run log; a pose list's measurements
         beside=(PLOT,),

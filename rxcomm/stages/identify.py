@@ -24,7 +24,7 @@ from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
-from rxcomm.options import JointLog, RobotDir
+from rxcomm.options import JointLog, RobotDir, ValidateOption
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.stages.declarations import DECLARATIONS
 
@@ -126,13 +126,6 @@ TorqueLagOption = Annotated[
 TorquesOut = Annotated[
     Path | None,
     typer.Option("--torques-out", help="Write the validation rows' measured and predicted torques as CSV."),
-]
-ValidateOption = Annotated[
-    Path | None,
-    typer.Option(
-        help="Validation log (another trajectory, e.g. ISO 9283); default: the last 20 % of each of "
-        "5 blocks of LOG."
-    ),
 ]
 
 

@@ -28,6 +28,7 @@ from rxcomm.options import (
     AllowInconsistent,
     IdentifiedDynamics,
     OtherRobot,
+    PayloadOption,
     RobotDir,
     TimeWeight,
     Timing,
@@ -37,6 +38,7 @@ from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:
     from rxcomm.io.trajectory import Trajectory
+    from rxcomm.model.dynamics import DynamicParameters
     from rxcomm.model.robot import Robot
     from rxcomm.planning.cp import CpPlan
 
@@ -188,6 +190,7 @@ def command(
     path: PathOption = None,
     output: Annotated[Path | None, TRAJECTORY_OUTPUT] = None,
     dynamics: IdentifiedDynamics = None,
+    payload: PayloadOption = None,
     calibration: CalibrationOption = None,
     k1: TimeWeight = 1.0,
     k2: EnergyWeightOption = 0.0,
@@ -208,10 +211,10 @@ def command(
     from rxcomm.calibration.loading import load_calibrated_robot
     from rxcomm.model.artefact_checks import accept_artefacts
     from rxcomm.model.catalogue import catalogue_limits
+    from rxcomm.model.payload import model_inputs, model_name
     from rxcomm.model.robot import load_robot
     from rxcomm.planning.cp import CpSettings
     from rxcomm.planning.paths import load_path
-    from rxcomm.planning.timing import PlanDynamics
 
     accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     if iso9283 is not None:  # the old spelling of `rxcomm iso9283-paths`
@@ -221,9 +224,8 @@ def command(
         return iso9283_paths.command(robot_dir, iso9283, cell=cell, tcp_rpy_deg=iso_rpy_deg)
     t_all = time.perf_counter()
     path, output = _given_paths(path, output)
-    DECLARATIONS["plan-cp"].check(
-        output=output, plot=plot, robot=robot_dir, path=path, dynamics=dynamics, calibration=calibration
-    )
+    files = {"path": path, "dynamics": dynamics, "payload": payload, "calibration": calibration}
+    DECLARATIONS["plan-cp"].check(output=output, plot=plot, robot=robot_dir, **files)
     robot = load_robot(robot_dir)
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "path": path}
     catalogue = catalogue_limits(robot) if timing == "catalogue" else None  # the maker's: prior, nominal
@@ -246,14 +248,15 @@ def command(
         ),
         {name: name.replace("_", "-") for name in CpSettings.model_fields},
     )
-    inputs |= {"dynamics": Path(dynamics)} if dynamics is not None else {}
-    dyn = PlanDynamics.load(nominal, dynamics, settings.coulomb_eps_rad_s)
-    command, compliance = _compliance(nominal, calibration, dynamics)  # what run must stream
+    inputs |= model_inputs(dynamics, payload)
+    dyn, command, compliance = _torque_model(
+        nominal, calibration, dynamics, payload, settings.coulomb_eps_rad_s
+    )
     label = f"plan-cp: {spec.name or path.name} ({timing if catalogue else settings.method}, N = {intervals})"
     plan = _timed_plan(robot, cpath, dyn, settings, catalogue, label, command)
     run_settings = {
         **settings.model_dump(mode="json"),
-        "dynamics_model": "identified" if dynamics is not None else "prior",
+        "dynamics_model": model_name(dynamics, payload),
         "calibrated": calibration is not None,
         "compliance_compensated_rad_per_nm": compliance,
         "branch": plan.joint_path.labels,
@@ -303,16 +306,29 @@ def _given_or(option: float | None, default: float | None) -> float | None:
     return option if option is not None else default
 
 
-def _compliance(nominal: Robot, calibration: Path | None, dynamics: Path | None):
+def _torque_model(
+    nominal: Robot, calibration: Path | None, dynamics: Path | None, payload: Path | None, eps: float
+):
+    """The planner's torque model (identified or prior, with the payload if given) on the nominal
+    robot, and the compliance map and compliances the plan is commanded through (`_compliance`)."""
+    from rxcomm.model.dynamics import prior_parameters
+    from rxcomm.model.payload import model_parameters
+    from rxcomm.planning.timing import PlanDynamics
+
+    params = model_parameters(nominal, dynamics, payload)  # None: the prior
+    dyn = PlanDynamics.from_parameters(nominal, params or prior_parameters(nominal), eps)
+    return dyn, *_compliance(nominal, calibration, params if dynamics is not None else None)
+
+
+def _compliance(nominal: Robot, calibration: Path | None, params: DynamicParameters | None):
     """With a calibration that found joint compliance: the map link → encoder angles the plan
-    commands (the fit's torque model on the nominal robot) and the compliances; else (None, None)."""
+    commands (the fit's torque model on the nominal robot: the identified `params`, with the payload's
+    weight when one is given) and the compliances; else (None, None)."""
     from rxcomm.calibration.compensation import compliance_command
-    from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.schemas.calibration import Calibration
 
     if calibration is None:
         return None, None
-    params = None if dynamics is None else load_dynamics(dynamics, nominal)
     return compliance_command(nominal, read_yaml_artefact(calibration, Calibration), params)
 
 

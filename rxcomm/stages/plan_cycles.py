@@ -22,7 +22,7 @@ import typer
 
 from rxcomm import console
 from rxcomm.io.files import trajectory_output
-from rxcomm.options import PLAN_OUTPUT, PlanDynamics, RobotDir
+from rxcomm.options import PLAN_OUTPUT, PayloadOption, PlanDynamics, RobotDir
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
 from rxcomm.stages.summary import motion_summary
@@ -36,6 +36,7 @@ def command(
     cycles: Annotated[int, typer.Option(help="Cycles of the path (ISO 9283: 10).")] = 10,
     dwell_s: Annotated[float, typer.Option(help="Hold at each end of the path, s.")] = 0.3,
     dynamics: PlanDynamics = None,
+    payload: PayloadOption = None,
     duration_s: Annotated[
         float | None,
         typer.Option(help="Time-scale the cycle uniformly to this duration first, s (default: as planned)."),
@@ -43,15 +44,17 @@ def command(
 ) -> dict[str, object]:
     """Repeat a test path's plan for the ISO 9283 cycles, with return moves at the catalogue limits."""
     from rxcomm.io.trajectory import Trajectory, load_trajectory_mcap, save_trajectory_mcap
-    from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.catalogue import catalogue_limits
     from rxcomm.model.limits import check_limits
+    from rxcomm.model.payload import model_inputs, model_parameters
     from rxcomm.model.robot import load_robot
     from rxcomm.planning.iso9283 import cycloidal_move, repeat_cycles, time_scaled
     from rxcomm.planning.ptp_problem import PtpDynamics
 
     t_all, plan, output = time.perf_counter(), Path(plan), trajectory_output(output)
-    DECLARATIONS["plan-cycles"].check(output=output, robot=robot_dir, plan=plan, dynamics=dynamics)
+    DECLARATIONS["plan-cycles"].check(
+        output=output, robot=robot_dir, plan=plan, dynamics=dynamics, payload=payload
+    )
     one, env = load_trajectory_mcap(plan)
     robot = load_robot(robot_dir)
     catalogue = catalogue_limits(robot)
@@ -61,7 +64,7 @@ def command(
     rep = repeat_cycles(
         one, cycles, dwell_s, cycloidal_move(catalogue.v_max, catalogue.a_max, sample_s), sample_s
     )
-    params = None if dynamics is None else load_dynamics(dynamics, robot)
+    params = model_parameters(robot, dynamics, payload)  # None: the prior
     tau = PtpDynamics.from_parameters(robot, params).torque(rep.q, rep.qd, rep.qdd)
     traj = Trajectory(rep.t, rep.q, rep.qd, rep.qdd, tau)
     report = check_limits(robot, traj.t, traj.q, traj.qd, traj.qdd, tau)
@@ -73,7 +76,7 @@ def command(
         "seconds": time.perf_counter() - t_all,
     }
     inputs = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
-    inputs |= {} if dynamics is None else {"dynamics": Path(dynamics)}
+    inputs |= model_inputs(dynamics, payload)
     settings = {"cycles": cycles, "dwell_s": dwell_s, "duration_s": duration_s,
                 "return_moves": "cycloidal at the catalogue limits",
                 "plan_settings": env.get("settings", {})}  # fmt: skip

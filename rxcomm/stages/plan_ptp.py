@@ -25,6 +25,7 @@ from rxcomm.options import (
     AllowInconsistent,
     IdentifiedDynamics,
     OtherRobot,
+    PayloadOption,
     RobotDir,
     TimeWeight,
     Timing,
@@ -203,6 +204,7 @@ def command(
     goal: GoalOption = None,
     goal_deg: GoalDegOption = None,
     dynamics: IdentifiedDynamics = None,
+    payload: PayloadOption = None,
     calibration: CalibrationOption = None,
     k1: TimeWeight = 1.0,
     k2: EnergyWeightOption = 0.0,
@@ -223,15 +225,16 @@ def command(
 ) -> dict[str, object]:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
     from rxcomm.model.artefact_checks import accept_artefacts
+    from rxcomm.model.payload import model_name
     from rxcomm.planning.ptp_problem import PtpOptions
 
     accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     start, goal = state_text(start, start_deg, "start"), state_text(goal, goal_deg, "goal")
     t_all, output = time.perf_counter(), trajectory_output(output)
     DECLARATIONS["plan-ptp"].check(
-        output=output, plot=plot, robot=robot_dir, dynamics=dynamics, calibration=calibration
+        output=output, plot=plot, robot=robot_dir, dynamics=dynamics, payload=payload, calibration=calibration
     )
-    robot, dyn, inputs = _planning_model(robot_dir, calibration, dynamics)
+    robot, dyn, inputs = _planning_model(robot_dir, calibration, dynamics, payload)
     options = settings_from_options(
         PtpOptions,
         dict(
@@ -256,7 +259,7 @@ def command(
         "goal_kind": goal_kind,
         "branch": branch.model_dump(),
         "options": options.model_dump(mode="json"),
-        "dynamics_model": "identified" if dynamics is not None else "prior",
+        "dynamics_model": model_name(dynamics, payload),
         "calibrated": calibration is not None,
         "timing": timing,
     }
@@ -267,13 +270,14 @@ def command(
 
 
 def _planning_model(
-    robot_dir: Path, calibration: Path | None, dynamics: Path | None
+    robot_dir: Path, calibration: Path | None, dynamics: Path | None, payload: Path | None = None
 ) -> tuple[Robot, PtpDynamics, dict[str, Path]]:
     """The robot (calibrated if given), its PtP model and the input files. The torques are the
-    identified parameters' (the prior's without) on the nominal robot, identify's and run's
-    (`load_calibrated_robot` says why); the TCP kinematics are the calibrated robot's."""
+    identified parameters' (the prior's without), with the identified payload on the last link when
+    given, on the nominal robot, identify's and run's (`load_calibrated_robot` says why); the TCP
+    kinematics are the calibrated robot's."""
     from rxcomm.calibration.loading import load_calibrated_robot
-    from rxcomm.model.base_parameters import load_dynamics
+    from rxcomm.model.payload import model_inputs, model_parameters
     from rxcomm.model.robot import load_robot
     from rxcomm.planning.ptp_problem import PtpDynamics
 
@@ -282,10 +286,8 @@ def _planning_model(
     if calibration is not None:
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
-    params = None
-    if dynamics is not None:
-        params = load_dynamics(dynamics, nominal)
-        inputs["dynamics"] = Path(dynamics)
+    params = model_parameters(nominal, dynamics, payload)  # None: the prior
+    inputs |= model_inputs(dynamics, payload)
     return robot, PtpDynamics.from_parameters(nominal, params, kinematics=robot), inputs
 
 

@@ -26,7 +26,15 @@ from rxcomm.errors import GatewayError, InputError, LocatedError, RxcommError, S
 from rxcomm.io.plan_files import plan_kind
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.options import AllowInconsistent, IdentifiedDynamics, OtherRobot, Plant, RobotDir, embedded_plant
+from rxcomm.options import (
+    AllowInconsistent,
+    IdentifiedDynamics,
+    OtherRobot,
+    PayloadOption,
+    Plant,
+    RobotDir,
+    embedded_plant,
+)
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
@@ -43,19 +51,42 @@ if TYPE_CHECKING:
 
 # --- inputs ---------------------------------------------------------------------------------------
 def load_model(
-    robot: Robot, dynamics: Path | None, plan: Path | None = None
+    robot: Robot, dynamics: Path | None, plan: Path | None = None, payload: Path | None = None
 ) -> tuple[DynamicParameters, str]:
+    """The model for τ_ff and the torque checks; `payload` (payload.yaml) added to its last link."""
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.dynamics import prior_parameters
+    from rxcomm.model.payload import load_payload, with_payload
 
     if dynamics is not None:
-        params = load_dynamics(dynamics, robot)
+        params, name = load_dynamics(dynamics, robot), "identified"
         from rxcomm.execution.guards import other_model_warning
 
         if plan is not None and (warning := other_model_warning(plan, dynamics)):
             console.err.print(f"warning: {warning}")
-        return params, "identified"
-    return prior_parameters(robot), "prior"
+    else:
+        params, name = prior_parameters(robot), "prior"
+    if payload is None:
+        return params, name
+    return with_payload(robot, params, load_payload(payload, robot)), name  # the log's inputs name it
+
+
+def _model_and_cell_files(
+    gateway: str | None,
+    truth: Path | None,
+    robot_dir: Path,
+    truth_payload: Path | None,
+    dynamics: Path | None,
+    payload: Path | None,
+) -> dict[str, Path | None]:
+    """The files run reads besides the plan: the model (--dynamics, --payload) and the embedded cell's
+    truth (and --truth-payload, which only an embedded cell can carry)."""
+    if gateway is not None and truth_payload is not None:
+        raise InputError(
+            "--truth-payload loads the embedded simulated cell, not a --gateway", field="truth-payload"
+        )
+    truth = None if gateway is not None else (truth or Path(robot_dir) / "truth.yaml")
+    return {"dynamics": dynamics, "payload": payload, "truth": truth, "truth-payload": truth_payload}
 
 
 def load_poses(path: Path) -> Configs:
@@ -75,7 +106,13 @@ def check_joint_names(cfg: Configs, path: Path, robot: Robot) -> Configs:
 # --- the cell -------------------------------------------------------------------------------------
 @contextlib.contextmanager
 def connect(
-    gateway: str | None, allow_remote: bool, truth: Path | None, robot_dir: Path, realtime: bool, plant: str
+    gateway: str | None,
+    allow_remote: bool,
+    truth: Path | None,
+    robot_dir: Path,
+    realtime: bool,
+    plant: str,
+    truth_payload: Path | None = None,
 ) -> Iterator[tuple[GatewayClient, Any]]:
     """A connected client and the embedded cell's server (None: a gateway); stops an embedded cell on exit."""
     from rxcomm.execution.session import REQUEST_TIMEOUT_S, VIRTUAL_CELL_REQUEST_TIMEOUT_S
@@ -94,11 +131,16 @@ def connect(
             raise InputError(
                 "no truth file for the embedded simulated cell (pass --truth or --gateway)", file=truth
             )
-        server = start_embedded_cell(truth, port=0, realtime=realtime, plant=plant)
+        server = start_embedded_cell(
+            truth, port=0, realtime=realtime, plant=plant, payload_path=truth_payload
+        )
         host, port = server.host, server.port
         pacing = "realtime" if realtime else "virtual time"
         notes = "".join(f"\n  not faithful: {n}" for n in server.core.backend.plant_notes)
-        console.err.print(f"embedded simulated cell on {host}:{port} ({pacing}, {truth}, {plant}){notes}")
+        load = "" if truth_payload is None else f", payload {truth_payload}"
+        console.err.print(
+            f"embedded simulated cell on {host}:{port} ({pacing}, {truth}{load}, {plant}){notes}"
+        )
     else:
         host, port = parse_gateway_address(gateway, allow_remote)
     try:
@@ -165,13 +207,15 @@ class _Job:
 
 
 def _inputs(
-    plan: Path, robot: Robot, dynamics: Path | None, calibration: Path | None
+    plan: Path, robot: Robot, dynamics: Path | None, calibration: Path | None, payload: Path | None = None
 ) -> tuple[dict[str, Path], Any]:
     """The envelope's inputs, and --calibration's view (``CalibratedView``: the calibrated robot and
     URDF and the tracker frame in the log's 3D view, nothing else) or None."""
     inputs: dict[str, Path] = {"plan": plan, "urdf": robot.urdf_path, "drives": robot.drives_path}
     if dynamics is not None:
         inputs["dynamics"] = Path(dynamics)
+    if payload is not None:
+        inputs["payload"] = Path(payload)
     if calibration is None:
         return inputs, None
     from rxcomm.calibration.loading import load_calibrated_robot, load_calibration
@@ -204,6 +248,8 @@ def execute(
     show_progress: bool = True,
     plant: str = "own",
     calibration: Path | None = None,
+    truth_payload: Path | None = None,
+    payload: Path | None = None,
 ) -> dict[str, Any]:
     """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
     from rxcomm.execution.campaign import CampaignSettings
@@ -222,20 +268,18 @@ def execute(
     check_output_kind(kind, output)
     if compare is not None and not plot:
         raise InputError("--compare draws into the --plot figure: pass --plot too", field="compare")
-    embedded_truth = None if gateway is not None else (truth or Path(robot_dir) / "truth.yaml")
     DECLARATIONS["run"].check(
         output=output,
         plot=plot,
         robot=robot_dir,
         plan=plan,
-        dynamics=dynamics,
-        truth=embedded_truth,
+        **_model_and_cell_files(gateway, truth, robot_dir, truth_payload, dynamics, payload),
         compare=compare,
         calibration=calibration,
     )
     robot = load_robot(robot_dir)
-    params, model_name = load_model(robot, dynamics, plan)
-    inputs, view = _inputs(plan, robot, dynamics, calibration)
+    params, model_name = load_model(robot, dynamics, plan, payload)
+    inputs, view = _inputs(plan, robot, dynamics, calibration, payload)
     virtual = gateway is None and not realtime  # the embedded cell's clock waits for the master
     lease = {"watchdog_ms": VIRTUAL_CELL_WATCHDOG_MS} if virtual else {}
     stream = StreamSettings(interpolation_ratio=interpolation_ratio, **lease)
@@ -243,7 +287,8 @@ def execute(
     restore_sigterm = sigterm_as_interrupt()
     job = _Job(
         plan, output, robot, params, model_name, inputs,
-        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant), update, view,
+        lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant, truth_payload), update,
+        view,
     )  # fmt: skip
     try:
         if cfg is None:
@@ -441,6 +486,13 @@ _Gateway = Annotated[
 _Truth = Annotated[
     Path | None, typer.Option(help="The embedded cell's truth file (default: ROBOT_DIR/truth.yaml).")
 ]
+_TruthPayload = Annotated[
+    Path | None,
+    typer.Option(
+        help="Embedded cell: the payload it carries for this run (rxcomm/CellPayload YAML; replaces the "
+        "truth's payload, `payload: null` none)."
+    ),
+]
 _Dynamics = IdentifiedDynamics  # τ_ff and the torque checks
 _Feedforward = Annotated[
     bool, typer.Option("--feedforward/--no-feedforward", help="Stream τ_ff = M(q)q̈ + g(q, q̇), or zeros.")
@@ -497,6 +549,8 @@ def command(
     other_robot: OtherRobot = False,
     allow_inconsistent: AllowInconsistent = False,
     plant: Plant = "own",
+    truth_payload: _TruthPayload = None,
+    payload: PayloadOption = None,
 ) -> None:
     """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque (from
     --dynamics, else the prior model; also the torque checks), record,
@@ -523,4 +577,6 @@ def command(
         compare=compare,
         plant=console.checked(embedded_plant, plant, gateway),
         calibration=calibration,
+        truth_payload=truth_payload,
+        payload=payload,
     )
