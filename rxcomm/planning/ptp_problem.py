@@ -15,8 +15,8 @@ import casadi as ca
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from rxcomm.model.energy import BusPowerModel
 from rxcomm.model.dynamics import COULOMB_EPS_NLP_RAD_S, DynamicParameters, prior_parameters
+from rxcomm.model.energy import BusPowerModel
 from rxcomm.model.limits import (
     AccelerationLimit,
     PositionLimit,
