@@ -28,7 +28,9 @@ from rxcomm.options import (
     TRAJECTORY_OUTPUT,
     AllowInconsistent,
     IdentifiedDynamics,
+    Objective,
     OtherRobot,
+    PlanDuration,
     RobotDir,
     TimeWeight,
     Timing,
@@ -36,6 +38,7 @@ from rxcomm.options import (
 )
 from rxcomm.schemas.cell import Box, Cell
 from rxcomm.schemas.trajectory import TrajectorySummary
+from rxcomm.stages.summary import planned_energy
 
 if TYPE_CHECKING:
     from rxcomm.io.trajectory import Trajectory
@@ -234,6 +237,8 @@ def command(
     calibration: CalibrationOption = None,
     k1: TimeWeight = 1.0,
     k2: EnergyWeightOption = 0.0,
+    objective: Objective = "torque",
+    duration_s: PlanDuration = None,
     torque_rate: TorqueRateOption = True,
     method: MethodOption = "nlp",
     intervals: IntervalsOption = 200,
@@ -284,6 +289,8 @@ def command(
             intervals=intervals,
             tcp_speed_max_m_s=_given_or(tcp_speed_max, spec.limits.tcp_speed_max_m_s),
             tcp_acceleration_max_m_s2=_given_or(tcp_acceleration_max, spec.limits.tcp_acceleration_max_m_s2),
+            objective=objective,
+            duration_s=duration_s,
         ),
         {name: name.replace("_", "-") for name in CpSettings.model_fields},
     )
@@ -322,6 +329,7 @@ def _write(
     from rxcomm.planning.catalogue_timing import filtered_path_deviation_m
 
     summary = summary_of(plan, robot)
+    summary |= planned_energy(robot, trajectory_of(plan), plan.nlp.bus_energy_j if plan.nlp else None)
     if catalogue is not None:  # how the limits were found; what the setpoint filter rounds off
         settings["catalogue"] = catalogue.as_dict()
         summary["catalogue_acceleration_bound"] = catalogue.binding_text()

@@ -24,7 +24,9 @@ from rxcomm.options import (
     TRAJECTORY_OUTPUT,
     AllowInconsistent,
     IdentifiedDynamics,
+    Objective,
     OtherRobot,
+    PlanDuration,
     RobotDir,
     TimeWeight,
     Timing,
@@ -33,7 +35,7 @@ from rxcomm.options import (
 )
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
-from rxcomm.stages.summary import motion_summary
+from rxcomm.stages.summary import motion_summary, planned_energy
 
 if TYPE_CHECKING:
     from rxcomm.model.robot import Robot
@@ -205,6 +207,8 @@ def command(
     calibration: CalibrationOption = None,
     k1: TimeWeight = 1.0,
     k2: EnergyWeightOption = 0.0,
+    objective: Objective = "torque",
+    duration_s: PlanDuration = None,
     intervals: IntervalsOption = 50,
     margin: MarginOption = 0.01,
     acceleration_limits: AccelerationLimitsOption = True,
@@ -222,6 +226,7 @@ def command(
 ) -> dict[str, object]:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
     from rxcomm.model.artefact_checks import accept_artefacts
+    from rxcomm.model.energy import BusPowerModel
     from rxcomm.model.robot import robot_files
     from rxcomm.planning.ptp_problem import PtpOptions
 
@@ -244,8 +249,12 @@ def command(
             tcp_box_m=parse_box(tcp_box),
             max_wall_s=max_wall,
             compile=compile_,
+            objective=objective,
+            bus=BusPowerModel.of(robot) if objective == "energy" else None,
+            duration_s=duration_s,
         ),
-        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"},
+        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall",
+         "bus": "objective", "duration_s": "duration-s"},  # fmt: skip
     )
     branch = Branch(shoulder=shoulder, elbow=elbow, wrist=wrist)
     q_start, start_kind = parse_state(robot, start, "start", branch)
@@ -326,6 +335,9 @@ def _write_optimal(robot, dyn, q_start, q_goal, options, target: _Target, *, fal
                 _write_fallback(robot, dyn, q_start, q_goal, options, target, e)
             raise
     summary = summary_of(result, q_start, q_goal, options.margin)
+    sol, bus = result.solution, options.bus
+    nodes_t = np.linspace(0.0, sol.duration_s, sol.n_intervals + 1)  # the NLP's own quadrature
+    summary |= planned_energy(robot, result.trajectory, bus and bus.energy(nodes_t, sol.qd, sol.tau))
     summary["seconds"] = time.perf_counter() - target.t_all
     target.save(result.trajectory, summary, robot.joint_names, robot)
     if plot:
