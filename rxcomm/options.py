@@ -103,6 +103,7 @@ def radians_value(rad: float | None, deg: float | None, option: str, default_rad
         return float(np.radians(deg))
     return default_rad if rad is None else rad
 
+
 # plan-cp, plan-ptp: what the optimal plan minimises (issue 29) and a fixed cycle time for it.
 Objective = Annotated[
     Literal["torque", "energy"],

@@ -110,8 +110,15 @@ def command(
     commissioned_equal_time_log: Annotated[
         list[Path] | None,
         typer.Option(
-            help="Run log of the commissioned reference task slowed to the factory's cycle time "
-            "(plan-cycles --duration-s); repeat, same moves: the energy at equal time."
+            help="Run log of the commissioned reference task at the factory's cycle time (plan-cp/plan-ptp "
+            "--objective energy --duration-s); repeat, same moves: the energy at equal time."
+        ),
+    ] = None,
+    commissioned_curve_log: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Run logs of the commissioned task at further cycle times (the time–energy curve), in "
+            "groups of the task's moves (as many as --commissioned-log); repeat."
         ),
     ] = None,
     factory_iso9283: Annotated[
@@ -128,11 +135,13 @@ def command(
     f_files = [_summary_file(Path(p)) for p in factory_log or []]
     c_files = [_summary_file(Path(p)) for p in commissioned_log or []]
     e_files = [_summary_file(Path(p)) for p in commissioned_equal_time_log or []]
+    k_files = [_summary_file(Path(p)) for p in commissioned_curve_log or []]
     inputs = {
         "thresholds": Path(thresholds),
         **{f"factory_log_{i + 1}": p for i, p in enumerate(f_files)},
         **{f"commissioned_log_{i + 1}": p for i, p in enumerate(c_files)},
         **{f"commissioned_equal_time_log_{i + 1}": p for i, p in enumerate(e_files)},
+        **{f"commissioned_curve_log_{i + 1}": p for i, p in enumerate(k_files)},
         "factory_iso9283": factory_iso9283,
         "commissioned_iso9283": commissioned_iso9283,
     }
@@ -151,12 +160,20 @@ def command(
     f_runs = [read_yaml_artefact(p, RunLog).summary for p in f_files]
     c_runs = [read_yaml_artefact(p, RunLog).summary for p in c_files]
     e_runs = [read_yaml_artefact(p, RunLog).summary for p in e_files]
+    k_runs = [read_yaml_artefact(p, RunLog).summary for p in k_files]
+    moves = max(len(c_files), 1)
+    if len(k_runs) % moves:
+        raise InputError(
+            f"{len(k_runs)} curve run logs: not groups of {moves}", field="commissioned-curve-log"
+        )
     f_iso = read_yaml_artefact(factory_iso9283, Iso9283) if factory_iso9283 else None
     c_iso = read_yaml_artefact(commissioned_iso9283, Iso9283) if commissioned_iso9283 else None
-    rows = acceptance_rows(spec.criteria, f_runs, c_runs, f_iso, c_iso, e_runs)
+    curve = [k_runs[i : i + moves] for i in range(0, len(k_runs), moves)]
+    rows = acceptance_rows(spec.criteria, f_runs, c_runs, f_iso, c_iso, e_runs, curve)
     summary = overall(rows)
     settings = {"factory_logs": [p.name for p in f_files], "commissioned_logs": [p.name for p in c_files]}
     settings["commissioned_equal_time_logs"] = [p.name for p in e_files]
+    settings["commissioned_curve_logs"] = [p.name for p in k_files]
     used = {k: Path(v) for k, v in inputs.items() if v is not None}
     artefact = Acceptance(**Acceptance.envelope(used, settings, summary), rows=rows)
     write_yaml_artefact(output, artefact)

@@ -253,8 +253,14 @@ def command(
             bus=BusPowerModel.of(robot) if objective == "energy" else None,
             duration_s=duration_s,
         ),
-        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall",
-         "bus": "objective", "duration_s": "duration-s"},  # fmt: skip
+        {
+            "n_intervals": "intervals",
+            "k2_per_nm2": "k2",
+            "tcp_box_m": "tcp-box",
+            "max_wall_s": "max-wall",
+            "bus": "objective",
+            "duration_s": "duration-s",
+        },  # fmt: skip
     )
     branch = Branch(shoulder=shoulder, elbow=elbow, wrist=wrist)
     q_start, start_kind = parse_state(robot, start, "start", branch)
