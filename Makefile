@@ -391,7 +391,7 @@ TASK_LOGS  := --factory-log $(B)/run-factory-cp.mcap --factory-log $(B)/run-fact
 	--commissioned-equal-time-log $(B)/run-cp-at-factory-time.mcap \
 	--commissioned-equal-time-log $(B)/run-ptp-at-factory-time.mcap \
 	$(addprefix --commissioned-curve-log ,$(CURVE_RUNS))
-ACCEPT_ARGS = --thresholds $(ACCEPTANCE) $(TASK_LOGS) \
+ACCEPT_ARGS = --thresholds $(ACCEPTANCE) $(TASK_LOGS) --plot \
 	--factory-iso9283 $(B)/iso9283-factory.yaml --commissioned-iso9283 $(B)/iso9283.yaml
 $(B)/verdict.yaml: $(ACCEPTANCE) $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.mcap $(B)/run-ff.mcap \
 		$(B)/run-ptp.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap $(CURVE_RUNS) \

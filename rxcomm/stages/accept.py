@@ -10,6 +10,10 @@ verdict. Anything not given is "not measured", and the summary's verdict is then
 The console opens with one line, ``ACCEPTED`` or ``NOT ACCEPTED — n of m acceptance criteria failed:
 …`` (`rxcomm.acceptance.verdict.verdict_line`); the exit code is 0 either way (a verdict is a result,
 not an error): make and CI gate on the summary's ``accepted``.
+
+``--plot`` writes ``time-energy.png`` beside the verdict: the commissioned time–energy curve (its
+measured points: time-optimal, ``--commissioned-curve-log`` groups, the factory's cycle time) with the
+factory's point on it (issue 29).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from typing import Annotated
 
 import typer
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs, mcap_summary_path
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
@@ -127,6 +131,9 @@ def command(
     commissioned_iso9283: Annotated[
         Path | None, typer.Option(help="ISO 9283 criteria of the commissioned state (rxcomm/Iso9283).")
     ] = None,
+    plot: Annotated[
+        bool, typer.Option(help="Write time-energy.png beside the output: the time–energy curve.")
+    ] = False,
 ) -> dict[str, object]:
     """Write the acceptance verdict: each criterion for the factory and the commissioned state."""
     from rxcomm.acceptance.verdict import acceptance_rows, overall
@@ -145,7 +152,8 @@ def command(
         "factory_iso9283": factory_iso9283,
         "commissioned_iso9283": commissioned_iso9283,
     }
-    check_outputs({"output": output}, inputs)
+    png = output.with_name("time-energy.png") if plot else None
+    check_outputs({"output": output, "plot": png}, inputs)
     for name, p in inputs.items():
         if p is not None and not Path(p).exists():
             raise InputError("file not found", file=p, field=name.replace("_", "-"))
@@ -177,6 +185,29 @@ def command(
     used = {k: Path(v) for k, v in inputs.items() if v is not None}
     artefact = Acceptance(**Acceptance.envelope(used, settings, summary), rows=rows)
     write_yaml_artefact(output, artefact)
+    if png is not None:
+        plot_time_energy(png, [c_runs, e_runs, *curve], f_runs)
     print_verdict(summary, rows)
     console.out.print(f"verdict → {output}")
     return summary
+
+
+def plot_time_energy(path: Path, commissioned: list, factory: list) -> Path:
+    """The commissioned tasks' (cycle time, electrical energy) as a curve, the factory's point on it."""
+    from rxcomm.acceptance.verdict import time_energy_points
+
+    plt = plotting.pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    pts = time_energy_points(commissioned)
+    if pts:
+        ax.plot(*zip(*pts, strict=True), "o-", label="commissioned (energy objective; fastest: time-optimal)")
+    for t, e in time_energy_points([factory]):
+        ax.plot([t], [e], "s", color="C3", markersize=9, label="factory (catalogue timing)")
+        ax.axvline(t, color="C3", lw=0.8, ls=":")
+        ax.axhline(e, color="C3", lw=0.8, ls=":")
+    ax.set_xlabel("cycle time of the reference task [s]")
+    ax.set_ylabel("electrical energy [J]")
+    ax.set_title("reference task: time–energy (measured runs)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return plotting.save_figure(fig, path)
