@@ -61,7 +61,7 @@ def test_cp_energy_objective_beats_the_torque_plan_at_its_cycle_time(rx130l):
 
     _, path = load_path(ROOT / "samples/rx130l/paths/line-near-singularity.yaml", rx130l)
     dyn = PlanDynamics.load(rx130l, None, 0.02)
-    torque = plan_cp(rx130l, path, dyn, CpSettings(k2=1e-4))
+    torque = plan_cp(rx130l, path, dyn, CpSettings(k2=1e-3))
     t_k2 = torque.duration_s
     energy = plan_cp(rx130l, path, dyn, CpSettings(objective="energy", duration_s=t_k2))
     e_torque = electrical_energy(rx130l, torque.t, torque.qd, torque.tau)

@@ -283,6 +283,9 @@ class NlpTiming:
             coulomb_eps_rad_s=pb.dynamics.eps, k1=self.k1, k2=self.k2, curvature=s.curvature,
             scale=scale, duals=None if self.result is None else self.result.duals, bus=self.bus,
             k3=1.0 if self.bus is not None else 0.0, duration_s=self.duration_s,
+            # near its time-optimal duration the fixed-time problem took 514 iterations (RX130L line at
+            # 1.06 × T_opt, prior model); at the chain's durations ≈ 50
+            max_iter=3000 if self.duration_s is not None else 500,
         )  # fmt: skip
         self.timings_s["nlp_s"] += time.perf_counter() - t0
         if not res.ok:

@@ -143,45 +143,20 @@ def command(
     c_files = [_summary_file(Path(p)) for p in commissioned_log or []]
     e_files = [_summary_file(Path(p)) for p in commissioned_equal_time_log or []]
     k_files = [_summary_file(Path(p)) for p in commissioned_curve_log or []]
-    inputs = {
-        "thresholds": Path(thresholds),
-        **{f"factory_log_{i + 1}": p for i, p in enumerate(f_files)},
-        **{f"commissioned_log_{i + 1}": p for i, p in enumerate(c_files)},
-        **{f"commissioned_equal_time_log_{i + 1}": p for i, p in enumerate(e_files)},
-        **{f"commissioned_curve_log_{i + 1}": p for i, p in enumerate(k_files)},
-        "factory_iso9283": factory_iso9283,
-        "commissioned_iso9283": commissioned_iso9283,
-    }
     png = output.with_name("time-energy.png") if plot else None
-    check_outputs({"output": output, "plot": png}, inputs)
-    for name, p in inputs.items():
-        if p is not None and not Path(p).exists():
-            raise InputError("file not found", file=p, field=name.replace("_", "-"))
-    if len(f_files) != len(c_files):
-        raise InputError(
-            f"{len(f_files)} factory and {len(c_files)} commissioned run logs: the reference task is the "
-            "same moves in both states",
-            field="commissioned-log",
-        )
-    check_same_task(f_files, c_files)
+    logs = {"factory": f_files, "commissioned": c_files, "commissioned_equal_time": e_files}
+    logs["commissioned_curve"] = k_files
+    inputs = _checked_inputs(thresholds, logs, factory_iso9283, commissioned_iso9283, output, png)
     spec = read_yaml_model(thresholds, AcceptanceThresholds)
-    f_runs = [read_yaml_artefact(p, RunLog).summary for p in f_files]
-    c_runs = [read_yaml_artefact(p, RunLog).summary for p in c_files]
-    e_runs = [read_yaml_artefact(p, RunLog).summary for p in e_files]
-    k_runs = [read_yaml_artefact(p, RunLog).summary for p in k_files]
-    moves = max(len(c_files), 1)
-    if len(k_runs) % moves:
-        raise InputError(
-            f"{len(k_runs)} curve run logs: not groups of {moves}", field="commissioned-curve-log"
-        )
+    f_runs, c_runs, e_runs = (
+        [read_yaml_artefact(p, RunLog).summary for p in f] for f in (f_files, c_files, e_files)
+    )
+    curve = _curve(k_files, len(c_files))
     f_iso = read_yaml_artefact(factory_iso9283, Iso9283) if factory_iso9283 else None
     c_iso = read_yaml_artefact(commissioned_iso9283, Iso9283) if commissioned_iso9283 else None
-    curve = [k_runs[i : i + moves] for i in range(0, len(k_runs), moves)]
     rows = acceptance_rows(spec.criteria, f_runs, c_runs, f_iso, c_iso, e_runs, curve)
     summary = overall(rows)
-    settings = {"factory_logs": [p.name for p in f_files], "commissioned_logs": [p.name for p in c_files]}
-    settings["commissioned_equal_time_logs"] = [p.name for p in e_files]
-    settings["commissioned_curve_logs"] = [p.name for p in k_files]
+    settings = {f"{k}_logs": [p.name for p in v] for k, v in logs.items()}
     used = {k: Path(v) for k, v in inputs.items() if v is not None}
     artefact = Acceptance(**Acceptance.envelope(used, settings, summary), rows=rows)
     write_yaml_artefact(output, artefact)
@@ -211,3 +186,34 @@ def plot_time_energy(path: Path, commissioned: list, factory: list) -> Path:
     ax.grid(alpha=0.3)
     ax.legend()
     return plotting.save_figure(fig, path)
+
+
+def _curve(files: list[Path], moves: int) -> list[list[dict]]:
+    """The curve's run summaries in groups of the task's `moves` (one group per cycle time)."""
+    runs = [read_yaml_artefact(p, RunLog).summary for p in files]
+    moves = max(moves, 1)
+    if len(runs) % moves:
+        raise InputError(f"{len(runs)} curve run logs: not groups of {moves}", field="commissioned-curve-log")
+    return [runs[i : i + moves] for i in range(0, len(runs), moves)]
+
+
+def _checked_inputs(thresholds, logs: dict[str, list[Path]], f_iso, c_iso, output, png) -> dict:
+    """Every input by name (NAME_log_i per log list), checked: outputs apart from inputs, files
+    present, the same task (moves) in both states."""
+    f_files, c_files = logs["factory"], logs["commissioned"]
+    inputs = {"thresholds": Path(thresholds)}
+    for kind, files in logs.items():
+        inputs |= {f"{kind}_log_{i + 1}": p for i, p in enumerate(files)}
+    inputs |= {"factory_iso9283": f_iso, "commissioned_iso9283": c_iso}
+    check_outputs({"output": output, "plot": png}, inputs)
+    for name, p in inputs.items():
+        if p is not None and not Path(p).exists():
+            raise InputError("file not found", file=p, field=name.replace("_", "-"))
+    if len(f_files) != len(c_files):
+        raise InputError(
+            f"{len(f_files)} factory and {len(c_files)} commissioned run logs: the reference task is the "
+            "same moves in both states",
+            field="commissioned-log",
+        )
+    check_same_task(f_files, c_files)
+    return inputs

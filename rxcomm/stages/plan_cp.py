@@ -264,8 +264,7 @@ def command(
     accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     if iso9283 is not None:
         return iso_paths(robot_dir, iso9283, cell=cell, rpy_deg=iso_rpy_deg)
-    t_all = time.perf_counter()
-    path, output = _given_paths(path, output)
+    t_all, (path, output) = time.perf_counter(), _given_paths(path, output)
     check_outputs(
         {"output": output, "plot": output.with_suffix(".png") if plot else None},
         {"path": path, "dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},

@@ -40,7 +40,7 @@ from rxcomm.stages.summary import motion_summary, planned_energy
 if TYPE_CHECKING:
     from rxcomm.model.robot import Robot
     from rxcomm.planning.ptp import PtpResult
-    from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits
+    from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
 
 
 # --- inputs -----------------------------------------------------------------------------------------
@@ -226,9 +226,7 @@ def command(
 ) -> dict[str, object]:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
     from rxcomm.model.artefact_checks import accept_artefacts
-    from rxcomm.model.energy import BusPowerModel
     from rxcomm.model.robot import robot_files
-    from rxcomm.planning.ptp_problem import PtpOptions
 
     accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     start, goal = state_text(start, start_deg, "start"), state_text(goal, goal_deg, "goal")
@@ -238,30 +236,9 @@ def command(
         {"dynamics": dynamics, "calibration": calibration, **robot_files(robot_dir)},
     )
     robot, dyn, inputs = _planning_model(robot_dir, calibration, dynamics)
-    options = settings_from_options(
-        PtpOptions,
-        dict(
-            n_intervals=intervals,
-            k1=k1,
-            k2_per_nm2=k2,
-            margin=margin,
-            acceleration_limits=acceleration_limits,
-            tcp_box_m=parse_box(tcp_box),
-            max_wall_s=max_wall,
-            compile=compile_,
-            objective=objective,
-            bus=BusPowerModel.of(robot) if objective == "energy" else None,
-            duration_s=duration_s,
-        ),
-        {
-            "n_intervals": "intervals",
-            "k2_per_nm2": "k2",
-            "tcp_box_m": "tcp-box",
-            "max_wall_s": "max-wall",
-            "bus": "objective",
-            "duration_s": "duration-s",
-        },  # fmt: skip
-    )
+    given = dict(n_intervals=intervals, k1=k1, k2_per_nm2=k2, margin=margin, tcp_box_m=parse_box(tcp_box))
+    given |= dict(acceleration_limits=acceleration_limits, max_wall_s=max_wall, compile=compile_)
+    options = _options(robot, given | dict(objective=objective, duration_s=duration_s))
     branch = Branch(shoulder=shoulder, elbow=elbow, wrist=wrist)
     q_start, start_kind = parse_state(robot, start, "start", branch)
     q_goal, goal_kind = parse_state(robot, goal, "goal", branch, near=q_start)
@@ -280,6 +257,16 @@ def command(
     if timing == "catalogue":
         return _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, target)
     return _write_optimal(robot, dyn, q_start, q_goal, options, target, fallback=fallback, plot=plot)
+
+
+def _options(robot: Robot, given: dict) -> PtpOptions:
+    """The OCP's options from the command line's (the energy objective's bus model from drives.yaml)."""
+    from rxcomm.model.energy import BusPowerModel
+    from rxcomm.planning.ptp_problem import PtpOptions
+
+    given["bus"] = BusPowerModel.of(robot) if given["objective"] == "energy" else None
+    names = {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"}
+    return settings_from_options(PtpOptions, given, names | {"bus": "objective", "duration_s": "duration-s"})
 
 
 def _planning_model(
