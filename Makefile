@@ -345,27 +345,45 @@ $(B)/iso9283.yaml: $(B)/run-poses.mcap $(B)/run-iso-line.mcap $(C_LINE_EXTRA) $(
 	$(RX) iso9283 $(ISO_ARGS) --pose-log $(B)/run-poses.mcap --line-log $(B)/run-iso-line.mcap \
 		$(addprefix --line-log ,$(C_LINE_EXTRA)) --circle-log $(B)/run-iso-circle.mcap -o $@
 
-# The reference task at the factory's cycle time (issue 29): the commissioned CP and PtP plans slowed
-# uniformly in time to the factory runs' durations and run with feed-forward, so `accept` compares
-# electrical energy at equal time (a faster motion cannot spend less friction work on the same path).
-RUN_S = $$($(PY) -c "from rxcomm.io.yaml_io import read_yaml_artefact as read; \
-	from rxcomm.schemas.run_log import RunLog; print(read('$(1)', RunLog).summary.duration_s)")
-EQ_ARGS = --robot $(ROBOT) --cycles 1 --dynamics $(B)/dynamics.yaml
-$(B)/cp-at-factory-time.mcap: $(B)/cp.mcap $(B)/run-factory-cp.mcap $(B)/dynamics.yaml $(ROBOT_FILES) \
-		$(call params,cp-at-factory-time,$(EQ_ARGS))
-	$(RX) plan-cycles $< $(EQ_ARGS) --duration-s $(call RUN_S,$(B)/run-factory-cp.yaml) -o $@
+# The reference task at the factory's cycle time (issue 29): the commissioned CP path and PtP move
+# planned again with the electrical-energy objective (`--objective energy`: copper, mechanical power,
+# regeneration as drives.yaml says) at the factory runs' durations and run with feed-forward, so
+# `accept` compares electrical energy at equal time (a faster motion cannot spend less friction work
+# on the same path). ENERGY_CURVE: further points of the commissioned time–energy curve, each move at
+# T_opt + x·(T_factory − T_opt) for x in the list (T_opt: its time-optimal plan; x = 1: the factory's
+# time; 0 < x: always feasible), for the report's curve and accept's cycle time at the factory's energy.
+RUN_S = $$($(PY) -c "import yaml; d = lambda f: yaml.safe_load(open(f))['summary']['duration_s']; \
+	print(d('$(2)') + $(3) * (d('$(1)') - d('$(2)')))")
+ENERGY_CURVE ?= 0.3 0.6
+EQ_CP_ARGS  = --robot $(ROBOT) --path $(CP_PATH) $(MODEL_ARGS) --objective energy
+EQ_PTP_ARGS = --robot $(ROBOT) $(MODEL_ARGS) --objective energy
+CP_ENDS     = --start=$(call QOF,$(B)/cp.yaml,q_start) --goal=$(call QOF,$(B)/cp.yaml,q_goal)
+# $(call energy_rules,NAME,FRACTION): NAME-cp/-ptp plans at FRACTION of the factory's durations, their runs.
+define energy_rules
+$(B)/cp-$(1).mcap: $(B)/cp.mcap $(B)/run-factory-cp.mcap $(CP_PATH) $(MODEL) $(ROBOT_FILES) \
+		$$(call params,cp-$(1),$$(EQ_CP_ARGS) $(2))
+	$$(RX) plan-cp $$(EQ_CP_ARGS) --duration-s $$(call RUN_S,$(B)/run-factory-cp.yaml,$(B)/cp.yaml,$(2)) -o $$@
 
-$(B)/ptp-at-factory-time.mcap: $(B)/ptp.mcap $(B)/run-factory-ptp.mcap $(B)/dynamics.yaml $(ROBOT_FILES) \
-		$(call params,ptp-at-factory-time,$(EQ_ARGS))
-	$(RX) plan-cycles $< $(EQ_ARGS) --duration-s $(call RUN_S,$(B)/run-factory-ptp.yaml) -o $@
+$(B)/ptp-$(1).mcap: $(B)/cp.mcap $(B)/ptp.mcap $(B)/run-factory-ptp.mcap $(MODEL) $(ROBOT_FILES) \
+		$$(call params,ptp-$(1),$$(EQ_PTP_ARGS) $(2))
+	$$(RX) plan-ptp $$(CP_ENDS) $$(EQ_PTP_ARGS) \
+		--duration-s $$(call RUN_S,$(B)/run-factory-ptp.yaml,$(B)/ptp.yaml,$(2)) -o $$@
 
-$(B)/run-cp-at-factory-time.mcap: $(B)/cp-at-factory-time.mcap $(B)/dynamics.yaml $(SIM_FILES) \
-		$(call params,run-cp-at-factory-time,$(PTPRUN_ARGS))
-	$(RX) run $< $(PTPRUN_ARGS) -o $@
+$(B)/run-cp-$(1).mcap: $(B)/cp-$(1).mcap $(B)/dynamics.yaml $(SIM_FILES) \
+		$$(call params,run-cp-$(1),$$(PTPRUN_ARGS))
+	$$(RX) run $$< $$(PTPRUN_ARGS) -o $$@
 
-$(B)/run-ptp-at-factory-time.mcap: $(B)/ptp-at-factory-time.mcap $(B)/dynamics.yaml $(SIM_FILES) \
-		$(call params,run-ptp-at-factory-time,$(PTPRUN_ARGS))
-	$(RX) run $< $(PTPRUN_ARGS) -o $@
+$(B)/run-ptp-$(1).mcap: $(B)/ptp-$(1).mcap $(B)/dynamics.yaml $(SIM_FILES) \
+		$$(call params,run-ptp-$(1),$$(PTPRUN_ARGS))
+	$$(RX) run $$< $$(PTPRUN_ARGS) -o $$@
+
+$(B)/cp-$(1).mcap: $$(code_plan-cp)
+$(B)/ptp-$(1).mcap: $$(code_plan-ptp)
+$(B)/run-cp-$(1).mcap $(B)/run-ptp-$(1).mcap: $$(code_run)
+endef
+$(eval $(call energy_rules,at-factory-time,1))
+$(foreach x,$(ENERGY_CURVE),$(eval $(call energy_rules,curve-$(x),$(x))))
+CURVE_RUNS := $(foreach x,$(ENERGY_CURVE),$(B)/run-cp-curve-$(x).mcap $(B)/run-ptp-curve-$(x).mcap)
 
 # The verdict: the reference task (the CP path, then the PtP move between its end states) and the
 # ISO 9283 criteria in both states against the thresholds beside the cell. Reads the runs' NAME.yaml.
@@ -373,11 +391,12 @@ ACCEPTANCE ?= $(ROBOT)/acceptance.yaml
 TASK_LOGS  := --factory-log $(B)/run-factory-cp.mcap --factory-log $(B)/run-factory-ptp.mcap \
 	--commissioned-log $(B)/run-ff.mcap --commissioned-log $(B)/run-ptp.mcap \
 	--commissioned-equal-time-log $(B)/run-cp-at-factory-time.mcap \
-	--commissioned-equal-time-log $(B)/run-ptp-at-factory-time.mcap
-ACCEPT_ARGS = --thresholds $(ACCEPTANCE) $(TASK_LOGS) \
+	--commissioned-equal-time-log $(B)/run-ptp-at-factory-time.mcap \
+	$(addprefix --commissioned-curve-log ,$(CURVE_RUNS))
+ACCEPT_ARGS = --thresholds $(ACCEPTANCE) $(TASK_LOGS) --plot \
 	--factory-iso9283 $(B)/iso9283-factory.yaml --commissioned-iso9283 $(B)/iso9283.yaml
 $(B)/verdict.yaml: $(ACCEPTANCE) $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.mcap $(B)/run-ff.mcap \
-		$(B)/run-ptp.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap \
+		$(B)/run-ptp.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap $(CURVE_RUNS) \
 		$(B)/iso9283-factory.yaml $(B)/iso9283.yaml $(call params,accept,$(ACCEPT_ARGS))
 	$(RX) accept $(ACCEPT_ARGS) -o $@
 
@@ -400,7 +419,7 @@ $(B)/report.md: $(B)/configs.yaml $(B)/calibration-prior.yaml $(B)/calibration.y
 		$(B)/run-factory-ptp.mcap $(B)/run-factory-poses.mcap $(B)/run-poses.mcap \
 		$(B)/run-factory-iso-line.mcap $(B)/run-iso-line.mcap $(B)/run-factory-iso-circle.mcap \
 		$(B)/run-iso-circle.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap \
-		$(B)/iso9283-factory.yaml $(B)/iso9283.yaml $(B)/verdict.yaml $(B)/exports/parity.yaml
+		$(CURVE_RUNS) $(B)/iso9283-factory.yaml $(B)/iso9283.yaml $(B)/verdict.yaml $(B)/exports/parity.yaml
 	$(RX) report $(B) -o $@
 
 # The command each rule runs, by its code stamp (above; tests/test_make.py checks each recipe's command).
@@ -414,11 +433,11 @@ $(B)/validation-plan.mcap $(B)/cp.mcap $(B)/factory-cp.mcap $(B)/factory-iso-lin
 $(B)/ptp.mcap $(B)/factory-ptp.mcap: $(code_plan-ptp)
 $(B)/factory-poses.mcap $(B)/poses.mcap: $(code_plan-poses)
 $(B)/factory-iso-line-cycles.mcap $(B)/iso-line-cycles.mcap $(B)/factory-iso-circle-cycles.mcap \
-	$(B)/iso-circle-cycles.mcap $(B)/cp-at-factory-time.mcap $(B)/ptp-at-factory-time.mcap: $(code_plan-cycles)
+	$(B)/iso-circle-cycles.mcap: $(code_plan-cycles)
 $(B)/calib-meas.yaml $(B)/excite-log.mcap $(B)/validation-log.mcap $(B)/run-noff.mcap $(B)/run-ff.mcap \
 	$(B)/run-ptp.mcap $(B)/run-factory-cp.mcap $(B)/run-factory-ptp.mcap $(B)/run-factory-iso-circle.mcap \
 	$(B)/run-iso-circle.mcap $(B)/run-factory-poses.mcap $(B)/run-poses.mcap $(B)/run-factory-iso-line.mcap \
-	$(B)/run-iso-line.mcap $(B)/run-cp-at-factory-time.mcap $(B)/run-ptp-at-factory-time.mcap: $(code_run)
+	$(B)/run-iso-line.mcap: $(code_run)
 $(B)/iso9283-factory.yaml $(B)/iso9283.yaml: $(code_iso9283)
 $(B)/verdict.yaml: $(code_accept)
 $(B)/exports/parity.yaml: $(code_export)

@@ -127,3 +127,18 @@ def radians_value(rad: float | None, deg: float | None, option: str, default_rad
     if deg is not None:
         return float(np.radians(deg))
     return default_rad if rad is None else rad
+
+
+# plan-cp, plan-ptp: what the optimal plan minimises (issue 29) and a fixed cycle time for it.
+# One meaning: what the command's optimisation minimises (tests/test_cli_vocabulary.py).
+OBJECTIVE_HELP = (
+    "What the optimisation minimises. excite: cond (cond(W) of the unit-column base regressor) or logdet "
+    "(−log det(WᵀW)/p); plan-cp, plan-ptp: torque (∫(k1 + k2·τᵀτ)dt, the paper's) or energy (the "
+    "electrical energy drawn from the bus: copper losses, mechanical power, regeneration as drives.yaml "
+    "says; at --duration-s)."
+)
+Objective = Annotated[Literal["torque", "energy"], typer.Option(help=OBJECTIVE_HELP)]
+PlanDuration = Annotated[
+    float | None,
+    typer.Option("--duration-s", help="Fixed duration of the plan for --objective energy, s."),
+]

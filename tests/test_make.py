@@ -66,14 +66,13 @@ ALL = {
     "verdict.yaml",
     "exports/parity.yaml",
     "report.md",
-    "cp-at-factory-time.mcap",
-    "ptp-at-factory-time.mcap",
-    "run-cp-at-factory-time.mcap",
-    "run-ptp-at-factory-time.mcap",
 }
-# The commissioned reference task slowed to the factory's cycle time and its runs (issue 29).
-EQ_PLANS = {"cp-at-factory-time.mcap", "ptp-at-factory-time.mcap"}
-EQ_RUNS = {"run-cp-at-factory-time.mcap", "run-ptp-at-factory-time.mcap"}
+# The commissioned reference task planned for the least energy at the factory's cycle time and at the
+# time–energy curve's further points (ENERGY_CURVE), and their runs (issue 29).
+EQ_NAMES = ("at-factory-time", "curve-0.3", "curve-0.6")
+EQ_PLANS = {f"{m}-{x}.mcap" for m in ("cp", "ptp") for x in EQ_NAMES}
+EQ_RUNS = {f"run-{p}" for p in EQ_PLANS}
+ALL |= EQ_PLANS | EQ_RUNS
 # The factory state (issue 17): catalogue timing of the CP path and the PtP move, run without feed-forward.
 FACTORY_PLANS = {"factory-cp.mcap", "factory-ptp.mcap"}
 FACTORY_RUNS = {"run-factory-cp.mcap", "run-factory-ptp.mcap"}
@@ -217,7 +216,7 @@ def test_the_report_reads_the_ptp_run(built):
     # report, nothing else; a factory run likewise.
     assert _remade(built, "-W", "build/run-ptp.mcap") == ({"verdict.yaml", "report.md"}, set())
     # a factory run also sets the cycle time the commissioned task is slowed to (energy at equal time)
-    eq_ptp = {"ptp-at-factory-time.mcap", "run-ptp-at-factory-time.mcap"}
+    eq_ptp = {p for p in EQ_PLANS | EQ_RUNS if "ptp-" in p}
     assert _remade(built, "-W", "build/run-factory-ptp.mcap") == (
         {"verdict.yaml", "report.md"} | eq_ptp,
         set(),

@@ -126,13 +126,13 @@ def test_accepted_then_one_stricter_threshold_is_not_accepted_on_every_first_lin
     md = (build / "report.md").read_text().splitlines()
     assert md[0] == "# rxcomm commissioning report" and md[2] == "**ACCEPTED**"
     v = load_yaml(build / "verdict.yaml")["summary"]
-    assert v["accepted"] is True and v["verdict_line"] == "ACCEPTED" and v["n_criteria"] == 7
+    assert v["accepted"] is True and v["verdict_line"] == "ACCEPTED" and v["n_criteria"] == 8
     # the commissioning checks (7 of 8 not measured in this build) do not count toward the verdict
     assert "1 of 8 checks pass, 0 fail, 7 not measured." in (build / "report.md").read_text()
 
     # AP_p ≤ 0.3 mm → ≤ 0.25 mm: the commissioned worst pose (P3, 0.27 mm) fails it, nothing else changes
     console = _accept(build, _stricter(tmp_path, "AP_p", 0.00025))
-    line = "NOT ACCEPTED — 1 of 7 acceptance criteria failed: AP_p"
+    line = "NOT ACCEPTED — 1 of 8 acceptance criteria failed: AP_p"
     assert console.splitlines()[0] == line
     md_text = (build / "report.md").read_text()
     md = md_text.splitlines()
@@ -146,8 +146,8 @@ def test_accepted_then_one_stricter_threshold_is_not_accepted_on_every_first_lin
     assert i_acc < i_iso < i_checks
     assert "| AP_p | 6 mm | 0.27 mm | 0.045 | ≤ 0.25 mm | fail |" in md_text
     assert (
-        "1 of 7 acceptance criteria pass" not in md_text
-        and "6 of 7 acceptance criteria pass, 1 fail" in md_text
+        "1 of 8 acceptance criteria pass" not in md_text
+        and "7 of 8 acceptance criteria pass, 1 fail" in md_text
     )
     html = (build / "report.html").read_text()
     assert f'<p id="headline" class="headline not-accepted">{line}</p>' in html
@@ -183,7 +183,7 @@ def test_chromium_shows_not_accepted_first(build, tmp_path):
     first = body.split("</p>", 1)[0].strip()
     assert first.startswith("<h1>rxcomm commissioning report</h1>")
     headline = '<p id="headline" class="headline not-accepted">'
-    assert first.endswith(headline + "NOT ACCEPTED — 1 of 7 acceptance criteria failed: AP_p")
+    assert first.endswith(headline + "NOT ACCEPTED — 1 of 8 acceptance criteria failed: AP_p")
 
 
 def test_a_path_at_several_speeds_has_one_row_per_speed_and_the_set_says_what_it_lacks():

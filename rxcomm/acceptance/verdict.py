@@ -151,6 +151,35 @@ def equal_time_value(
     return Measured(e.value, f"{e.note} at {t_c.value:.4g} s (factory {t_f.value:.4g} s)")
 
 
+def time_energy_points(tasks: Sequence[Sequence[RunLogSummary]]) -> list[tuple[float, float]]:
+    """(cycle time, electrical energy) of each measured task (its runs' sums), by cycle time; tasks
+    with a figure not measured are left out."""
+    pts = []
+    for runs in tasks:
+        t, e = task_value("cycle_time", runs).value, task_value("electrical_energy", runs).value
+        if t is not None and e is not None:
+            pts.append((t, e))
+    return sorted(pts)
+
+
+def time_at_energy(points: Sequence[tuple[float, float]], energy_j: float | None) -> Measured:
+    """The shortest cycle time at which the time–energy curve (piecewise linear between the measured
+    points) needs no more than `energy_j`: the fastest point if it already does, "not measured" if no
+    measured point does (the curve is not known beyond its slowest point)."""
+    if energy_j is None:
+        return Measured(None, "the factory's energy is not measured")
+    if not points:
+        return Measured(None, "no measured point of the commissioned time–energy curve")
+    n = f"{len(points)} measured points"
+    if points[0][1] <= energy_j:
+        return Measured(points[0][0], f"the fastest of {n} already needs ≤ the factory's energy")
+    for (t0, e0), (t1, e1) in zip(points, points[1:], strict=False):
+        if e1 <= energy_j:
+            return Measured(t0 + (e0 - energy_j) / (e0 - e1) * (t1 - t0), f"interpolated between {n}")
+    t_max, e_max = points[-1]
+    return Measured(None, f"every one of {n} needs more (slowest: {e_max:.4g} J at {t_max:.4g} s)")
+
+
 def acceptance_rows(
     thresholds: Sequence[Threshold],
     factory_runs: Sequence[RunLogSummary],
@@ -158,14 +187,21 @@ def acceptance_rows(
     factory_iso: Iso9283 | None,
     commissioned_iso: Iso9283 | None,
     equal_time_runs: Sequence[RunLogSummary] = (),
+    curve_tasks: Sequence[Sequence[RunLogSummary]] = (),
 ) -> list[VerdictRow]:
     """One verdict row per threshold, in the thresholds' order. `equal_time_runs`: the commissioned
-    reference task slowed to the factory's cycle time (electrical_energy_at_factory_time)."""
+    reference task at the factory's cycle time (electrical_energy_at_factory_time); `curve_tasks`:
+    the runs of further commissioned tasks at other cycle times (cycle_time_at_factory_energy, with the
+    time-optimal and the equal-time task)."""
     rows = []
     for t in thresholds:
         if t.criterion == "electrical_energy_at_factory_time":
             f = task_value("electrical_energy", factory_runs)
             c = equal_time_value(factory_runs, equal_time_runs)
+        elif t.criterion == "cycle_time_at_factory_energy":
+            f = task_value("cycle_time", factory_runs)
+            points = time_energy_points([commissioned_runs, equal_time_runs, *curve_tasks])
+            c = time_at_energy(points, task_value("electrical_energy", factory_runs).value)
         elif t.criterion in TASK_CRITERIA:
             f, c = task_value(t.criterion, factory_runs), task_value(t.criterion, commissioned_runs)
         else:

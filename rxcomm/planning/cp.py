@@ -44,6 +44,7 @@ import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rxcomm.errors import InfeasibleError
+from rxcomm.model.energy import BusPowerModel
 from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE, LimitReport, check_limits, robot_limits
 from rxcomm.model.robot import Robot
 from rxcomm.planning.commanded import Command, OnLink, commanded_trajectory
@@ -94,6 +95,15 @@ class CpSettings(BaseModel):
         description="re-solve while a sampled limit exceeds this (what run accepts)",
     )
     max_refinements: int = Field(4, ge=0, le=10)
+    objective: Literal["torque", "energy"] = Field(
+        "torque",
+        description="torque: ∫(k1 + k2·τᵀτ)dt; energy: the electrical energy drawn from the bus "
+        "(copper, mechanical power, regeneration as drives.yaml says; model.energy.BusPowerModel) at a "
+        "fixed duration_s",
+    )
+    duration_s: float | None = Field(
+        None, gt=0, description="fix the duration (the NLP minimises the objective at it), s; none: free"
+    )
     regrid_below: float = Field(
         0.97,
         ge=0,
@@ -108,6 +118,14 @@ class CpSettings(BaseModel):
             raise ValueError(
                 "method toppra cannot weigh torque (k2 > 0) or limit torque rate: use nlp or auto"
             )
+        if self.method == "toppra" and (self.objective == "energy" or self.duration_s is not None):
+            raise ValueError("method toppra is time-optimal: an energy objective or a duration needs nlp")
+        if self.objective == "energy" and self.duration_s is None:
+            raise ValueError("the energy objective needs a duration (the energy at that cycle time)")
+        if self.duration_s is not None and self.objective != "energy":
+            # ∫τᵀτ at a fixed time is mostly holding torque: its optimum crawls (σ̇ at the NLP's floor)
+            # where gravity is low, so only the energy objective takes a duration
+            raise ValueError("a fixed duration is for the energy objective")
         return self
 
     @property
@@ -354,9 +372,20 @@ def plan_cp(
     timings.update(nlp_s=0.0, nlp_setup_s=0.0)
     solver: TimingSolver
     if settings.uses_nlp:
+        warm, bus = topp.profile, None
+        if settings.duration_s is not None:
+            warm = _stretched(warm, settings.duration_s, path.name)
+        if settings.objective == "energy":
+            bus = BusPowerModel.of(robot)
+            if bus is None:
+                raise InfeasibleError(
+                    "the energy objective needs every joint's winding_resistance_ohm",
+                    file=robot.drives_path, field="joints[].winding_resistance_ohm",
+                )  # fmt: skip
         solver = NlpTiming(
-            NlpProblem(dynamics, jp, path, limits, settings.intervals), topp.profile, settings.k1,
-            settings.k2, settings.regrid_below, settings.target_ratio, timings,
+            NlpProblem(dynamics, jp, path, limits, settings.intervals), warm, settings.k1,
+            settings.k2, 0.0 if settings.duration_s else settings.regrid_below, settings.target_ratio,
+            timings, bus=bus, duration_s=settings.duration_s,
         )  # fmt: skip
     else:
         solver = ToppraTiming(jp, path.name, grid, limits, dynamics, curvature, topp, timings)
@@ -416,6 +445,17 @@ def plan_cp(
         active_segments=active_segments(t, s, report),
         q_link=None if link is None else link[0],
     )
+
+
+def _stretched(profile: PathProfile, duration_s: float, name: str) -> PathProfile:
+    """`profile` slowed uniformly to `duration_s` (σ̇ by T₀/T, σ̈ by its square): the warm start of a
+    fixed-duration NLP. Refuses a duration below the time-optimal one (no timing reaches it)."""
+    k = profile.duration_s / duration_s
+    if k > 1.0 + 1e-9:
+        raise InfeasibleError(
+            f"path {name!r}: {duration_s:.4g} s is below its time-optimal duration {profile.duration_s:.4g} s"
+        )
+    return PathProfile(profile.sigma, profile.sd * k, profile.sdd * k * k, profile.kind)
 
 
 def path_deviation_m(robot: Robot, jp: JointPath, n: int = 400) -> float:

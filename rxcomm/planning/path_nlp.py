@@ -1,7 +1,12 @@
 """The paper's path-domain optimal control problem (§5.2, eq. 38) as a CasADi NLP solved by IPOPT.
 
-    minimise  ∫ (k1 + k2·τᵀτ) dt = Σ_k Δt_k·(k1 + k2·mean(τᵀτ at the interval ends))
+    minimise  ∫ (k1 + k2·τᵀτ + k3·P) dt = Σ_k Δt_k·(k1 + mean(k2·τᵀτ + k3·P at the interval ends))
     subject to joint velocity, acceleration, torque (and torque-rate, TCP acceleration) limits
+               and optionally a fixed duration Σ_k Δt_k = T
+
+P is the bus power of `rxcomm.model.energy.BusPowerModel` (copper losses τᵀQτ, mechanical power
+τᵀq̇, its positive part smoothed unless the supply is regenerative): with k3 = 1 and the duration
+fixed (k1 then adds a constant) the NLP minimises the electrical energy at that cycle time (issue 29).
 
 over a fixed joint path q(σ). Variables per grid node: b_k = σ̇² and a_k = σ̈ (the convex choice of
 Verscheure et al.: velocity and acceleration limits are linear in them, the time is convex). Between
@@ -45,6 +50,7 @@ import casadi as ca
 import numpy as np
 
 from rxcomm.errors import SolveOutcome
+from rxcomm.model.energy import BusPowerModel
 from rxcomm.planning.path_dynamics import PathDynamics
 from rxcomm.planning.path_profile import PathProfile
 from rxcomm.planning.topp import PlanLimits, velocity_bound_x
@@ -79,6 +85,7 @@ class NlpResult:
     solve_seconds: float
     build_seconds: float
     duals: tuple[np.ndarray, np.ndarray] | None = None  # (λ_x, λ_g), to warm-start a re-solve
+    bus_energy_j: float | None = None  # ∫P dt over the nodes (trapezoid) of the energy objective
 
     @property
     def outcome(self) -> SolveOutcome:
@@ -88,7 +95,7 @@ class NlpResult:
 
 def _layout(n_nodes: int, dof: int) -> dict[str, tuple[int, int]]:
     """Layout of the parameter vector: name -> (offset, size)."""
-    sizes = {"dsig": n_nodes - 1, "kappa": n_nodes, "acc_tcp": n_nodes, "scal": 5}
+    sizes = {"dsig": n_nodes - 1, "kappa": n_nodes, "acc_tcp": n_nodes, "scal": 8, "qmat": dof * dof}
     sizes |= {k: n_nodes * dof for k in _SIZES_PER_NODE_JOINT}
     sizes |= {k: (n_nodes - 1) * dof for k in ("qs_mid", "qss_mid", "a_max_mid")}
     sizes |= {"b_max_mid": n_nodes - 1}
@@ -106,13 +113,20 @@ class _Solver:
     layout: dict[str, tuple[int, int]]
     lbg: np.ndarray
     ubg: np.ndarray
-    extras: ca.Function  # (x, p) -> (Δt per interval, τᵀτ per node)
+    extras: ca.Function  # (x, p) -> (Δt per interval, τᵀτ per node, bus power per node)
     build_seconds: float
+    duration_row: int  # the row Σ Δt − T of g
 
 
 @functools.lru_cache(maxsize=16)
 def _solver(
-    n_nodes: int, dof: int, torque_rate: bool, tcp_acc: bool, max_iter: int, warm: bool = False
+    n_nodes: int,
+    dof: int,
+    torque_rate: bool,
+    tcp_acc: bool,
+    max_iter: int,
+    warm: bool = False,
+    energy: bool = False,
 ) -> _Solver:
     """Build (once per process and shape) the IPOPT solver for n_nodes = N + 1 grid nodes."""
     t0 = time.perf_counter()
@@ -134,7 +148,7 @@ def _solver(
     )
     fc = par("fc").T
     kappa, acc_tcp, scal = par("kappa"), par("acc_tcp"), par("scal")
-    k1, k2, eps = scal[0], scal[1], scal[3]
+    k1, k2, eps, k3, delta, regen = scal[0], scal[1], scal[3], scal[5], scal[6], scal[7]
 
     def rows(x):  # a node vector as a column per joint
         return ca.repmat(x, 1, dof)
@@ -213,11 +227,17 @@ def _solver(
         2 * dsig[1 : N - 1] / (s[1 : N - 1] + s[2:N]),
         3 * dsig[N - 1] / s[N - 1],
     )
+    duration_row = sum(len(lo) for lo in lbg)
+    add(ca.sum1(dt) - scal[2], 0.0, 0.0)  # the duration (its bounds opened when it is free)
+    # bus power per node (BusPowerModel.power, with the regeneration switch a parameter)
+    bus = ca.sum2(tau * qs * s_r) + ca.sum2(ca.mtimes(tau, par("qmat", (dof, dof))) * tau)
+    bus = regen * bus + (1 - regen) * 0.5 * (bus + ca.sqrt(bus * bus + delta * delta))
+    node_cost = k2 * tt + (k3 * bus if energy else 0)
     # A tiny penalty on σ̈ changes: where the binding limit does not involve σ̈ (a joint at its
     # acceleration limit exactly where it reverses, q' = 0), σ̈ is otherwise free to zig-zag between
     # nodes, and the sampled values between them overshoot.
     da = a[1:] - a[:-1]
-    obj = ca.sum1(dt * (k1 + k2 * (tt[:-1] + tt[1:]) / 2)) + scal[4] * ca.sumsqr(da)
+    obj = ca.sum1(dt * (k1 + (node_cost[:-1] + node_cost[1:]) / 2)) + scal[4] * ca.sumsqr(da)
     x = ca.vertcat(b, a)
     opts = {
         "ipopt.print_level": 0,
@@ -237,8 +257,10 @@ def _solver(
             "ipopt.warm_start_mult_bound_push": 1e-6,
         }
     solver = ca.nlpsol("path_nlp", "ipopt", {"x": x, "p": p, "f": obj, "g": ca.vertcat(*cons)}, opts)
-    extras = ca.Function("path_nlp_extras", [x, p], [dt, tt], ["x", "p"], ["dt", "tau_sq"])
-    return _Solver(solver, lay, np.concatenate(lbg), np.concatenate(ubg), extras, time.perf_counter() - t0)
+    extras = ca.Function("path_nlp_extras", [x, p], [dt, tt, bus], ["x", "p"], ["dt", "tau_sq", "bus"])
+    return _Solver(
+        solver, lay, np.concatenate(lbg), np.concatenate(ubg), extras, time.perf_counter() - t0, duration_row
+    )
 
 
 def coulomb_levels(pd: PathDynamics) -> np.ndarray:
@@ -262,12 +284,16 @@ def optimise_path(
     duals: tuple[np.ndarray, np.ndarray] | None = None,
     smoothing: float = 0.0,
     max_iter: int = 500,
+    bus: BusPowerModel | None = None,
+    k3: float = 0.0,
+    duration_s: float | None = None,
 ) -> NlpResult:
     """Solve the path NLP on `grid` (N+1 nodes). `pd`/`dpd` are the path dynamics at the nodes and
     their σ-derivatives (keys m, c, v, g); `warm` a profile to start from (e.g. toppra's);
     `coulomb_eps_rad_s` the smoothing of the Coulomb sign used for the output torques too; `scale`
     local limit factors per node (`PlanLimits.at_nodes`); `duals` the multipliers of a previous solve
-    of the same size (warm start); `smoothing` an optional weight on Σ(Δσ̈)²."""
+    of the same size (warm start); `smoothing` an optional weight on Σ(Δσ̈)²; `bus` and `k3` the
+    electrical-energy term (weight 1/J); `duration_s` a fixed duration (None: free)."""
     grid = np.asarray(grid, dtype=float)
     n_nodes, dof = len(grid), pd.m.shape[1]
     if n_nodes < 4:
@@ -279,7 +305,10 @@ def optimise_path(
     if tcp_acc and curvature is None:
         raise ValueError("a TCP acceleration limit needs the path curvature at the nodes")
     cached = _solver.cache_info().currsize
-    sv = _solver(n_nodes, dof, torque_rate, tcp_acc, max_iter, duals is not None)
+    if k3 > 0 and bus is None:
+        raise ValueError("an energy weight k3 needs the bus power model")
+    energy = bus is not None and k3 > 0
+    sv = _solver(n_nodes, dof, torque_rate, tcp_acc, max_iter, duals is not None, energy)
     build = sv.build_seconds if _solver.cache_info().currsize > cached else 0.0
     qs, qss = spline(grid, 1), spline(grid, 2)
     mid = (grid[:-1] + grid[1:]) / 2
@@ -305,7 +334,19 @@ def optimise_path(
         "qss_mid": spline(mid, 2),
         "dsig": np.diff(grid),
         "kappa": np.zeros(n_nodes) if curvature is None else curvature,
-        "scal": np.array([k1, k2, 0.0, coulomb_eps_rad_s, smoothing]),
+        "scal": np.array(
+            [
+                k1,
+                k2,
+                duration_s or 0.0,
+                coulomb_eps_rad_s,
+                smoothing,
+                k3,
+                bus.smoothing_w if bus else 1.0,
+                float(bus.regenerative) if bus else 1.0,
+            ]
+        ),  # fmt: skip
+        "qmat": np.zeros((dof, dof)) if bus is None else np.asarray(bus.copper_w_per_nm2),
         "qs": qs,
         "qss": qss,
         "m": pd.m,
@@ -326,12 +367,15 @@ def optimise_path(
     for i in (0, n_nodes - 1):  # rest with zero acceleration at both ends
         lbx[i] = ubx[i] = lbx[n_nodes + i] = ubx[n_nodes + i] = 0.0
     b0 = np.interp(grid, warm.sigma, warm.sd**2) if warm is not None else 0.25 * np.minimum(b_hi, 1.0)
+    lbg, ubg = sv.lbg.copy(), sv.ubg.copy()
+    if duration_s is None:
+        lbg[sv.duration_row], ubg[sv.duration_row] = -np.inf, np.inf
     b0 = np.clip(b0, S_MIN**2, ubx[:n_nodes])
     b0[[0, -1]] = 0.0
     a0 = np.gradient(b0, grid) / 2
     a0[[0, -1]] = 0.0
     t1 = time.perf_counter()
-    args = {"x0": np.concatenate([b0, a0]), "p": pvec, "lbx": lbx, "ubx": ubx, "lbg": sv.lbg, "ubg": sv.ubg}
+    args = {"x0": np.concatenate([b0, a0]), "p": pvec, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
     if duals is not None:
         args |= {"lam_x0": duals[0], "lam_g0": duals[1]}
     sol = sv.nlpsol(**args)
@@ -341,7 +385,7 @@ def optimise_path(
     b_opt, a_opt = np.maximum(x[:n_nodes], 0.0), x[n_nodes:].copy()
     b_opt[[0, -1]] = a_opt[[0, -1]] = 0.0
     ok = bool(stats["success"]) or stats["return_status"] == "Solved_To_Acceptable_Level"
-    dt, tt = (np.array(v).ravel() for v in sv.extras(x, pvec))
+    dt, tt, pw = (np.array(v).ravel() for v in sv.extras(x, pvec))
     return NlpResult(
         ok=ok,
         profile=PathProfile(grid, np.sqrt(b_opt), a_opt, "linear") if ok else None,
@@ -353,4 +397,5 @@ def optimise_path(
         solve_seconds=solve,
         build_seconds=build,
         duals=(np.array(sol["lam_x"]).ravel(), np.array(sol["lam_g"]).ravel()),
+        bus_energy_j=float(np.sum(dt * (pw[:-1] + pw[1:]) / 2)) if bus is not None else None,
     )

@@ -312,6 +312,13 @@ def plan_ptp(
     caps = np.full((ocp.N + 1, robot.n), np.inf)  # local |q̈| caps at velocity reversals, rad/s²
     rate_scale = np.ones((ocp.N + 1, robot.n))  # local torque-rate bounds (factors)
     guess = NodeGuess.from_profile(warm_start, ocp.N)
+    if options.duration_s is not None:  # a fixed cycle time: start from the warm start stretched to it
+        if options.duration_s < 0.5 * guess.duration_s:
+            raise InfeasibleError(
+                f"plan-ptp: {options.duration_s:.4g} s is far below the kinematic warm start's "
+                f"{guess.duration_s:.4g} s"
+            )
+        guess = guess.stretched(options.duration_s)
     seconds, iterations = 0.0, 0
     for attempt in range(1 + max_resolves):
         sol = ocp.solve(q_start, q_goal, guess, margins, caps, rate_scale)

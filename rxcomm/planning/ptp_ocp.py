@@ -7,6 +7,8 @@ decision variable. The nodes carry (q, q̇, q̈); the torques come from the inve
 makes it much faster than the paper's forward-dynamics multiple shooting (`ptp_shooting`).
 
     minimise   ∫₀ᵀ (k1 + k2·τᵀτ) dt          (τᵀτ by the trapezoid rule over the nodes)
+               or, `objective` energy, ∫₀ᵀ P dt at a fixed T: the bus power of
+               `model.energy.BusPowerModel` (copper, mechanical, regeneration as drives.yaml says)
     subject to (q, q̇, q̈)_{k+1} = exact integration of the jerk u_k over h = T/N
                q(0) = q_start, q(T) = q_goal, q̇ = q̈ = 0 at both ends (rest to rest; q̈ = 0 keeps the
                torque continuous with the holding torque before and after the motion)
@@ -261,6 +263,8 @@ class PtpOcp:
             p_tcp = _sx_function(dyn.tcp_fk)(q)[0]
             add((p_tcp - ca.DM((lo + hi) / 2)) / ca.DM((hi - lo) / 2), "tcp_box", lambda k: 0 < k < N)
         f_k = opt.k2_per_nm2 * h * wt * ca.sumsqr(tau)
+        if opt.objective == "energy":  # the bus power (BusPowerModel), trapezoid over the nodes
+            f_k += h * wt * opt.bus.power(qd.T, tau.T, mtimes=ca.mtimes, sqrt=ca.sqrt)
         fn = ca.Function("ptp_window", [xi, wt], [ca.vertcat(*rows), f_k], ["xi", "wt"], ["rows", "f"])
         return fn, kinds, valid
 
@@ -357,8 +361,9 @@ class PtpOcp:
             a_b = np.minimum(a_b, np.asarray(accel_caps, float).T / self.a_ref[:, None])
         a_b[:, [0, -1]] = 0.0
         u_b = np.full(n * N, np.inf)
-        lbx = np.concatenate([[1e-3 / self.t_ref], q_lb.ravel("F"), -v_b.ravel("F"), -a_b.ravel("F"), -u_b])
-        ubx = np.concatenate([[100.0 / self.t_ref], q_ub.ravel("F"), v_b.ravel("F"), a_b.ravel("F"), u_b])
+        t_lo, t_hi = (1e-3, 100.0) if self.options.duration_s is None else (self.options.duration_s,) * 2
+        lbx = np.concatenate([[t_lo / self.t_ref], q_lb.ravel("F"), -v_b.ravel("F"), -a_b.ravel("F"), -u_b])
+        ubx = np.concatenate([[t_hi / self.t_ref], q_ub.ravel("F"), v_b.ravel("F"), a_b.ravel("F"), u_b])
         bound = {k: 1.0 - v for k, v in margins.items()} | {"defects": 0.0}
         ubg = np.array([bound[k] for k in self.row_kinds])
         if rate_scale is not None:  # local torque-rate bounds per node [N+1, n], a factor ≤ 1

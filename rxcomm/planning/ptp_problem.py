@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rxcomm.model.dynamics import COULOMB_EPS_NLP_RAD_S, DynamicParameters, prior_parameters
+from rxcomm.model.energy import BusPowerModel
 from rxcomm.model.limits import (
     AccelerationLimit,
     PositionLimit,
@@ -64,10 +65,21 @@ class PtpOptions(BaseModel):
     hessian: Literal["exact", "limited-memory"] = Field(
         "exact", description="IPOPT's Hessian: exact (assembled from the nodes) or its L-BFGS approximation"
     )
+    objective: Literal["torque", "energy"] = Field(
+        "torque",
+        description="torque: ∫(k1 + k2·τᵀτ)dt; energy: the electrical energy drawn from the bus (`bus`) "
+        "at the fixed duration_s",
+    )
+    bus: BusPowerModel | None = Field(None, description="the bus power of the energy objective")
+    duration_s: float | None = Field(None, gt=0, description="fixed duration, s (energy objective)")
 
     @model_validator(mode="after")
     def _objective(self) -> PtpOptions:
-        if self.k1 == 0 and self.k2_per_nm2 == 0:
+        if self.objective == "energy" and (self.bus is None or self.duration_s is None):
+            raise ValueError("the energy objective needs the bus power model and a duration")
+        if self.duration_s is not None and self.objective != "energy":
+            raise ValueError("a fixed duration is for the energy objective")
+        if self.k1 == 0 and self.k2_per_nm2 == 0 and self.objective != "energy":
             raise ValueError("k1 and k2_per_nm2 are both 0: nothing to minimise")
         if self.tcp_box_m is not None and not all(a < b for a, b in zip(*self.tcp_box_m, strict=True)):
             raise ValueError("tcp_box_m: every min must be below its max")
@@ -203,6 +215,11 @@ class NodeGuess:
         t = np.linspace(0.0, T, n_intervals + 1)
         q, qd, qdd = profile.at(t)
         return cls(T, q, qd, qdd, np.diff(qdd, axis=0) / (T / n_intervals))
+
+    def stretched(self, duration_s: float) -> NodeGuess:
+        """The same motion slowed (or sped up) uniformly to `duration_s`."""
+        k = self.duration_s / duration_s
+        return NodeGuess(duration_s, self.q, self.qd * k, self.qdd * k**2, self.jerk * k**3)
 
 
 def ipopt_options(options: PtpOptions, hessian: str) -> dict:

@@ -20,6 +20,7 @@ from typing import Protocol
 import numpy as np
 
 from rxcomm.errors import InfeasibleError
+from rxcomm.model.energy import BusPowerModel
 from rxcomm.model.limits import LimitReport
 from rxcomm.model.robot import Robot
 from rxcomm.planning.cp_grid import jerk_step, nlp_grid, switch_points
@@ -260,8 +261,11 @@ class NlpTiming:
         regrid_below: float,
         target_ratio: float,
         timings_s: dict[str, float],
+        bus: BusPowerModel | None = None,
+        duration_s: float | None = None,
     ) -> None:
         self.problem, self.k1, self.k2 = problem, k1, k2
+        self.bus, self.duration_s = bus, duration_s  # the energy objective; a fixed duration
         self.regrid_below, self.target_ratio, self.timings_s = regrid_below, target_ratio, timings_s
         self.setup = problem.setup(warm)
         self.grid = self.setup.grid
@@ -277,7 +281,11 @@ class NlpTiming:
         res = optimise_path(
             pb.jp.spline, s.grid, s.pd, s.dpd, pb.limits, self.warm,
             coulomb_eps_rad_s=pb.dynamics.eps, k1=self.k1, k2=self.k2, curvature=s.curvature,
-            scale=scale, duals=None if self.result is None else self.result.duals,
+            scale=scale, duals=None if self.result is None else self.result.duals, bus=self.bus,
+            k3=1.0 if self.bus is not None else 0.0, duration_s=self.duration_s,
+            # near its time-optimal duration the fixed-time problem took 514 iterations (RX130L line at
+            # 1.06 × T_opt, prior model); at the chain's durations ≈ 50
+            max_iter=3000 if self.duration_s is not None else 500,
         )  # fmt: skip
         self.timings_s["nlp_s"] += time.perf_counter() - t0
         if not res.ok:

@@ -145,11 +145,23 @@ def runs_section(runs: Mapping[str, RunLog], images: Sequence[str]) -> Section:
 TASK_RUNS = {
     "factory (catalogue timing, no feed-forward)": ("run-factory-cp.yaml", "run-factory-ptp.yaml"),
     "commissioned, time-optimal": ("run-ff.yaml", "run-ptp.yaml"),
-    "commissioned, slowed to the factory's cycle time": (
+    "commissioned, least energy at the factory's cycle time": (
         "run-cp-at-factory-time.yaml",
         "run-ptp-at-factory-time.yaml",
     ),
 }
+
+
+def curve_runs(runs: Mapping[str, RunLog]) -> dict[str, tuple[str, str]]:
+    """The time–energy curve's further points (the Makefile's run-cp-curve-X / run-ptp-curve-X), by X."""
+    xs = sorted(n[len("run-cp-curve-") : -len(".yaml")] for n in runs if n.startswith("run-cp-curve-"))
+    return {
+        f"commissioned, least energy at x = {x} of the way to the factory's time": (
+            f"run-cp-curve-{x}.yaml",
+            f"run-ptp-curve-{x}.yaml",
+        )
+        for x in xs
+    }
 
 
 def energy_section(runs: Mapping[str, RunLog]) -> Section:
@@ -157,7 +169,7 @@ def energy_section(runs: Mapping[str, RunLog]) -> Section:
     state: the commissioned time–energy points with the factory's beside them (issue 29). A state
     whose runs the build lacks is "not measured"."""
     rows = []
-    for what, names in TASK_RUNS.items():
+    for what, names in (TASK_RUNS | curve_runs(runs)).items():
         got = [runs[n].summary for n in names if n in runs]
         if len(got) < len(names) or any(g.outcome != "completed" for g in got):
             rows.append([what, NOT_MEASURED, NOT_MEASURED, NOT_MEASURED])
@@ -171,11 +183,16 @@ def energy_section(runs: Mapping[str, RunLog]) -> Section:
         )  # fmt: skip
     note = (
         "The same path and PtP move in each row, CP path then PtP (run logs; the energy drawn from the bus "
-        "with copper losses, regeneration as drives.yaml says). The slowed row is the time-optimal plan "
-        "scaled uniformly in time (`plan-cycles --duration-s`), not an energy-optimal plan at that time: "
-        "an upper bound of what the commissioned state needs there."
+        "with copper losses, regeneration as drives.yaml says). The commissioned rows other than the "
+        "time-optimal one are planned with the electrical-energy objective (`--objective energy "
+        "--duration-s`) at that duration per move: at the factory's, and at T_opt + x·(T_factory − T_opt) "
+        "(make's ENERGY_CURVE). The plot: these points as the commissioned time–energy curve, the "
+        "factory's point on it; `accept` reads the cycle time at the factory's energy off the curve."
     )
     table = Table(
         "reference task: time–energy points", ["state", "cycle time", "electrical energy", "∫τᵀτ dt"], rows
     )
-    return Section("Energy of the reference task at equal cycle time", [], note=note, tables=[table])
+    images = ["time-energy.png"] if any(n.startswith("run-cp-curve-") for n in runs) else []
+    return Section(
+        "Energy of the reference task at equal cycle time", [], note=note, tables=[table], images=images
+    )

@@ -11,7 +11,10 @@ command speed, and the reference task's figures from its run logs: ``cycle_time`
 runs' durations), ``tau_squared_integral`` (N²·m²·s, ∫τᵀτ dt of the measured torques) and
 ``electrical_energy`` (J, drawn from the bus, `rxcomm.model.energy`), and
 ``electrical_energy_at_factory_time`` (J): the commissioned reference task slowed uniformly in time to
-the factory's cycle time (`plan-cycles --duration-s`), run, against the factory's: energy at equal time.
+the factory's cycle time with the energy objective (`plan-cp/plan-ptp --objective energy --duration-s`),
+run, against the factory's: energy at equal time; ``cycle_time_at_factory_energy`` (s): the cycle time
+at which the commissioned time–energy curve (its measured points) reaches the factory's energy, against
+the factory's cycle time: time at equal energy (issue 29).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ TASK_CRITERIA: dict[str, str] = {
     "tau_squared_integral": "N2m2s",
     "electrical_energy": "J",
     "electrical_energy_at_factory_time": "J",
+    "cycle_time_at_factory_energy": "s",
 }
 ISO_CRITERIA: dict[str, str] = {
     "AP_p": "m",
@@ -51,6 +55,7 @@ CriterionName = Literal[
     "tau_squared_integral",
     "electrical_energy",
     "electrical_energy_at_factory_time",
+    "cycle_time_at_factory_energy",
 ]
 Unit = Literal["m", "1", "s", "N2m2s", "J"]
 Verdict = Literal["PASS", "FAIL", "not measured"]
@@ -109,6 +114,7 @@ class AcceptanceSettings(Strict):
     factory_logs: list[str] = []
     commissioned_logs: list[str] = []
     commissioned_equal_time_logs: list[str] = []
+    commissioned_curve_logs: list[str] = []
 
 
 class AcceptanceSummary(Strict):

@@ -135,6 +135,12 @@ class Drives(Strict):
     servo: ServoLoops = Field(
         default_factory=ServoLoops, description="the drives' loops and following-error window"
     )
+    regenerative_supply: bool = Field(
+        False,
+        description="the DC bus returns braking power to the mains (true) or burns what the other axes do "
+        "not draw in a brake resistor (false, the default): the electrical energy and the planners' "
+        "energy objective count only the positive part of the bus power then",
+    )
 
     @model_validator(mode="after")
     def _shapes(self) -> Drives:

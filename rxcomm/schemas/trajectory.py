@@ -56,6 +56,10 @@ class TrajectoryFigures(Strict):
     objective: float | None = None
     warm_start_duration_s: float | None = None
     resolves: int | None = None
+    planned_electrical_energy_j: float | None = Field(
+        None, description="the plan's bus energy with its own torques (null: no winding resistances)"
+    )
+    energy_objective_j: float | None = Field(None, description="an energy-objective NLP's own value")
 
 
 class TrajectorySummary(McapSummary):

@@ -10,6 +10,10 @@ verdict. Anything not given is "not measured", and the summary's verdict is then
 The console opens with one line, ``ACCEPTED`` or ``NOT ACCEPTED — n of m acceptance criteria failed:
 …`` (`rxcomm.acceptance.verdict.verdict_line`); the exit code is 0 either way (a verdict is a result,
 not an error): make and CI gate on the summary's ``accepted``.
+
+``--plot`` writes ``time-energy.png`` beside the verdict: the commissioned time–energy curve (its
+measured points: time-optimal, ``--commissioned-curve-log`` groups, the factory's cycle time) with the
+factory's point on it (issue 29).
 """
 
 from __future__ import annotations
@@ -19,13 +23,13 @@ from typing import Annotated
 
 import typer
 
-from rxcomm import console
+from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.files import check_outputs, mcap_summary_path
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
 from rxcomm.schemas.acceptance import Acceptance, AcceptanceSummary, AcceptanceThresholds
 from rxcomm.schemas.iso9283 import Iso9283
-from rxcomm.schemas.run_log import RunLog
+from rxcomm.schemas.run_log import RunLog, RunLogSummary
 
 
 def _summary_file(log: Path) -> Path:
@@ -110,8 +114,15 @@ def command(
     commissioned_equal_time_log: Annotated[
         list[Path] | None,
         typer.Option(
-            help="Run log of the commissioned reference task slowed to the factory's cycle time "
-            "(plan-cycles --duration-s); repeat, same moves: the energy at equal time."
+            help="Run log of the commissioned reference task at the factory's cycle time (plan-cp/plan-ptp "
+            "--objective energy --duration-s); repeat, same moves: the energy at equal time."
+        ),
+    ] = None,
+    commissioned_curve_log: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Run logs of the commissioned task at further cycle times (the time–energy curve), in "
+            "groups of the task's moves (as many as --commissioned-log); repeat."
         ),
     ] = None,
     factory_iso9283: Annotated[
@@ -120,6 +131,9 @@ def command(
     commissioned_iso9283: Annotated[
         Path | None, typer.Option(help="ISO 9283 criteria of the commissioned state (rxcomm/Iso9283).")
     ] = None,
+    plot: Annotated[
+        bool, typer.Option(help="Write time-energy.png beside the output: the time–energy curve.")
+    ] = False,
 ) -> dict[str, object]:
     """Write the acceptance verdict: each criterion for the factory and the commissioned state."""
     from rxcomm.acceptance.verdict import acceptance_rows, overall
@@ -128,15 +142,70 @@ def command(
     f_files = [_summary_file(Path(p)) for p in factory_log or []]
     c_files = [_summary_file(Path(p)) for p in commissioned_log or []]
     e_files = [_summary_file(Path(p)) for p in commissioned_equal_time_log or []]
-    inputs = {
-        "thresholds": Path(thresholds),
-        **{f"factory_log_{i + 1}": p for i, p in enumerate(f_files)},
-        **{f"commissioned_log_{i + 1}": p for i, p in enumerate(c_files)},
-        **{f"commissioned_equal_time_log_{i + 1}": p for i, p in enumerate(e_files)},
-        "factory_iso9283": factory_iso9283,
-        "commissioned_iso9283": commissioned_iso9283,
-    }
-    check_outputs({"output": output}, inputs)
+    k_files = [_summary_file(Path(p)) for p in commissioned_curve_log or []]
+    png = output.with_name("time-energy.png") if plot else None
+    logs = {"factory": f_files, "commissioned": c_files, "commissioned_equal_time": e_files}
+    logs["commissioned_curve"] = k_files
+    inputs = _checked_inputs(thresholds, logs, factory_iso9283, commissioned_iso9283, output, png)
+    spec = read_yaml_model(thresholds, AcceptanceThresholds)
+    f_runs, c_runs, e_runs = (
+        [read_yaml_artefact(p, RunLog).summary for p in f] for f in (f_files, c_files, e_files)
+    )
+    curve = _curve(k_files, len(c_files))
+    f_iso = read_yaml_artefact(factory_iso9283, Iso9283) if factory_iso9283 else None
+    c_iso = read_yaml_artefact(commissioned_iso9283, Iso9283) if commissioned_iso9283 else None
+    rows = acceptance_rows(spec.criteria, f_runs, c_runs, f_iso, c_iso, e_runs, curve)
+    summary = overall(rows)
+    settings = {f"{k}_logs": [p.name for p in v] for k, v in logs.items()}
+    used = {k: Path(v) for k, v in inputs.items() if v is not None}
+    artefact = Acceptance(**Acceptance.envelope(used, settings, summary), rows=rows)
+    write_yaml_artefact(output, artefact)
+    if png is not None:
+        plot_time_energy(png, [c_runs, e_runs, *curve], f_runs)
+    print_verdict(artefact.summary, rows)
+    console.out.print(f"verdict → {output}")
+    return summary
+
+
+def plot_time_energy(path: Path, commissioned: list, factory: list) -> Path:
+    """The commissioned tasks' (cycle time, electrical energy) as a curve, the factory's point on it."""
+    from rxcomm.acceptance.verdict import time_energy_points
+
+    plt = plotting.pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    pts = time_energy_points(commissioned)
+    if pts:
+        ax.plot(*zip(*pts, strict=True), "o-", label="commissioned (energy objective; fastest: time-optimal)")
+    for t, e in time_energy_points([factory]):
+        ax.plot([t], [e], "s", color="C3", markersize=9, label="factory (catalogue timing)")
+        ax.axvline(t, color="C3", lw=0.8, ls=":")
+        ax.axhline(e, color="C3", lw=0.8, ls=":")
+    ax.set_xlabel("cycle time of the reference task [s]")
+    ax.set_ylabel("electrical energy [J]")
+    ax.set_title("reference task: time–energy (measured runs)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return plotting.save_figure(fig, path)
+
+
+def _curve(files: list[Path], moves: int) -> list[list[RunLogSummary]]:
+    """The curve's run summaries in groups of the task's `moves` (one group per cycle time)."""
+    runs = [read_yaml_artefact(p, RunLog).summary for p in files]
+    moves = max(moves, 1)
+    if len(runs) % moves:
+        raise InputError(f"{len(runs)} curve run logs: not groups of {moves}", field="commissioned-curve-log")
+    return [runs[i : i + moves] for i in range(0, len(runs), moves)]
+
+
+def _checked_inputs(thresholds, logs: dict[str, list[Path]], f_iso, c_iso, output, png) -> dict:
+    """Every input by name (NAME_log_i per log list), checked: outputs apart from inputs, files
+    present, the same task (moves) in both states."""
+    f_files, c_files = logs["factory"], logs["commissioned"]
+    inputs = {"thresholds": Path(thresholds)}
+    for kind, files in logs.items():
+        inputs |= {f"{kind}_log_{i + 1}": p for i, p in enumerate(files)}
+    inputs |= {"factory_iso9283": f_iso, "commissioned_iso9283": c_iso}
+    check_outputs({"output": output, "plot": png}, inputs)
     for name, p in inputs.items():
         if p is not None and not Path(p).exists():
             raise InputError("file not found", file=p, field=name.replace("_", "-"))
@@ -147,19 +216,4 @@ def command(
             field="commissioned-log",
         )
     check_same_task(f_files, c_files)
-    spec = read_yaml_model(thresholds, AcceptanceThresholds)
-    f_runs = [read_yaml_artefact(p, RunLog).summary for p in f_files]
-    c_runs = [read_yaml_artefact(p, RunLog).summary for p in c_files]
-    e_runs = [read_yaml_artefact(p, RunLog).summary for p in e_files]
-    f_iso = read_yaml_artefact(factory_iso9283, Iso9283) if factory_iso9283 else None
-    c_iso = read_yaml_artefact(commissioned_iso9283, Iso9283) if commissioned_iso9283 else None
-    rows = acceptance_rows(spec.criteria, f_runs, c_runs, f_iso, c_iso, e_runs)
-    summary = overall(rows)
-    settings = {"factory_logs": [p.name for p in f_files], "commissioned_logs": [p.name for p in c_files]}
-    settings["commissioned_equal_time_logs"] = [p.name for p in e_files]
-    used = {k: Path(v) for k, v in inputs.items() if v is not None}
-    artefact = Acceptance(**Acceptance.envelope(used, settings, summary), rows=rows)
-    write_yaml_artefact(output, artefact)
-    print_verdict(artefact.summary, rows)
-    console.out.print(f"verdict → {output}")
-    return summary
+    return inputs

@@ -202,7 +202,13 @@ DECLARATIONS: dict[str, Declaration] = {
         settings="acceptance.campaign:EvaluationSettings",
     ),
     "accept": Declaration(
-        ("thresholds", "factory-log", "commissioned-log", "commissioned-equal-time-log")
+        (
+            "thresholds",
+            "factory-log",
+            "commissioned-log",
+            "commissioned-equal-time-log",
+            "commissioned-curve-log",
+        )
         + ("factory-iso9283", "commissioned-iso9283"),
         (Acceptance,),
     ),

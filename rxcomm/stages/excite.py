@@ -23,7 +23,7 @@ from rxcomm import console, plotting
 from rxcomm.errors import InputError
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.options import CELL, RobotDir, parse_numbers, radians_text, radians_value
+from rxcomm.options import CELL, OBJECTIVE_HELP, RobotDir, parse_numbers, radians_text, radians_value
 from rxcomm.schemas.cell import AllowedRegion, Cell
 from rxcomm.schemas.excitation import Excitation, ExcitationSettings, ExcitationStart
 from rxcomm.schemas.plain import sha256_file
@@ -125,9 +125,7 @@ TrajectoryOutOption = Annotated[
     typer.Option(help="Trajectory MCAP for `run` (default: OUTPUT's stem + '-trajectory.mcap')."),
 ]
 OmegaOption = Annotated[float, typer.Option("--omega-rad-s", help="Base frequency ω_f, rad/s (paper: 0.8).")]
-ObjectiveOption = Annotated[
-    Objective, typer.Option(help="cond(W) of the unit-column base regressor, or −log det(WᵀW)/p.")
-]
+ObjectiveOption = Annotated[Objective, typer.Option(help=OBJECTIVE_HELP)]
 PositionMarginOption = Annotated[
     float | None,
     typer.Option("--position-margin-rad", help="Kept from each joint limit, rad (default 0.05)."),

@@ -27,14 +27,17 @@ from rxcomm.options import (
     TRAJECTORY_OUTPUT,
     AllowInconsistent,
     IdentifiedDynamics,
+    Objective,
     OtherRobot,
     PayloadOption,
+    PlanDuration,
     RobotDir,
     TimeWeight,
     Timing,
 )
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
+from rxcomm.stages.summary import planned_energy
 
 if TYPE_CHECKING:
     from rxcomm.io.trajectory import Trajectory
@@ -194,6 +197,8 @@ def command(
     calibration: CalibrationOption = None,
     k1: TimeWeight = 1.0,
     k2: EnergyWeightOption = 0.0,
+    objective: Objective = "torque",
+    duration_s: PlanDuration = None,
     torque_rate: TorqueRateOption = True,
     method: MethodOption = "nlp",
     intervals: IntervalsOption = 200,
@@ -235,19 +240,14 @@ def command(
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
     spec, cpath = load_path(path, robot)
-    settings = settings_from_options(
-        CpSettings,
-        dict(
-            k1=k1,
-            k2=k2,
-            torque_rate=torque_rate,
-            method=method,
-            intervals=intervals,
-            tcp_speed_max_m_s=_given_or(tcp_speed_max, spec.limits.tcp_speed_max_m_s),
-            tcp_acceleration_max_m_s2=_given_or(tcp_acceleration_max, spec.limits.tcp_acceleration_max_m_s2),
-        ),
-        {name: name.replace("_", "-") for name in CpSettings.model_fields},
+    given = dict(k1=k1, k2=k2, torque_rate=torque_rate, method=method, intervals=intervals)
+    given |= dict(objective=objective, duration_s=duration_s)
+    given["tcp_speed_max_m_s"] = _given_or(tcp_speed_max, spec.limits.tcp_speed_max_m_s)
+    given["tcp_acceleration_max_m_s2"] = _given_or(
+        tcp_acceleration_max, spec.limits.tcp_acceleration_max_m_s2
     )
+    names = {name: name.replace("_", "-") for name in CpSettings.model_fields}
+    settings = settings_from_options(CpSettings, given, names)
     inputs |= model_inputs(dynamics, payload)
     dyn, command, compliance = _torque_model(
         nominal, calibration, dynamics, payload, settings.coulomb_eps_rad_s
@@ -276,6 +276,7 @@ def _write(
     from rxcomm.planning.catalogue_timing import filtered_path_deviation_m
 
     summary = summary_of(plan, robot)
+    summary |= planned_energy(robot, trajectory_of(plan), plan.nlp.bus_energy_j if plan.nlp else None)
     if catalogue is not None:  # how the limits were found; what the setpoint filter rounds off
         settings["catalogue"] = catalogue.as_dict()
         summary["catalogue_acceleration_bound"] = catalogue.binding_text()

@@ -24,8 +24,10 @@ from rxcomm.options import (
     TRAJECTORY_OUTPUT,
     AllowInconsistent,
     IdentifiedDynamics,
+    Objective,
     OtherRobot,
     PayloadOption,
+    PlanDuration,
     RobotDir,
     TimeWeight,
     Timing,
@@ -35,12 +37,12 @@ from rxcomm.options import (
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
-from rxcomm.stages.summary import motion_summary
+from rxcomm.stages.summary import motion_summary, planned_energy
 
 if TYPE_CHECKING:
     from rxcomm.model.robot import Robot
     from rxcomm.planning.ptp import PtpResult
-    from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits
+    from rxcomm.planning.ptp_problem import PtpDynamics, PtpLimits, PtpOptions
 
 
 # --- inputs -----------------------------------------------------------------------------------------
@@ -208,6 +210,8 @@ def command(
     calibration: CalibrationOption = None,
     k1: TimeWeight = 1.0,
     k2: EnergyWeightOption = 0.0,
+    objective: Objective = "torque",
+    duration_s: PlanDuration = None,
     intervals: IntervalsOption = 50,
     margin: MarginOption = 0.01,
     acceleration_limits: AccelerationLimitsOption = True,
@@ -226,7 +230,6 @@ def command(
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
     from rxcomm.model.artefact_checks import accept_artefacts
     from rxcomm.model.payload import model_name
-    from rxcomm.planning.ptp_problem import PtpOptions
 
     accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     start, goal = state_text(start, start_deg, "start"), state_text(goal, goal_deg, "goal")
@@ -235,20 +238,9 @@ def command(
         output=output, plot=plot, robot=robot_dir, dynamics=dynamics, payload=payload, calibration=calibration
     )
     robot, dyn, inputs = _planning_model(robot_dir, calibration, dynamics, payload)
-    options = settings_from_options(
-        PtpOptions,
-        dict(
-            n_intervals=intervals,
-            k1=k1,
-            k2_per_nm2=k2,
-            margin=margin,
-            acceleration_limits=acceleration_limits,
-            tcp_box_m=parse_box(tcp_box),
-            max_wall_s=max_wall,
-            compile=compile_,
-        ),
-        {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"},
-    )
+    given = dict(n_intervals=intervals, k1=k1, k2_per_nm2=k2, margin=margin, tcp_box_m=parse_box(tcp_box))
+    given |= dict(acceleration_limits=acceleration_limits, max_wall_s=max_wall, compile=compile_)
+    options = _options(robot, given | dict(objective=objective, duration_s=duration_s))
     branch = Branch(shoulder=shoulder, elbow=elbow, wrist=wrist)
     q_start, start_kind = parse_state(robot, start, "start", branch)
     q_goal, goal_kind = parse_state(robot, goal, "goal", branch, near=q_start)
@@ -267,6 +259,16 @@ def command(
     if timing == "catalogue":
         return _write_catalogue(robot_dir, robot, dyn, q_start, q_goal, target)
     return _write_optimal(robot, dyn, q_start, q_goal, options, target, fallback=fallback, plot=plot)
+
+
+def _options(robot: Robot, given: dict) -> PtpOptions:
+    """The OCP's options from the command line's (the energy objective's bus model from drives.yaml)."""
+    from rxcomm.model.energy import BusPowerModel
+    from rxcomm.planning.ptp_problem import PtpOptions
+
+    given["bus"] = BusPowerModel.of(robot) if given["objective"] == "energy" else None
+    names = {"n_intervals": "intervals", "k2_per_nm2": "k2", "tcp_box_m": "tcp-box", "max_wall_s": "max-wall"}
+    return settings_from_options(PtpOptions, given, names | {"bus": "objective", "duration_s": "duration-s"})
 
 
 def _planning_model(
@@ -327,6 +329,9 @@ def _write_optimal(robot, dyn, q_start, q_goal, options, target: _Target, *, fal
                 _write_fallback(robot, dyn, q_start, q_goal, options, target, e)
             raise
     summary = summary_of(result, q_start, q_goal, options.margin)
+    sol, bus = result.solution, options.bus
+    nodes_t = np.linspace(0.0, sol.duration_s, sol.n_intervals + 1)  # the NLP's own quadrature
+    summary |= planned_energy(robot, result.trajectory, bus and bus.energy(nodes_t, sol.qd, sol.tau))
     summary["seconds"] = time.perf_counter() - target.t_all
     target.save(result.trajectory, summary, robot.joint_names, robot)
     if plot:

@@ -25,3 +25,18 @@ def motion_summary(
         "q_start": np.asarray(q_start).tolist(),
         "q_goal": np.asarray(q_goal).tolist(),
     }
+
+
+def planned_energy(robot, traj, objective_j: float | None) -> dict[str, object]:
+    """The plan's electrical energy on its drive-cycle samples with the planning model's torques
+    (`model.energy.electrical_energy`, what `run` would measure with a perfect model; null without
+    winding resistances) and, for an energy-objective plan, what the NLP's smooth objective said on
+    its nodes (issue 29: the two differ by the smoothing and the node spacing)."""
+    from rxcomm.model.energy import electrical_energy
+
+    out: dict[str, object] = {
+        "planned_electrical_energy_j": electrical_energy(robot, traj.t, traj.qd, traj.tau_ff)
+    }
+    if objective_j is not None:
+        out["energy_objective_j"] = objective_j
+    return out
