@@ -110,12 +110,14 @@ AFTER_CELL = {
 }
 AFTER_CELL |= {"poses.mcap", "iso-line.mcap", "iso-line-cycles.mcap", "iso9283-factory.yaml", "iso9283.yaml"}
 AFTER_CELL |= {"iso-circle.mcap", "iso-circle-cycles.mcap", *EQ_PLANS}
-# select-configs and what follows the pose set: measurement, calibration, the planners on the
-# calibrated robot, their runs, the report. Excitation, identification's logs and robot-info do not.
+# select-configs and what follows the pose set: measurement, calibration, identification (on the
+# prior calibration's kinematics), the planners on the calibrated robot, their runs, the report.
+# Excitation, identification's logs and robot-info do not.
 AFTER_POSES = {
     "configs.yaml",
     "calib-meas.yaml",
     "calibration-prior.yaml",
+    "dynamics.yaml",
     "calibration.yaml",
     "cp.mcap",
     "ptp.mcap",
@@ -300,9 +302,9 @@ def test_commission_ci_reuses_the_same_rules_in_its_own_dir(built):
     assert _remade(built, goal="commission-ci", build="build-ci")[0] == ON_CELL | AFTER_CELL
 
 
-def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(built):
-    # The planners' calibration follows identify (its torques bend the joints); nothing upstream of
-    # it, identification included, reads a calibration, and the prior-torque pass feeds the report only.
+def test_identification_reads_the_prior_calibration_so_recalibrating_is_no_loop(built):
+    # The planners' calibration follows identify (its torques bend the joints); identify reads the
+    # prior-torque calibration (its kinematics), which reads no dynamics: no loop.
     after_cal = {"cp.mcap", "ptp.mcap", "run-noff.mcap", "run-ff.mcap", "run-ptp.mcap", "report.md"}
     # the commissioned ISO plans and runs, and both states' criteria (measured in the calibrated base frame)
     after_cal |= {
@@ -318,7 +320,8 @@ def test_identification_never_reads_a_calibration_so_recalibrating_is_no_loop(bu
     after_cal |= {"iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml", "exports/parity.yaml"}
     after_cal |= {*EQ_PLANS, *EQ_RUNS}
     assert _remade(built, "-W", "build/calibration.yaml")[0] == after_cal
-    assert _remade(built, "-W", "build/calibration-prior.yaml")[0] == {"report.md"}
+    after_prior = after_cal | {"dynamics.yaml", "calibration.yaml"}
+    assert _remade(built, "-W", "build/calibration-prior.yaml")[0] == after_prior
     assert _remade(built, "-W", "build/dynamics.yaml")[0] == after_cal | {"calibration.yaml"}
 
 
