@@ -433,9 +433,9 @@ def run(
     )
     opts = _settings(settings)
     nominal = load_robot(robot_dir)
+    if opts.friction is not None and opts.friction != nominal.friction_mode:
+        nominal = nominal.with_friction(opts.friction)  # --friction overrides drives.yaml's, artefact too
     robot = fit_kinematics(nominal, calibration)
-    if opts.friction is not None and opts.friction != robot.friction_mode:
-        robot = robot.with_friction(opts.friction)  # --friction overrides drives.yaml's, artefact too
     joint_log = load_joint_log(log, robot)
     val_log = None if validate is None else load_joint_log(validate, robot)
     for lg in (joint_log, val_log):
@@ -447,7 +447,7 @@ def run(
                 "identification runs with --interpolation-ratio 1"
             )
     with console.phase("identify: estimating"):
-        bset = None if robot is nominal else base_set_on(robot, base_parameters(nominal))
+        bset = None if calibration is None else base_set_on(robot, base_parameters(nominal))
         result = identify(robot, joint_log, opts, validation_log=val_log, bset=bset)
     std = np.sqrt(np.maximum(np.diag(result.estimate.cov), 0.0))
     fields = artefact_fields(robot, result, std)
