@@ -169,6 +169,9 @@ class DynamicsSummary(Strict):
     """What a rxcomm/Dynamics summary holds (units in the names; None: not measured)."""
 
     n_base_params: int
+    kinematics: str | None = Field(
+        None, description="nominal, or calibrated (identify --calibration): the kinematics of the fit"
+    )
     validation_nrmse: list[float | None] | None = Field(description="required; None: not measured")
     validation_rms_nm: list[float | None] | None = Field(description="required; None: not measured")
     seconds: float | None = Field(description="required; None: not measured")

@@ -153,14 +153,14 @@ DECLARATIONS: dict[str, Declaration] = {
         settings="schemas.excitation:ExcitationSettings",
     ),
     "identify": Declaration(
-        ("robot", "log", "validate"),
+        ("robot", "log", "validate", "calibration"),
         (Dynamics,),
         outputs=("torques-out", "params-out"),
         beside=(PLOT,),
         settings="identification.settings:IdentifySettings",
     ),
     "score": Declaration(
-        ("robot", "dynamics", "log"),
+        ("robot", "dynamics", "log", "calibration"),
         (Dynamics,),
         outputs=("torques-out",),
         settings="identification.settings:IdentifySettings",

@@ -6,6 +6,8 @@ identifies the base parameters (`rxcomm.identification.fit`), validates them on 
 5 blocks), and writes
 ``dynamics.yaml`` (kind rxcomm/Dynamics), which plan-cp, plan-ptp and run load. ``--plot`` writes
 ``dynamics.png``: measured against predicted torques on the validation data (paper Fig. 5b).
+``--calibration calibration.yaml`` fits on the calibrated kinematics (`rxcomm.identification.kinematics`:
+the nominal ones bias the base parameters by the robot's geometric errors).
 
 Scoring an identified model on another log without refitting is `rxcomm score` (`stages/score.py`;
 ``--dynamics D --validate LOG`` here is its old spelling, hidden).
@@ -123,6 +125,13 @@ TorqueLagOption = Annotated[
         "(default: one drive cycle for a run log, 0 for a CSV).",
     ),
 ]
+CalibrationOption = Annotated[
+    Path | None,
+    typer.Option(
+        help="calibration.yaml (make PLANT=mujoco: calibration-prior.yaml): fit on the calibrated "
+        "kinematics, the nominal base set regrouped on them (default: the nominal kinematics)."
+    ),
+]
 TorquesOut = Annotated[
     Path | None,
     typer.Option("--torques-out", help="Write the validation rows' measured and predicted torques as CSV."),
@@ -136,6 +145,7 @@ def command(
     model: Annotated[Path | None, typer.Option("--dynamics", hidden=True)] = None,  # old `rxcomm score`
     torques_csv: TorquesOut = None,
     validate: ValidateOption = None,
+    calibration: CalibrationOption = None,
     friction: Annotated[
         Friction | None,
         typer.Option(help="Friction model: joint, motor or both (default: drives.yaml's friction)."),
@@ -184,22 +194,14 @@ def command(
         "friction": None if friction is None else friction.value,
     }
     _check_mode(model, log, output, validate, params_out)
+    common = {"settings": values, "torques_csv": torques_csv, "calibration": calibration}
     if model is not None:
         console.err.print(
             "identify --dynamics D --validate LOG is deprecated: use rxcomm score --dynamics D --log LOG"
         )
-        score_run(robot_dir, model, validate, settings=values, torques_csv=torques_csv, output=output)
+        score_run(robot_dir, model, validate, output=output, **common)
         return
-    run(
-        robot_dir,
-        log,
-        output,
-        validate=validate,
-        settings=values,
-        plot=plot,
-        torques_csv=torques_csv,
-        params_csv=params_out,
-    )
+    run(robot_dir, log, output, validate=validate, plot=plot, params_csv=params_out, **common)
 
 
 @console.stage_command
@@ -222,6 +224,15 @@ def _check_mode(
             )
     elif log is None or output is None:
         raise InputError("give --log and -o (or --dynamics with --validate to score a model)", field="log")
+
+
+def fit_kinematics(robot: Robot, calibration: Path | None) -> Robot:
+    """The robot whose kinematics the fit uses: `robot`, or `robot` with a calibration's errors."""
+    if calibration is None:
+        return robot
+    from rxcomm.calibration.loading import load_calibrated_robot
+
+    return load_calibrated_robot(robot, calibration)
 
 
 def _settings(settings: IdentifySettings | dict | None) -> IdentifySettings:
@@ -320,6 +331,7 @@ def score_run(
     settings: IdentifySettings | dict | None = None,
     torques_csv: Path | None = None,
     output: Path | None = None,
+    calibration: Path | None = None,
 ) -> Validation:
     """Score an identified model (dynamics.yaml) on a log without refitting; returns the validation.
     `output`: the model written again there with its validation figures those of this log (the
@@ -332,9 +344,14 @@ def score_run(
     from rxcomm.model.robot import load_robot
 
     DECLARATIONS["score"].check(
-        output=output, torques_out=torques_csv, robot=robot_dir, dynamics=model, log=log
+        output=output,
+        torques_out=torques_csv,
+        robot=robot_dir,
+        dynamics=model,
+        log=log,
+        calibration=calibration,
     )
-    robot = load_robot(robot_dir)
+    robot = fit_kinematics(load_robot(robot_dir), calibration)
     art = read_yaml_artefact(model, Dynamics)
     values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
     # The model's own processing and friction model, unless given other than the defaults here.
@@ -385,11 +402,14 @@ def run(
     plot: bool = False,
     torques_csv: Path | None = None,
     params_csv: Path | None = None,
+    calibration: Path | None = None,
 ) -> Dynamics:
     """The stage as a function (tests call it): returns the artefact written."""
     from rxcomm.identification.export import write_parameters_csv, write_torques_csv
     from rxcomm.identification.fit import identify
+    from rxcomm.identification.kinematics import base_set_on
     from rxcomm.identification.logs import load_joint_log
+    from rxcomm.model.base_parameters import base_parameters
     from rxcomm.model.robot import load_robot
 
     output = Path(output)
@@ -403,11 +423,13 @@ def run(
         robot=robot_dir,
         log=log,
         validate=validate,
+        calibration=calibration,
     )
     opts = _settings(settings)
-    robot = load_robot(robot_dir)
-    if opts.friction is not None and opts.friction != robot.friction_mode:
-        robot = robot.with_friction(opts.friction)  # --friction overrides drives.yaml's, artefact too
+    nominal = load_robot(robot_dir)
+    if opts.friction is not None and opts.friction != nominal.friction_mode:
+        nominal = nominal.with_friction(opts.friction)  # --friction overrides drives.yaml's, artefact too
+    robot = fit_kinematics(nominal, calibration)
     joint_log = load_joint_log(log, robot)
     val_log = None if validate is None else load_joint_log(validate, robot)
     for lg in (joint_log, val_log):
@@ -419,13 +441,16 @@ def run(
                 "identification runs with --interpolation-ratio 1"
             )
     with console.phase("identify: estimating"):
-        result = identify(robot, joint_log, opts, validation_log=val_log)
+        bset = None if calibration is None else base_set_on(robot, base_parameters(nominal))
+        result = identify(robot, joint_log, opts, validation_log=val_log, bset=bset)
     std = np.sqrt(np.maximum(np.diag(result.estimate.cov), 0.0))
     fields = artefact_fields(robot, result, std)
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "log": Path(log)}
     if validate is not None:
         inputs["validate"] = Path(validate)
-    summary = result.summary()
+    if calibration is not None:
+        inputs["calibration"] = Path(calibration)
+    summary = {"kinematics": "nominal" if calibration is None else "calibrated", **result.summary()}
     art = Dynamics(**Dynamics.envelope(inputs, opts, summary), **fields)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_yaml_artefact(output, art)

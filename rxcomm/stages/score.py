@@ -15,7 +15,7 @@ from typing import Annotated
 import typer
 
 from rxcomm.options import Dynamics, JointLog, RobotDir
-from rxcomm.stages.identify import TorquesOut, score_run
+from rxcomm.stages.identify import CalibrationOption, TorquesOut, score_run
 
 
 def command(
@@ -27,6 +27,7 @@ def command(
         typer.Option("-o", "--output", help="The model written again with this log's validation figures."),
     ] = None,
     torques_out: TorquesOut = None,
+    calibration: CalibrationOption = None,
 ) -> None:
     """Score an identified dynamics.yaml on another log without refitting: identify's validation figures."""
-    score_run(robot_dir, dynamics, log, torques_csv=torques_out, output=output)
+    score_run(robot_dir, dynamics, log, torques_csv=torques_out, output=output, calibration=calibration)
