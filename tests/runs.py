@@ -62,8 +62,11 @@ def write_configs(path: Path, robot, poses: list[np.ndarray], roles: list[str]) 
         "improvement_ratio": 1.0,
         "seconds": 0.0,
     }
+    # a hand-made pose list: what select-configs would have recorded for it
+    settings = dict(n=len(poses), intervals=1, max_candidates=0, criterion="min-eig", restarts=0)
+    settings |= dict(n_validation=0, seed=0, measure_baseline=False)
     cfg = Configs(
-        **Configs.envelope({}, {}, summary),
+        **Configs.envelope({}, settings, summary),
         robot=robot.name,
         joint_names=list(robot.joint_names),
         criterion="min-eig",

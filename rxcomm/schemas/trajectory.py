@@ -46,6 +46,8 @@ class TrajectoryFigures(Strict):
     catalogue_acceleration_bound: str | None = None
     max_filter_deviation_m: float | None = None
     max_tcp_speed_ratio: float | None = None
+    max_tcp_acceleration_ratio: float | None = None
+    max_tcp_box_ratio: float | None = None
     dwell_s: float | None = None
     order: str | None = None
     limits_checked: str | None = None
