@@ -842,3 +842,44 @@ def test_an_underrun_stop_names_the_stall(rx130l, monkeypatch, stall):
     else:
         assert re.search(r"longest pause between gateway replies was 0\.[6-9]\d s", msg), msg
         assert "the master was not scheduled (a loaded machine)" in msg
+
+
+def test_raised_priority_lowers_every_threads_nice_and_restores_it_or_says_why_not(monkeypatch):
+    """Where allowed, every thread of the process (the embedded cell's too) streams at nice −10 and
+    is back afterwards; where not, nothing changes and the note says why (a stop message quotes it)."""
+    from rxcomm.execution import stalls
+
+    def nice_of(tid: int) -> int:
+        return os.getpriority(os.PRIO_PROCESS, tid)
+
+    started, release = threading.Event(), threading.Event()
+    tid = {}
+
+    def other() -> None:
+        tid["other"] = threading.get_native_id()
+        started.set()
+        release.wait(10)
+
+    t = threading.Thread(target=other, daemon=True)
+    t.start()
+    started.wait(10)
+    me = threading.get_native_id()
+    before = {me: nice_of(me), tid["other"]: nice_of(tid["other"])}
+    try:
+        with stalls.raised_priority(-10) as note:
+            during = {k: nice_of(k) for k in before}
+        if note == "the stream ran at nice -10":
+            assert during == {k: -10 for k in before}
+        else:  # not root and no CAP_SYS_NICE
+            assert note.startswith("the stream's priority was not raised (") and during == before
+        assert {k: nice_of(k) for k in before} == before
+
+        def refuse(*a):
+            raise PermissionError(1, "Operation not permitted")
+
+        monkeypatch.setattr(stalls.os, "setpriority", refuse)
+        with stalls.raised_priority(-10) as note:
+            assert note == "the stream's priority was not raised (Operation not permitted)"
+    finally:
+        release.set()
+        t.join(10)
