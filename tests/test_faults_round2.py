@@ -796,6 +796,7 @@ def test_stall_watch_tells_a_master_falling_behind_from_one_pause(monkeypatch):
     text = paused.describe()
     assert text.startswith("the master's longest pause between gateway replies was 0.90 s 0.72 s into"), text
     assert "the master was not scheduled (a loaded machine); over the last" in text
+    assert slow.describe(watchdog=True).startswith("the master's longest pause")  # the pause tripped it
 
 
 @pytest.mark.slow

@@ -368,7 +368,7 @@ class Session:
         where = ", ".join(f"{n} {_code_name(c)}" for n, c in faulted)
         text = f"{what} at t = {t_s:.3f} s" + (f" ({where})" if where else "")
         if stalls is not None and (code in COMMUNICATION_ERRORS or st.stop_cause == StopCause.UNDERRUN):
-            text += f"; {stalls.describe()}"
+            text += f"; {stalls.describe(watchdog=st.stop_cause != StopCause.UNDERRUN)}"
         if code in COMMUNICATION_ERRORS:
             return GatewayError(f"stream stopped by the gateway: {text}")
         if Status(st.status) & STOP_BITS or faulted:

@@ -123,9 +123,9 @@ class StallWatch:
         while len(self._window) > 2 and now - self._window[1][0] >= RATE_WINDOW_S:
             self._window.popleft()
 
-    def describe(self) -> str:
+    def describe(self, watchdog: bool = False) -> str:
         """One clause for a stop message: the longest pause and its likely cause, or the master
-        falling behind the stream (module docstring)."""
+        falling behind the stream (module docstring); a ``watchdog`` stop is a pause's, lead or not."""
         if not math.isfinite(self.longest_at_s):
             return "no gateway reply was timed"
         share = self.longest_cpu_s / self.longest_s if self.longest_s > 0 else 0.0
@@ -146,7 +146,7 @@ class StallWatch:
         )
         rates, behind = self._rates()
         prio = f"; {self.priority}" if self.priority else ""
-        if behind and self.longest_s < PAUSE_ATE_LEAD * self.peak_lead_s:
+        if behind and not watchdog and self.longest_s < PAUSE_ATE_LEAD * self.peak_lead_s:
             return f"the master fell behind the stream, {rates}; {pause}{last}{prio}"
         return f"{pause}: {cause}{last}" + (f"; {rates}" if rates else "") + prio
 
