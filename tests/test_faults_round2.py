@@ -13,6 +13,7 @@ import builtins
 import errno
 import fcntl
 import os
+import re
 import shutil
 import signal
 import socket
@@ -26,6 +27,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from rxcomm.cell.server import TimeMode
 from rxcomm.cli import app
 from rxcomm.errors import GatewayError, InputError, SafetyStop
 from rxcomm.execution.log import recovered_path
@@ -750,3 +752,135 @@ def test_a_watchdog_stop_names_the_masters_pause(tmp_path, cell, monkeypatch):  
     assert "the master was not scheduled" in msg
     # case 14: the watchdog faulted every drive; the message says so instead of "drives disabled"
     assert "drives in fault, not disabled (joint_1 0x8130" in msg
+
+
+def test_stall_watch_tells_a_master_falling_behind_from_one_pause(monkeypatch):
+    """Fake clocks: at 2500 setpoints/s needed, a master writing 1500/s with 4 ms pauses fell behind;
+    one 0.9 s pause that ate a 1 s lead is named as the pause, with the rates after it."""
+    from rxcomm.execution import stalls
+
+    clock = {"wall": 0.0, "cpu": 0.0}
+
+    class FakeTime:
+        @staticmethod
+        def perf_counter():
+            return clock["wall"]
+
+        @staticmethod
+        def process_time():
+            return clock["cpu"]
+
+    monkeypatch.setattr(stalls, "time", FakeTime)
+    with stalls.StallWatch(sample_s=400e-6) as slow:  # a 1 s prefill, then 1500 written/s
+        written, executed = 2500, 0
+        for _ in range(300):
+            slow.reply(written, executed)
+            clock["wall"] += 0.004
+            clock["cpu"] += 0.002
+            written, executed = written + 6, executed + 10
+    text = slow.describe()
+    assert text.startswith("the master fell behind the stream, over the last 1.00 s it wrote 1500 "), text
+    assert "the stream needs 2500/s (executed 2500/s), its lead peaked at 1.00 s" in text
+    assert (
+        "this process had 50% of a CPU; the master's longest pause between gateway replies was 0.00" in text
+    )
+
+    with stalls.StallWatch(sample_s=400e-6) as paused:  # 1 s lead held, then 0.9 s without a reply
+        written, executed = 2500, 0
+        for _ in range(300):
+            paused.reply(written, executed)
+            clock["wall"] += 0.0024
+            written, executed = written + 6, executed + 6
+        clock["wall"] += 0.9
+        paused.reply(written, executed + 2250)
+    text = paused.describe()
+    assert text.startswith("the master's longest pause between gateway replies was 0.90 s 0.72 s into"), text
+    assert "the master was not scheduled (a loaded machine); over the last" in text
+    assert slow.describe(watchdog=True).startswith("the master's longest pause")  # the pause tripped it
+
+
+@pytest.mark.slow
+@pytest.mark.realtime
+@pytest.mark.parametrize("stall", ["slow master", "one pause"])
+def test_an_underrun_stop_names_the_stall(rx130l, monkeypatch, stall):
+    """Realtime cell, ratio 1 (2500 setpoints/s): a master made slower than the stream (4 ms more per
+    reply) or paused once for 0.6 s beyond its 0.2 s lead underruns, and the stop says which."""
+    from rxcomm.execution import session as ses
+    from rxcomm.execution.plan import prepare_plan
+    from rxcomm.execution.session import RunSettings, StreamSettings
+    from rxcomm.execution.trajectory_run import run_trajectory
+
+    from .test_faults import ideal_cell
+
+    real = ses._Recorder.__call__
+    paused = {"done": False}
+
+    def stalling(self, reply):
+        real(self, reply)
+        if stall == "slow master":
+            time.sleep(0.004)
+        elif not paused["done"] and reply.trace is not None and reply.trace.count > 0:
+            paused["done"] = True
+            time.sleep(0.6)
+
+    monkeypatch.setattr(ses._Recorder, "__call__", stalling)
+    lead = StreamSettings(interpolation_ratio=1, lead_s=0.2, prefill_s=0.2, watchdog_ms=2000)
+    srv = ideal_cell(rx130l, TimeMode.REALTIME)
+    try:
+        params = prior_parameters(rx130l)
+        plan = prepare_plan(rx130l, cosine_plan(Q0, DQ, 4.0), params, 400e-6)
+        with GatewayClient("127.0.0.1", srv.port, timeout_s=0.5) as client:
+            res = run_trajectory(client, rx130l, plan, params, RunSettings(stream=lead))
+    finally:
+        srv.stop()
+    msg = str(res.error)
+    assert isinstance(res.error, GatewayError) and "underrun (0xff01)" in msg, msg
+    assert "the stream needs 2500/s" in msg
+    wrote = float(re.search(r"it wrote (\d+) setpoints/s", msg).group(1))
+    if stall == "slow master":
+        assert msg.startswith("stream stopped by the gateway: setpoint underrun"), msg
+        assert "the master fell behind the stream, over the last" in msg and wrote < 2000
+    else:
+        assert re.search(r"longest pause between gateway replies was 0\.[6-9]\d s", msg), msg
+        assert "the master was not scheduled (a loaded machine)" in msg
+
+
+def test_raised_priority_lowers_every_threads_nice_and_restores_it_or_says_why_not(monkeypatch):
+    """Where allowed, every thread of the process (the embedded cell's too) streams at nice −10 and
+    is back afterwards; where not, nothing changes and the note says why (a stop message quotes it)."""
+    from rxcomm.execution import stalls
+
+    def nice_of(tid: int) -> int:
+        return os.getpriority(os.PRIO_PROCESS, tid)
+
+    started, release = threading.Event(), threading.Event()
+    tid = {}
+
+    def other() -> None:
+        tid["other"] = threading.get_native_id()
+        started.set()
+        release.wait(10)
+
+    t = threading.Thread(target=other, daemon=True)
+    t.start()
+    started.wait(10)
+    me = threading.get_native_id()
+    before = {me: nice_of(me), tid["other"]: nice_of(tid["other"])}
+    try:
+        with stalls.raised_priority(-10) as note:
+            during = {k: nice_of(k) for k in before}
+        if note == "the stream ran at nice -10":
+            assert during == {k: -10 for k in before}
+        else:  # not root and no CAP_SYS_NICE
+            assert note.startswith("the stream's priority was not raised (") and during == before
+        assert {k: nice_of(k) for k in before} == before
+
+        def refuse(*a):
+            raise PermissionError(1, "Operation not permitted")
+
+        monkeypatch.setattr(stalls.os, "setpriority", refuse)
+        with stalls.raised_priority(-10) as note:
+            assert note == "the stream's priority was not raised (Operation not permitted)"
+    finally:
+        release.set()
+        t.join(10)

@@ -411,3 +411,34 @@ def test_tracker_only_when_standing_still(client):
     np.testing.assert_allclose(
         s2.position_m, [1 + 0.1 * np.sin(q[0]), 0.1 * np.sin(q[1]), 0.5 + 0.1 * np.sin(q[2])], atol=1e-6
     )
+
+
+@pytest.mark.parametrize("cell", [TimeMode.VIRTUAL], indirect=True)
+def test_a_stream_still_executing_is_not_timed_out(cell, client, monkeypatch):
+    """A virtual-time cell slower than its stream time (a loaded machine) is not a timeout while it
+    executes setpoints; one executing nothing is, after PROGRESS_TIMEOUT_S (issue 27: `make
+    commission` stopped at 57 % of a moving plan)."""
+    from rxcomm.gateway import stream as stream_mod
+
+    pos, tau = trajectory(2500)  # 1 s of stream time
+    client.enable_all()
+    client.configure(watchdog_ms=2000, prefill=60)
+    monkeypatch.setattr(stream_mod, "PROGRESS_TIMEOUT_S", 1.0)
+    slow = cell.core.run_cycle
+
+    def run_cycle_slowly(*a, **k):  # ≤ 1250 cycles/s: ≥ 2 s of wall time for the 1 s stream
+        time.sleep(0.0008)
+        return slow(*a, **k)
+
+    monkeypatch.setattr(cell.core, "run_cycle", run_cycle_slowly)
+    t0 = time.monotonic()
+    res = stream(client, pos, tau, timeout_s=1.0)  # less than the wall time it takes
+    assert time.monotonic() - t0 > 2.0 and res.final.status & Status.DONE and res.lost_records == 0
+    client.clear_stream()
+    monkeypatch.setattr(cell.core, "needs_cycle", lambda: False)  # a clock that never runs a cycle
+    t0 = time.monotonic()
+    with pytest.raises(
+        GatewayError, match=r"(at setpoint \d+ of 2500|not done in time).*\(nothing executed for 1\.\d s\)"
+    ):
+        stream(client, pos, tau, timeout_s=1.0)
+    assert 1.0 < time.monotonic() - t0 < 4.0

@@ -175,13 +175,13 @@ class _Recorder:
 
     def __call__(self, reply: BlockReply) -> None:
         raise_if_terminated()  # a SIGTERM between two transactions: stop as Ctrl-C does
+        st = reply.status
         if self.stalls is not None:
-            self.stalls.reply()
+            self.stalls.reply(*((st.write_index, st.execute_index) if st is not None else ()))
         tr = reply.trace
         if tr.count:
             self.chunks.append((tr.first, tr.position_rad, tr.torque_nm))
             self._trace_end = max(self._trace_end, tr.first + tr.count)
-        st = reply.status
         if st is None:
             return
         wall = time.perf_counter() - self.t0
