@@ -9,16 +9,13 @@ Orientation. Internally rotation matrices; for reports the paper's Cardan angles
 intrinsic): R = Rx(α)·Ry(β)·Rz(γ), β ∈ [−π/2, π/2] (`cardan_xyz`, `cardan_xyz_matrix`). Not to be
 confused with URDF rpy, which is R = Rz(y)·Ry(p)·Rx(r).
 
-Inverse kinematics. The one IK is `rxcomm.model.ik.solve_ik` (closed form for spherical-wrist arms,
-Newton on the given model, multi-start only without a closed form); `solve_branch_ik` (a branch
-selector) and `inverse_kinematics` (an `IkResult` with errors) are its two front ends. Without a
-closed-form solution near the seed, or for `position_only` / another `frame_id`,
-`inverse_kinematics` runs a projected Levenberg–Marquardt on the pose error (position in m,
-orientation as log3 in rad scaled by `orientation_length_m`): each step is bounded (`max_step_rad`),
-so the iterate moves continuously from the seed and stays on the seed's branch (elbow up/down, wrist
-flip, shoulder left/right); joint limits are enforced by clipping every step.
-Expected failure is a *returned status* (toppra style), not an exception: an unreachable target gives
-`IkResult(converged=False, status=IkStatus.STALLED, ...)` with the remaining error; callers that must
+Inverse kinematics. The one IK is `rxcomm.model.ik.solve_ik` (the closed form for spherical-wrist
+arms, Newton on the given model, a multi-start only without a closed form); `inverse_kinematics`
+(from a seed, optionally with an error model), `solve_branch_ik` (on a `Branch`), `solve_pose_ik`
+(a Cardan pose, for the stages) and `pose_branches` (every branch of a pose, labelled) are its front
+ends. Every one returns an `IkResult`: the solvers' convention, a `SolveStatus` and a message
+(`result.outcome`); expected failure is a returned status (toppra style), not an exception — an
+unreachable target gives `status=INFEASIBLE` with the seed's remaining error; callers that must
 stop call `result.raise_if_failed()` (→ `InfeasibleError`, exit 3).
 
 For many IK calls on a calibrated robot, apply the error model once (`errors.apply(robot)`) and pass
@@ -30,14 +27,13 @@ reports branch jumps; `tcp_sigma_min` and `wrist_singularity` measure the distan
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import StrEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
 
 from rxcomm.errors import InfeasibleError, InputError
-from rxcomm.model.ik import scratch_data, solve_ik
+from rxcomm.model.ik import IkResult, ik_solutions, scratch_data, solve_ik
 from rxcomm.model.robot import Robot
 from rxcomm.schemas.path import Branch
 
@@ -127,35 +123,6 @@ def rotation_from_wxyz(qt: np.ndarray) -> np.ndarray:
     return q.toRotationMatrix()
 
 
-class IkStatus(StrEnum):
-    CONVERGED = "converged"
-    MAX_ITERATIONS = "max_iterations"  # still improving when the budget ran out
-    STALLED = "stalled"  # local minimum with error left: out of reach, blocked by a limit, or wrong branch
-
-
-@dataclass(frozen=True)
-class IkResult:
-    """Outcome of one IK solve. `q` is the best iterate (the solution when `converged`)."""
-
-    q: np.ndarray
-    converged: bool
-    position_error_m: float
-    orientation_error_rad: float
-    iterations: int
-    status: IkStatus
-
-    def raise_if_failed(self, what: str = "target pose") -> IkResult:
-        """Return self when converged, else raise `InfeasibleError` naming the error left."""
-        if not self.converged:
-            raise InfeasibleError(
-                f"inverse kinematics failed for the {what} ({self.status.value}): "
-                f"{self.position_error_m * 1e3:.3f} mm / {np.degrees(self.orientation_error_rad):.3f}° "
-                f"left after {self.iterations} iterations (unreachable, at a joint limit, or on another "
-                "branch than the seed)"
-            )
-        return self
-
-
 def _as_se3(target: pin.SE3 | tuple[np.ndarray, np.ndarray]) -> pin.SE3:
     if isinstance(target, pin.SE3):
         return target
@@ -163,97 +130,17 @@ def _as_se3(target: pin.SE3 | tuple[np.ndarray, np.ndarray]) -> pin.SE3:
     return pin.SE3(np.asarray(r, dtype=float), np.asarray(p, dtype=float))
 
 
-def _pose_error(current: pin.SE3, target: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
-    """World-aligned error: position target − current (m), rotation log3(R_t·Rᵀ) (rad)."""
-    ep = target.translation - current.translation
-    eo = pin.log3(target.rotation @ current.rotation.T)
-    return ep, eo
-
-
 def inverse_kinematics(
     robot: Robot,
     target_pose: pin.SE3 | tuple[np.ndarray, np.ndarray],
     q_seed: np.ndarray,
     errors: ErrorModel | None = None,
-    *,
-    frame_id: int | None = None,
-    position_tol_m: float = 1e-11,
-    orientation_tol_rad: float = 1e-11,
-    max_iterations: int = 200,
-    max_step_rad: float = 0.2,
-    orientation_length_m: float = 1.0,
-    position_only: bool = False,
 ) -> IkResult:
-    """Joint angles putting the TCP (or `frame_id`) at `target_pose` (base frame), near `q_seed`.
-
-    `target_pose`: `pin.SE3` or (position [3], rotation [3, 3]). `errors`: honour an error model
-    (calibration). `orientation_length_m` converts rad to m in the least-squares weighting (1 rad of
-    orientation error weighs like 1 m of position error by default). Steps are bounded by
-    `max_step_rad` (∞-norm) so the solution stays on the seed's branch. Joint limits are respected.
-    Returns an `IkResult`; failure is a status, not an exception (see the module docstring).
-    """
+    """Joint angles putting the TCP at `target_pose` (base frame; `pin.SE3` or (position [3], rotation
+    [3, 3])) within the joint limits, on the seed's branch when the seed is near one (`solve_ik`).
+    `errors`: honour an error model (calibration). Failure is a status, not an exception."""
     r = _robot_with(robot, errors)
-    model, data = r.model, scratch_data(r)
-    fid = r.tcp_frame_id if frame_id is None else frame_id
-    target = _as_se3(target_pose)
-    q = np.minimum(np.maximum(np.asarray(q_seed, dtype=float), r.q_min), r.q_max)  # np.clip: 10 µs
-    if fid == r.tcp_frame_id and not position_only:  # the one IK: Newton from the seed, else closed form
-        sol = solve_ik(r, target, data, seed=q)
-        if sol is not None:
-            ep, eo = _pose_error(frame_placement(r, data, sol, fid), target)
-            pe, oe = float(np.linalg.norm(ep)), float(np.linalg.norm(eo))
-            if pe <= position_tol_m and oe <= orientation_tol_rad:
-                return IkResult(sol, True, pe, oe, 0, IkStatus.CONVERGED)
-            q = sol  # polished below
-    w = np.array([1.0, 1.0, 1.0] + [orientation_length_m] * 3)
-    rows = slice(0, 3) if position_only else slice(0, 6)
-
-    def evaluate(qv: np.ndarray) -> tuple[np.ndarray, float, float]:
-        m = frame_placement(r, data, qv, fid)
-        ep, eo = _pose_error(m, target)
-        e = (np.concatenate([ep, eo]) * w)[rows]
-        return e, float(np.linalg.norm(ep)), float(np.linalg.norm(eo))
-
-    e, pe, oe = evaluate(q)
-    lam = 1e-3
-    it = 0
-    status = IkStatus.MAX_ITERATIONS
-    stall = 0
-    for it in range(1, max_iterations + 1):  # noqa: B007 - `it` is reported
-        if pe <= position_tol_m and (position_only or oe <= orientation_tol_rad):
-            status = IkStatus.CONVERGED
-            it -= 1
-            break
-        # Jacobian of [p; θ] (world aligned) at the current q: forwardKinematics was run by evaluate.
-        jac = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL_WORLD_ALIGNED)
-        jac = (jac * w[:, None])[rows]
-        jtj, jte = jac.T @ jac, jac.T @ e
-        cost = float(e @ e)
-        improved = False
-        for _ in range(12):
-            dq = np.linalg.solve(jtj + lam * (np.eye(r.n) + np.diag(np.diag(jtj))), jte)
-            big = np.max(np.abs(dq))
-            if big > max_step_rad:
-                dq *= max_step_rad / big
-            q_new = np.clip(q + dq, r.q_min, r.q_max)
-            e_new, pe_new, oe_new = evaluate(q_new)
-            if float(e_new @ e_new) < cost:
-                q, e, pe, oe = q_new, e_new, pe_new, oe_new
-                lam = max(lam / 5.0, 1e-12)
-                improved = True
-                break
-            lam *= 8.0
-        if not improved:
-            stall += 1
-        else:
-            stall = 0 if float(e @ e) < 0.999 * cost else stall + 1
-        if stall >= 3 or lam > 1e8:
-            status = IkStatus.STALLED
-            break
-    converged = pe <= position_tol_m and (position_only or oe <= orientation_tol_rad)
-    if converged:
-        status = IkStatus.CONVERGED
-    return IkResult(q, converged, pe, oe, it, status)
+    return solve_ik(r, _as_se3(target_pose), scratch_data(r), seed=np.asarray(q_seed, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -295,13 +182,12 @@ def ik_along(
     errors: ErrorModel | None = None,
     *,
     max_jump_rad: float = 0.25,
-    **ik_options,
 ) -> IkPathResult:
     """Solve IK for each pose in turn, seeding with the previous solution (linearly extrapolated).
 
     Keeps the seed's branch along the path as long as consecutive poses are close. A change of more
     than `max_jump_rad` (∞-norm) between consecutive solutions is reported in `branch_jumps` (the
-    path passes a singularity, or a limit forced another branch). Options go to `inverse_kinematics`.
+    path passes a singularity, or a limit forced another branch).
     """
     r = _robot_with(robot, errors)
     n = len(poses)
@@ -315,9 +201,9 @@ def ik_along(
     max_jump = 0.0
     for k, pose in enumerate(poses):
         seed = prev if prev2 is None else np.clip(2 * prev - prev2, r.q_min, r.q_max)
-        res = inverse_kinematics(r, pose, seed, **ik_options)
+        res = inverse_kinematics(r, pose, seed)
         if not res.converged and prev2 is not None:
-            res = inverse_kinematics(r, pose, prev, **ik_options)
+            res = inverse_kinematics(r, pose, prev)
         qs[k], conv[k], pe[k], oe[k] = res.q, res.converged, res.position_error_m, res.orientation_error_rad
         if k > 0:
             jump = float(np.max(np.abs(res.q - prev)))
@@ -403,12 +289,23 @@ def solve_branch_ik(
     seed: np.ndarray | None = None,
     near: np.ndarray | None = None,
     n_starts: int = 64,
-) -> np.ndarray | None:
+) -> IkResult:
     """The IK on the selector's branch (`rxcomm.model.ik.solve_ik`): a solution of `target` (TCP, base
-    frame) within the joint limits, or None. With `seed`: Newton from it, else the closed form's
+    frame) within the joint limits. With `seed`: Newton from it, else the closed form's
     solution nearest it; without: the solution nearest `near` (default: smallest |q|). `n_starts`
     serves the numeric fallback of an arm without a closed form."""
     return solve_ik(robot, target, data, seed=seed, near=near, accept=selector.matches, n_starts=n_starts)
+
+
+def pose_branches(
+    robot: Robot, target: pin.SE3, data: pin.Data | None = None, near: np.ndarray | None = None
+) -> list[tuple[Branch, np.ndarray]]:
+    """Every solution of `target` within the joint limits with its `Branch` (shoulder, elbow, wrist),
+    each joint at the turn nearest `near` (default 0): up to 8 for a spherical-wrist arm, distinct
+    branches. Near a singularity two solutions can carry one label (the geometric labels meet there)."""
+    data = scratch_data(robot) if data is None else data
+    selector = BranchSelector(robot, None)
+    return [(Branch(**selector.labels(data, q)), q) for q in ik_solutions(robot, target, data, near=near)]
 
 
 def solve_pose_ik(
@@ -424,16 +321,16 @@ def solve_pose_ik(
     An unreachable pose is an InputError naming `field` (exit 2)."""
     pose = np.asarray(pose, dtype=float)
     target = pin.SE3(cardan_xyz_matrix(pose[3:]), pose[:3])
-    q = solve_branch_ik(
+    res = solve_branch_ik(
         robot, robot.create_data(), target, BranchSelector(robot, branch), near=near, n_starts=n_starts
     )
-    if q is None:
+    if not res.ok:
         raise InputError(
             f"TCP pose {np.round(pose, 4).tolist()} is unreachable on branch "
-            f"{branch.model_dump(exclude_none=True)} within the joint limits",
+            f"{branch.model_dump(exclude_none=True)} within the joint limits ({res.message})",
             field=field,
         )
-    return q
+    return res.q
 
 
 def wrist_singularity(q: np.ndarray, wrist_joint: int = 4) -> np.ndarray:

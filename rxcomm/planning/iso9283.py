@@ -100,9 +100,10 @@ def iso9283_cube(
         n = max(1, int(np.ceil(np.linalg.norm(p - p_from) / 0.05)))
         q = q_from
         for k in range(1, n + 1):
-            q = solve_branch_ik(robot, data, pin.SE3(rot, p_from + (p - p_from) * k / n), selector, seed=q)
-            if q is None:
+            res = solve_branch_ik(robot, data, pin.SE3(rot, p_from + (p - p_from) * k / n), selector, seed=q)
+            if not res.ok:
                 return None
+            q = res.q
         return q
 
     def feasible(centre: np.ndarray, side: float, q_centre: np.ndarray) -> bool:
@@ -121,8 +122,9 @@ def iso9283_cube(
     for r in radii:
         for z in heights:
             centre = np.array([r, 0.0, z])
-            q_c = solve_branch_ik(robot, data, pin.SE3(rot, centre), selector, n_starts=32)
-            if q_c is None or selector.sigma_min(data, q_c) < sigma_min_margin:
+            res = solve_branch_ik(robot, data, pin.SE3(rot, centre), selector, n_starts=32)
+            q_c = res.q
+            if not res.ok or selector.sigma_min(data, q_c) < sigma_min_margin:
                 continue
             lo = 0.0 if best is None else best[0]
             if lo > 0 and not feasible(centre, lo, q_c):
@@ -238,16 +240,20 @@ def pose_cycle_joints(robot: Robot, cube: Iso9283Cube, branch: Branch | None = N
     data = robot.create_data()
     rot = rpy_matrix(cube.rpy_rad)
     p1 = cube.points_m["P1"]
-    q1 = solve_branch_ik(robot, data, pin.SE3(rot, p1), selector, n_starts=32)
-    if q1 is None:
-        raise InputError("P1 of the test cube is not reachable on the branch", field="branch")
+    res = solve_branch_ik(robot, data, pin.SE3(rot, p1), selector, n_starts=32)
+    if not res.ok:
+        raise InputError(
+            f"P1 of the test cube is not reachable on the branch ({res.message})", field="branch"
+        )
+    q1 = res.q
     out = {"P1": q1}
     for name in POSE_CYCLE_ORDER[1:]:
         p, q = cube.points_m[name], q1
         for k in range(1, 11):
-            q = solve_branch_ik(robot, data, pin.SE3(rot, p1 + (p - p1) * k / 10), selector, seed=q)
-            if q is None:
+            res = solve_branch_ik(robot, data, pin.SE3(rot, p1 + (p - p1) * k / 10), selector, seed=q)
+            if not res.ok:
                 raise InputError(f"{name} of the test cube is not reachable on the branch", field="branch")
+            q = res.q
         out[name] = q
     return out
 

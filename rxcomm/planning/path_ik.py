@@ -93,11 +93,11 @@ def reachability_scan(
     bad = np.zeros(n, dtype=bool)
     prev = None
     for i, pose in enumerate(path.poses(s)):
-        q = solve_branch_ik(robot, data, pose, selector, seed=prev) if prev is not None else None
-        if q is None:
-            q = solve_branch_ik(robot, data, pose, selector, n_starts=12)
-        bad[i] = q is None
-        prev = q
+        res = solve_branch_ik(robot, data, pose, selector, seed=prev) if prev is not None else None
+        if res is None or not res.ok:
+            res = solve_branch_ik(robot, data, pose, selector, n_starts=12)
+        bad[i] = not res.ok
+        prev = res.q if res.ok else None
     return _ranges(s, bad)
 
 
@@ -125,8 +125,8 @@ def solve_path_ik(
     data = robot.create_data()
     length = path.length_m
     pose0 = path.poses([0.0])[0]
-    q = solve_branch_ik(robot, data, pose0, selector, near=q_near)
-    if q is None:
+    start = solve_branch_ik(robot, data, pose0, selector, near=q_near)
+    if not start.ok:
         what = (
             f"near q = {np.round(q_near, 3).tolist()}"
             if q_near is not None
@@ -137,6 +137,7 @@ def solve_path_ik(
             f"path {path.name!r}: the start pose is unreachable {what} within the joint limits"
             + (f"; unreachable stretches: {_fmt_ranges(ranges)}" if ranges else "")
         )
+    q = start.q
     labels = selector.labels(data, q)
     follow = BranchSelector(robot, Branch(**labels))
     ss, qs, sm = [0.0], [q], [follow.sigma_min(data, q)]
