@@ -51,3 +51,42 @@ def lm_from_seed(
         if stall >= 3 or lam > 1e8:
             break
     return q, bool(pe <= tol and oe <= tol)
+
+
+def _newton_before(robot: Robot, data: pin.Data, target: pin.SE3, q: np.ndarray, iters: int = 40):
+    """The earlier `newton_pose`: framesForwardKinematics, then the frame Jacobian, np.linalg.solve."""
+    m, fid = robot.model, robot.tcp_frame_id
+    err = np.inf
+    for _ in range(iters):
+        pin.framesForwardKinematics(m, data, q)
+        e = pin.log6(data.oMf[fid].actInv(target)).vector
+        err = float(np.linalg.norm(e))
+        if err < 1e-11:
+            break
+        jac = pin.computeFrameJacobian(m, data, q, fid, pin.LOCAL)
+        try:
+            dq = np.linalg.solve(jac, e)
+        except np.linalg.LinAlgError:
+            return q, np.inf
+        step = np.max(np.abs(dq))
+        if step > 0.5:
+            dq *= 0.5 / step
+        q = q + dq
+    return q, err
+
+
+def multi_start_before(robot: Robot, data: pin.Data, target: pin.SE3, n_starts: int = 96) -> list[np.ndarray]:
+    """The earlier search for a pose's solutions (`solve_branch_ik` without a seed, no branch filter):
+    Newton from ``n_starts`` deterministic starts, half facing the target; the converged ones."""
+    rng = np.random.default_rng(0)
+    lo, hi = robot.q_min, robot.q_max
+    q1 = np.arctan2(target.translation[1], target.translation[0])
+    found = []
+    for k in range(n_starts):
+        q0 = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi))
+        if k % 2 == 0:
+            q0[0] = ((q1 if k % 4 == 0 else q1 + np.pi) + np.pi) % (2 * np.pi) - np.pi
+        q, err = _newton_before(robot, data, target, q0)
+        if err <= 1e-9 and np.all(q >= lo - 1e-9) and np.all(q <= hi + 1e-9):
+            found.append(q)
+    return found
