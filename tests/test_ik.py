@@ -247,20 +247,28 @@ def test_an_unreachable_pose_is_a_status_with_a_message(robot):
         )
         with pytest.raises(InfeasibleError, match="unreachable"):
             res.raise_if_failed()
-    # a branch the limits exclude: INFEASIBLE too, the message names the branch
+
+
+def test_a_branch_beyond_the_limits_is_infeasible(rx130l):
+    """The RX130L reaches this pose on 4 of its 8 branches within its limits: asking for another is
+    INFEASIBLE, saying so; the pose's own branch is solved."""
     q = np.array([0.3, 0.4, 1.2, 0.5, 0.8, -0.4])
-    target = tcp_placement(robot, q)
-    labels = {b for b, _ in pose_branches(robot, target)}
-    missing = [
+    target = tcp_placement(rx130l, q)
+    data = rx130l.create_data()
+    labels = {b for b, _ in pose_branches(rx130l, target, data)}
+    every = [
         Branch(shoulder=s, elbow=e, wrist=w)
         for s in ("front", "back")
         for e in ("up", "down")
         for w in ("positive", "negative")
-        if Branch(shoulder=s, elbow=e, wrist=w) not in labels
     ]
-    if missing:
-        res = solve_branch_ik(robot, robot.create_data(), target, BranchSelector(robot, missing[0]))
-        assert res.status is SolveStatus.INFEASIBLE and "on the selected branch" in res.message
+    assert len(labels) == 4
+    for branch in every:
+        res = solve_branch_ik(rx130l, data, target, BranchSelector(rx130l, branch))
+        if branch in labels:
+            assert res.ok and BranchSelector(rx130l, branch).matches(data, res.q)
+        else:
+            assert res.status is SolveStatus.INFEASIBLE and "on the selected branch" in res.message
 
 
 def test_pose_branches_labels_each_solution(robot):
