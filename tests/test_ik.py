@@ -62,6 +62,31 @@ def test_the_closed_form_gives_every_branch_exactly(robot):
     assert counts.count(8) >= 10
 
 
+# OPW parameters of the samples, read off their URDFs by hand (m): a1 shoulder offset, c1 height of
+# axis 2, c2 upper arm, c3 forearm to the wrist centre, a2 its step off the forearm, b lateral offset.
+OPW = {
+    "rx130l": {"a1": 0.0, "c1": 0.55, "c2": 0.625, "c3": 0.4 + 0.525, "a2": 0.0, "b": 0.0},
+    "m900": {"a1": 0.075, "c1": 0.35, "c2": 0.36, "c3": 0.15 + 0.23, "a2": 0.02, "b": 0.0},
+}
+
+
+def test_both_sample_urdfs_are_of_the_class(robot):
+    """Axes 2 ∥ 3 ⟂ 1 and the three wrist axes through one point (to 1e-12), and the closed form's
+    constants are the OPW parameters of the URDF."""
+    sw = spherical_wrist(robot)
+    assert sw is not None and sw.exact
+    assert abs(sw.w1 @ sw.w2) < 1e-12 and sw.s3 == 1.0
+    opw = OPW[robot.name]
+    shoulder = sw.o2 - sw.o1
+    assert np.linalg.norm(shoulder - (shoulder @ sw.w1) * sw.w1) == pytest.approx(opw["a1"], abs=1e-12)
+    assert sw.o2 @ sw.w1 == pytest.approx(opw["c1"], abs=1e-12)
+    assert np.hypot(*sw.l1) == pytest.approx(opw["c2"], abs=1e-12)
+    along = np.array(sw.l1) / np.hypot(*sw.l1)
+    assert np.array(sw.l2) @ along == pytest.approx(opw["c3"], abs=1e-12)
+    assert abs(along[0] * sw.l2[1] - along[1] * sw.l2[0]) == pytest.approx(opw["a2"], abs=1e-12)
+    assert sw.b == pytest.approx(opw["b"], abs=1e-12)
+
+
 def test_all_solutions_are_within_limits_and_refined(robot):
     rng = np.random.default_rng(12)
     for _ in range(20):
