@@ -1,6 +1,7 @@
-"""The one IK (`rxcomm.model.ik`), tested directly: every branch of a pose, seeds, singular poses, a
-calibrated model, arms the project does not ship (other OPW arms, other URDF conventions), and arms
-without a closed form (the multi-start fallback); one result convention (`IkResult`, a `SolveStatus`)."""
+"""The one IK (`rxcomm.model.ik`, its closed form `rxcomm.model.opw`), tested directly: every branch
+of a pose, seeds, singular poses, a calibrated model, arms the project does not ship (other OPW arms,
+other URDF conventions), and arms without a closed form (the multi-start fallback); one result
+convention (`IkResult`, a `SolveStatus`)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import yaml
 
 from rxcomm.errors import InfeasibleError, SolveOutcome, SolveStatus
 from rxcomm.model.geometric_errors import ErrorModel
-from rxcomm.model.ik import ACCEPT_TOL, IkResult, analytic_solutions, ik_solutions, solve_ik, spherical_wrist
+from rxcomm.model.ik import ACCEPT_TOL, IkResult, ik_solutions, solve_ik
 from rxcomm.model.kinematics import (
     BranchSelector,
     inverse_kinematics,
@@ -19,6 +20,7 @@ from rxcomm.model.kinematics import (
     solve_branch_ik,
     tcp_placement,
 )
+from rxcomm.model.opw import analytic_solutions, spherical_wrist
 from rxcomm.model.robot import load_robot
 from rxcomm.schemas.path import Branch
 

@@ -317,7 +317,7 @@ def solve_pose_ik(
     n_starts: int = 96,
 ) -> np.ndarray:
     """Joint angles putting the TCP at `pose` = (x, y, z, α, β, γ) (m; Cardan x-y-z rad, base frame) on
-    `branch`, nearest `near` (default: the smallest |q|): `solve_branch_ik` from `n_starts` starts.
+    `branch`, nearest `near` (default: the smallest |q|): `solve_branch_ik` (`n_starts`: the fallback's).
     An unreachable pose is an InputError naming `field` (exit 2)."""
     pose = np.asarray(pose, dtype=float)
     target = pin.SE3(cardan_xyz_matrix(pose[3:]), pose[:3])
