@@ -73,9 +73,6 @@ class Artefact(BaseModel):
 
     KIND: ClassVar[str]
     SCHEMA_VERSION: ClassVar[int]
-    # A kind whose settings are still recorded as a plain mapping (issue 28's remaining debt); its
-    # summary is typed all the same.
-    SETTINGS_UNTYPED: ClassVar[bool] = False
 
     kind: str
     schema_version: int
@@ -101,7 +98,7 @@ class Artefact(BaseModel):
             getattr(cls, "SCHEMA_VERSION", None), int
         ):
             raise TypeError(f"{cls.__name__} must set KIND (a str) and SCHEMA_VERSION (an int)")
-        for name in ("summary",) if cls.SETTINGS_UNTYPED else ("summary", "settings"):
+        for name in ("summary", "settings"):
             if not _is_model(cls.model_fields[name].annotation):
                 raise TypeError(f"{cls.__name__}.{name} must be a pydantic model (units in its field names)")
 
