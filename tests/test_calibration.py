@@ -289,6 +289,7 @@ def test_stage_load_calibration_and_ik_honour_it(tmp_path, rx_meas):
     )
 
 
+@pytest.mark.slow
 def test_registration_without_nominal_base(rx_meas):
     robot, t2b, ms, _ = rx_meas
     res = calibrate(robot, ms)  # no tracker_to_base anywhere: Kabsch registration
@@ -296,6 +297,7 @@ def test_registration_without_nominal_base(rx_meas):
     assert res.tables[("heldout", "calibrated")].max_position_error_m < 0.3e-3
 
 
+@pytest.mark.slow
 def test_outlier_is_flagged_and_dropped(rx_meas):
     robot, t2b, ms, _ = rx_meas
     p = ms.position_m.copy()
@@ -360,6 +362,7 @@ def test_baseline_poses_are_fitted_apart_and_judged_on_the_same_heldout_poses(tm
     assert "baseline_poses" in run.output
 
 
+@pytest.mark.slow
 def test_csv_with_units_in_headers(tmp_path, rx_meas):
     robot, t2b, ms, _ = rx_meas
     ang = cardan_xyz(ms.rotation)
@@ -432,6 +435,7 @@ def test_stage_exit_2_on_bad_measurements(tmp_path, rx_meas):
     assert not (tmp_path / "c.yaml").exists()
 
 
+@pytest.mark.slow
 def test_calibrate_100_poses_timing(rx_meas):
     robot, t2b, ms, tracker = rx_meas
     qs = random_poses(robot, 100, np.random.default_rng(3))
@@ -442,6 +446,7 @@ def test_calibrate_100_poses_timing(rx_meas):
     assert time.perf_counter() - t0 < 5  # ≈ 0.3 s measured; generous for shared machines
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["rx130l", "m900"])
 def test_position_only_of_an_off_axis_point(name):
     robot = load_robot(SAMPLES / name)

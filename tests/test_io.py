@@ -298,6 +298,7 @@ def test_read_mcap_refuses_garbage_and_unfinished(tmp_path: Path) -> None:
     assert ei.value.file == str(cut)
 
 
+@pytest.mark.slow
 def test_recover_truncated_files_at_every_cut(tmp_path: Path) -> None:
     """Cut a finished file at many offsets: recovery never raises and returns a prefix of the data."""
     full = tmp_path / "full.mcap"
