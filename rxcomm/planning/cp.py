@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Literal
 
 import numpy as np
@@ -225,20 +225,12 @@ def commanded_path(t, s, sd, sdd, q, qd, qdd, command: Command | None, dynamics:
 
 
 @dataclass(frozen=True, eq=False)
-class CpPlan:
+class CpPlan(PathSamples):
     """A planned CP trajectory, sampled at the drive cycle, with its checks and timings."""
 
     joint_path: JointPath
     profile: PathProfile
     method: str
-    t: np.ndarray
-    sigma: np.ndarray
-    sigma_dot: np.ndarray
-    sigma_ddot: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray
-    qdd: np.ndarray
-    tau: np.ndarray
     report: LimitReport
     limit_scale: dict[str, float]  # smallest local factor applied per limit
     toppra: ToppResult
@@ -247,7 +239,11 @@ class CpPlan:
     refinements: int
     settings: CpSettings
     active_segments: list[ActiveSegment] = field(default_factory=list)
-    q_link: np.ndarray | None = None  # the links' angles where q is commanded through a compliance
+
+    @property
+    def q_link(self) -> np.ndarray | None:
+        """The links' angles where q is commanded through a compliance (None: q)."""
+        return None if self.link is None else self.link[0]
 
     @property
     def link_angles(self) -> np.ndarray:
@@ -276,12 +272,8 @@ class CpPlan:
     def of(cls, x: PathSamples, report: LimitReport, **timing) -> CpPlan:
         """The plan of samples `x` checked in `report`; `timing`: how they were timed (joint_path,
         profile, method, limit_scale, toppra, nlp, timings_s, refinements, settings)."""
-        q_link = None if x.link is None else x.link[0]
-        return cls(
-            t=x.t, sigma=x.sigma, sigma_dot=x.sigma_dot, sigma_ddot=x.sigma_ddot, q=x.q, qd=x.qd, qdd=x.qdd,
-            tau=x.tau, report=report, active_segments=active_segments(x.t, x.sigma, report), q_link=q_link,
-            **timing,
-        )  # fmt: skip
+        samples = {f.name: getattr(x, f.name) for f in fields(PathSamples)}
+        return cls(**samples, report=report, active_segments=active_segments(x.t, x.sigma, report), **timing)
 
 
 def plan_limits(robot: Robot, settings: CpSettings) -> PlanLimits:
