@@ -162,17 +162,24 @@ def test_expected_prediction_error_is_what_calibration_delivers(campaign):
         assert np.sqrt(np.mean(sq)) == pytest.approx(expected, rel=0.25)
 
 
-def test_lm_jacobian_equals_finite_differences(rx130l):
+@pytest.mark.parametrize("comp", [(), (1, 2)])
+def test_lm_jacobian_equals_finite_differences(rx130l, comp):
+    """The 48 geometric columns and, with compliant joints, their columns (the chain's ∂/∂q_j)."""
     cell, truth, t2b = _load("rx130l")
     tracker = SimulatedTracker(rx130l, truth, np.random.default_rng(0))
     ms = _measure(tracker, random_poses(rx130l, 4, np.random.default_rng(1)), ["fit"] * 4)
     idx = np.arange(48)
-    prob = Problem(rx130l, ms.q, ms.position_m, ms.rotation, t2b, 5e-5, 1e-4, idx, None)
-    x = np.random.default_rng(2).normal(0, 1e-3, 48)
+    tau = np.random.default_rng(3).normal(0, 500.0, (4, rx130l.n))
+    prob = Problem(rx130l, ms.q, ms.position_m, ms.rotation, t2b, 5e-5, 1e-4, idx, None, tau, comp)
+    x = np.random.default_rng(2).normal(0, 1e-3, 48 + len(comp))
     jac = prob.jacobian(x)
+    assert jac.shape[1] == 48 + len(comp)
     h = 1e-7
-    fd = np.array([(prob.residual(x + h * e) - prob.residual(x - h * e)) / (2 * h) for e in np.eye(48)]).T
+    steps = np.eye(len(x))
+    fd = np.array([(prob.residual(x + h * e) - prob.residual(x - h * e)) / (2 * h) for e in steps]).T
     assert np.max(np.abs(jac - fd)) / np.max(np.abs(jac)) < 1e-6
+    if comp:  # the compliance columns on their own scale
+        assert np.max(np.abs(jac[:, 48:] - fd[:, 48:])) <= 1e-6 * np.max(np.abs(jac[:, 48:]))
 
 
 def test_calibrated_urdf_matches_the_error_model(tmp_path, robot):
