@@ -399,6 +399,7 @@ def _bulk(tmp_path: Path, n: int, digits: int = 17) -> tuple[float, float, int]:
     return t1 - t0, t2 - t1, path.stat().st_size
 
 
+@pytest.mark.slow  # a timing printout: it belongs with the 150k run, out of the unit tier
 def test_bulk_write_speed_printed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     n = 15_000  # 6 s at 2.5 kHz; the slow test below does the full 60 s
     w, r, size = _bulk(tmp_path, n)

@@ -197,6 +197,7 @@ def validate_build(build: Path) -> tuple[dict[str, int], list[str]]:
     return read, bad
 
 
+@pytest.mark.slow  # reads a whole built chain (≈ 90 artefacts, the MCAPs' envelopes)
 def test_every_artefact_of_a_built_chain_reads_with_its_model() -> None:
     """`make commission-ci` (or RXCOMM_CHECK_BUILD=DIR): the typed contents hold what the stages wrote."""
     build = Path(os.environ.get("RXCOMM_CHECK_BUILD", ROOT / "build-ci"))
