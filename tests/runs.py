@@ -40,7 +40,7 @@ def save_plan(path: Path, traj: Trajectory) -> Path:
         "q_start": traj.q[0].tolist(),
         "q_goal": traj.q[-1].tolist(),
     }
-    save_trajectory_mcap(path, traj, TrajectorySummary.envelope({}, {"test": True}, summary))
+    save_trajectory_mcap(path, traj, TrajectorySummary.envelope({}, {"timing": "test"}, summary))
     return path
 
 

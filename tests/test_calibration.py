@@ -162,17 +162,24 @@ def test_expected_prediction_error_is_what_calibration_delivers(campaign):
         assert np.sqrt(np.mean(sq)) == pytest.approx(expected, rel=0.25)
 
 
-def test_lm_jacobian_equals_finite_differences(rx130l):
+@pytest.mark.parametrize("comp", [(), (1, 2)])
+def test_lm_jacobian_equals_finite_differences(rx130l, comp):
+    """The 48 geometric columns and, with compliant joints, their columns (the chain's ∂/∂q_j)."""
     cell, truth, t2b = _load("rx130l")
     tracker = SimulatedTracker(rx130l, truth, np.random.default_rng(0))
     ms = _measure(tracker, random_poses(rx130l, 4, np.random.default_rng(1)), ["fit"] * 4)
     idx = np.arange(48)
-    prob = Problem(rx130l, ms.q, ms.position_m, ms.rotation, t2b, 5e-5, 1e-4, idx, None)
-    x = np.random.default_rng(2).normal(0, 1e-3, 48)
+    tau = np.random.default_rng(3).normal(0, 500.0, (4, rx130l.n))
+    prob = Problem(rx130l, ms.q, ms.position_m, ms.rotation, t2b, 5e-5, 1e-4, idx, None, tau, comp)
+    x = np.random.default_rng(2).normal(0, 1e-3, 48 + len(comp))
     jac = prob.jacobian(x)
+    assert jac.shape[1] == 48 + len(comp)
     h = 1e-7
-    fd = np.array([(prob.residual(x + h * e) - prob.residual(x - h * e)) / (2 * h) for e in np.eye(48)]).T
+    steps = np.eye(len(x))
+    fd = np.array([(prob.residual(x + h * e) - prob.residual(x - h * e)) / (2 * h) for e in steps]).T
     assert np.max(np.abs(jac - fd)) / np.max(np.abs(jac)) < 1e-6
+    if comp:  # the compliance columns on their own scale
+        assert np.max(np.abs(jac[:, 48:] - fd[:, 48:])) <= 1e-6 * np.max(np.abs(jac[:, 48:]))
 
 
 def test_calibrated_urdf_matches_the_error_model(tmp_path, robot):
@@ -289,6 +296,7 @@ def test_stage_load_calibration_and_ik_honour_it(tmp_path, rx_meas):
     )
 
 
+@pytest.mark.slow
 def test_registration_without_nominal_base(rx_meas):
     robot, t2b, ms, _ = rx_meas
     res = calibrate(robot, ms)  # no tracker_to_base anywhere: Kabsch registration
@@ -296,6 +304,7 @@ def test_registration_without_nominal_base(rx_meas):
     assert res.tables[("heldout", "calibrated")].max_position_error_m < 0.3e-3
 
 
+@pytest.mark.slow
 def test_outlier_is_flagged_and_dropped(rx_meas):
     robot, t2b, ms, _ = rx_meas
     p = ms.position_m.copy()
@@ -360,6 +369,7 @@ def test_baseline_poses_are_fitted_apart_and_judged_on_the_same_heldout_poses(tm
     assert "baseline_poses" in run.output
 
 
+@pytest.mark.slow
 def test_csv_with_units_in_headers(tmp_path, rx_meas):
     robot, t2b, ms, _ = rx_meas
     ang = cardan_xyz(ms.rotation)
@@ -432,6 +442,7 @@ def test_stage_exit_2_on_bad_measurements(tmp_path, rx_meas):
     assert not (tmp_path / "c.yaml").exists()
 
 
+@pytest.mark.slow
 def test_calibrate_100_poses_timing(rx_meas):
     robot, t2b, ms, tracker = rx_meas
     qs = random_poses(robot, 100, np.random.default_rng(3))
@@ -442,6 +453,7 @@ def test_calibrate_100_poses_timing(rx_meas):
     assert time.perf_counter() - t0 < 5  # ≈ 0.3 s measured; generous for shared machines
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["rx130l", "m900"])
 def test_position_only_of_an_off_axis_point(name):
     robot = load_robot(SAMPLES / name)

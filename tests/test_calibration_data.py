@@ -75,6 +75,7 @@ def test_frames_from_the_data_need_no_guess(robot, tool_off):
         assert np.max(np.linalg.norm(p_exact - true, axis=1)) < 0.6e-3
 
 
+@pytest.mark.slow
 def test_wrong_angle_convention_is_an_error(tmp_path, robot, tool_off):
     """Roll-pitch-yaw pasted into the Cardan columns: refused with the convention named; the same
     angles under roll/pitch/yaw columns calibrate."""
@@ -108,6 +109,7 @@ def test_wrong_angle_convention_is_an_error(tmp_path, robot, tool_off):
     assert np.allclose(cardan_xyz(ms.rotation[:1]), cardan_xyz(read_measurements(path, robot).rotation[:1]))
 
 
+@pytest.mark.slow
 def test_worse_than_nominal_exits_3(tmp_path, robot):
     """The tracker moved 12 mm between the fit and the validation poses: the calibration absorbs the
     move and misses the held-out poses by more than the nominal model: exit 3, nothing written."""

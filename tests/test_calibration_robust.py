@@ -82,6 +82,7 @@ def test_camera_grade_never_worse_than_frames_only(rx):
     )
 
 
+@pytest.mark.slow
 def test_tracker_grade_accuracy_is_kept(rx):
     """32 poses at 50 µm: the priors (1 mm, 1–2 mrad) leave the held-out error where the plain fit has
     it (measured over 5 seeds: 0.1014 mm before the priors and with them), and all 30 identifiable
@@ -95,6 +96,7 @@ def test_tracker_grade_accuracy_is_kept(rx):
     assert _heldout(res) < 0.15e-3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("grade", ["camera", "tracker"])
 def test_ten_sigma_blunder_is_flagged_and_dropped(rx, grade):
     """One fit pose 10 σ off along z (10–20 mm on the camera, 0.5 mm on the tracker): flagged and
@@ -114,6 +116,7 @@ def test_ten_sigma_blunder_is_flagged_and_dropped(rx, grade):
         assert 0.8 < ratio < 1.25, (seed, ratio)
 
 
+@pytest.mark.slow
 def test_tcp_on_the_last_link_works_with_urdf_out(tmp_path, rx):
     """drives.yaml's TCP on `link_6` (the last revolute joint's child, as `wrist_3_link` on a UR):
     `calibrate --urdf-out` writes a URDF whose TCP, with drives.yaml's TCP still valid, is the
@@ -153,6 +156,7 @@ def good(rx):
     return _measure(tracker, qs, ["fit"] * 30 + ["validation"] * 10)
 
 
+@pytest.mark.slow
 def test_shifted_validation_pose_is_a_warning_naming_it(rx, good):
     """Validation pose 34 shifted by 100 mm: the calibration still beats nominal and is written, but a
     warning names pose 34 (on main: exit 0 and no word); the clean set warns of nothing."""
@@ -168,6 +172,7 @@ def test_shifted_validation_pose_is_a_warning_naming_it(rx, good):
     assert "34 (100." in warn and warn.count("mm,") == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("change", "named"), [("swap", "joint_2 and joint_3 are swapped"), ("flip", "joint_2's sign is flipped")]
 )

@@ -40,6 +40,7 @@ def test_payload_adds_mass_at_the_flange(rx130l):
     assert abs(g_loaded[1] - g_prior[1]) == pytest.approx(pl.mass_kg * 9.81 * np.hypot(*lever[:2]), rel=1e-3)
 
 
+@pytest.mark.slow
 def test_catalogue_limits_hold_at_dense_poses(robot, catalogues):
     """Random states within the catalogue box at poses never sampled: the prior model with the rated
     payload stays within every peak torque (the bound is conservative; the sample is dense)."""
@@ -90,6 +91,7 @@ def test_catalogue_limits_are_tight(robot, catalogues):
     assert 0.9 * robot.tau_max[j] <= best <= robot.tau_max[j] * (1 + 1e-9)
 
 
+@pytest.mark.slow
 def test_catalogue_speeds_keep_the_acceleration_reserve(robot, catalogues):
     """Velocity first: at zero acceleration the speed terms take at most 1 − reserve of every
     sampled pose's headroom (peak − holding), exactly that at the speed's binding pose and row; the
@@ -210,6 +212,7 @@ def test_setpoint_filter_keeps_bounds_and_rest_and_limits_jerk():
     np.testing.assert_allclose(np.diff(qf[:, 0]) / dt, qdf[1:, 0], atol=3e-3)
 
 
+@pytest.mark.slow
 def test_cli_plan_ptp_timing_catalogue(tmp_path):
     from typer.testing import CliRunner
 

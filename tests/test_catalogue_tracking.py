@@ -42,6 +42,7 @@ def test_the_loop_error_grows_with_acceleration_friction_and_inertia():
     assert np.all(_peak(robot, 1.0, j_scale=2.0) > e1)  # more inertia than the drive was tuned on
 
 
+@pytest.mark.slow
 def test_tracking_bound_cuts_only_what_exceeds_the_window_fraction():
     robot = load_robot(SAMPLES / "rx130l")
     j = nominal_axis_inertia(robot)

@@ -239,6 +239,7 @@ def test_gains_follow_the_prior_inertia_not_the_truth(rx_truth):
     np.testing.assert_allclose(true_cell.gains.kp_nm_s_per_rad, g.kp_nm_s_per_rad)  # truth plays no part
 
 
+@pytest.mark.slow
 def test_feedforward_cuts_the_lag_at_least_three_times(rx_truth, capsys):
     """The paper's Fig. 2 effect: a J1–J3 move at 70 % of the velocity limits, lag with and without
     the true model's feed-forward torque (quantised over the gateway)."""
@@ -256,6 +257,7 @@ def test_feedforward_cuts_the_lag_at_least_three_times(rx_truth, capsys):
     assert lag_std.max() < 0.5 * drive_gains(rx_truth.robot).following_error_limit_rad[0]  # no trip
 
 
+@pytest.mark.slow
 def test_standard_drive_lags_millimetres_at_one_metre_per_second(rx_truth):
     pos, ff, n_hold = fast_move(rx_truth, Q_A, Q_B, speed=0.4, hold_s=0.3)
     tcp = tcp_positions(rx_truth.robot, pos[n_hold::5])
@@ -347,6 +349,7 @@ def test_demand_is_clamped_to_the_software_limits(rx_truth):
     assert fb.following_error_rad[4] > cell.following_error_limit_rad[4]  # the gateway would trip it
 
 
+@pytest.mark.slow
 def test_quick_stop_from_speed_stays_below_the_trip(rx_truth):
     pos, ff, n_hold = fast_move(rx_truth, Q_A, Q_B, hold_s=0.2)
     cell = cell_at(rx_truth, Q_A)

@@ -108,6 +108,7 @@ def test_both_or_neither_of_a_degree_pair_is_one_line_exit_2(tmp_path):
     one_line_exit_2(cell, "--start", "6 finite")
 
 
+@pytest.mark.slow
 def test_plain_progress_prints_a_line_per_period_and_a_last_one():
     stream = io.StringIO()
     bar = console.PlainProgress(period_s=0.2, stream=stream)

@@ -155,6 +155,7 @@ def test_deprecated_spellings_are_rewritten(name, old, new, capsys):
     assert "deprecated" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_deprecated_spelling_still_runs_the_command():
     res = CliRunner().invoke(cli.app, ["robot-info", str(ROOT / "samples" / "rx130l")])
     assert res.exit_code == 0, res.output

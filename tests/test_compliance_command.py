@@ -130,6 +130,7 @@ def _calibration(robot, summary: dict):
     return synthetic_calibration(robot, ERRORS, compliance=compliance, summary=summary)
 
 
+@pytest.mark.slow
 def test_plan_cp_stage_compensates_the_calibrated_compliance(tmp_path, rx130l):
     """--calibration whose chosen model found J2/J3 compliance (prior torque model): the streamed q
     puts the links on the calibrated IK, so the calibrated TCP of the LINKS follows the path, while

@@ -108,6 +108,7 @@ def test_every_identification_states_its_held_out_error(rx130l, noisy_log):
     assert "cv_rms_nm" not in off.summary()  # not measured: no figure, never 0
 
 
+@pytest.mark.slow
 def test_cutoff_auto_picks_the_cutoff_that_predicts_held_out_torque(rx130l, bset_rx, noisy_log):
     """A 2 Hz cut-off smears the excitation's friction reversals and rejects the rows near them (the
     stick guard is 1/cutoff); 10 Hz predicts the same held-out rows better and is chosen. At 20 and

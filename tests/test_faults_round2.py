@@ -380,6 +380,7 @@ def _j1_inertia_minus(robot, kgm2: float):
     return replace(p, inertial=inertial)
 
 
+@pytest.mark.slow
 def test_physically_inconsistent_dynamics_are_refused_unless_allowed(tmp_path, rx130l, capsys):
     """Case 8: J1 inertia −35 kg·m² makes M(q) indefinite: refused by the loader (so run and the
     planners), exit 2 naming the file; with --allow-inconsistent a warning. The prior passes."""
@@ -498,6 +499,7 @@ def test_a_summary_that_is_not_its_mcaps_is_refused(tmp_path):
         assert res.exit_code == 2 and "mcap_sha256" in one_error_line(res), (args, res.output)
 
 
+@pytest.mark.slow
 def test_run_warns_of_a_dynamics_other_than_the_plans_and_report_notes_a_replaced_input(tmp_path, rx130l):
     from rxcomm.execution.guards import other_model_warning
 

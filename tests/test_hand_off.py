@@ -120,6 +120,7 @@ def _named_plan(path, rx130l, dt=0.002, scale=0.25):
     return path, traj
 
 
+@pytest.mark.slow
 def test_trajectory_exports_reread_exactly_and_the_bag_decodes(tmp_path, rx130l):
     plan, traj = _named_plan(tmp_path / "plan.mcap", rx130l)
     r = runner.invoke(app, ["export", str(plan), "--format", "all", "-o", str(tmp_path / "x")])

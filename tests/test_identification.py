@@ -447,6 +447,7 @@ def test_motor_friction_of_the_coupled_wrist_is_recovered(
     assert rms_joint > 3.0 * rms_motor and res.validation.r2[4] > 0.99
 
 
+@pytest.mark.slow
 def test_csv_with_encoder_offsets_a_reversed_axis_and_the_wrist_coupling(tmp_path, rx130l, random_traj):
     # motor side, rad: what each (multi-turn) encoder reads at the calibrated zero
     offsets = [1200.0, -1.25, 300.0, 0.0, 2.0, -7.5]
@@ -481,6 +482,7 @@ def test_csv_with_encoder_offsets_a_reversed_axis_and_the_wrist_coupling(tmp_pat
     assert res.exit_code == 2 and "motor" in res.output and "outside its limits" in res.output
 
 
+@pytest.mark.slow
 def test_positions_in_degrees_are_refused_naming_the_column(tmp_path, rx130l, random_traj):
     t, q, qd, qdd = sampled(rx130l, random_traj)
     tau = RobotDynamics(rx130l, prior_parameters(rx130l)).inverse_dynamics(q, qd, qdd)

@@ -59,6 +59,7 @@ def standstill_log(rx130l):
     return JointLog(t, q_meas, tau), np.mean(np.all(qd == 0, axis=1))
 
 
+@pytest.mark.slow
 def test_every_row_error_is_the_moving_row_error_and_in_band_is_reported(rx130l, standstill_log):
     """Over all joints, the every-row RMS within 20 % of the moving-row RMS (on main: the Coulomb
     term followed the sign of the noise at standstill, ±Fc, and the every-row error was several times
@@ -108,6 +109,7 @@ def test_auto_cutoff_says_why_when_it_cannot_choose(rx130l, standstill_log):
     assert any("cut-off 10 Hz used" in w for w in res.warnings())
 
 
+@pytest.mark.slow
 def test_scoring_a_model_writes_it_with_the_new_figures(tmp_path, rx130l, standstill_log):
     """identify (default cut-off: auto) then `score --dynamics M --log LOG -o OUT`: OUT is the
     model, its parameters unchanged, with LOG's validation figures (on main: -o refused when scoring)."""

@@ -298,6 +298,7 @@ def test_read_mcap_refuses_garbage_and_unfinished(tmp_path: Path) -> None:
     assert ei.value.file == str(cut)
 
 
+@pytest.mark.slow
 def test_recover_truncated_files_at_every_cut(tmp_path: Path) -> None:
     """Cut a finished file at many offsets: recovery never raises and returns a prefix of the data."""
     full = tmp_path / "full.mcap"
@@ -398,6 +399,7 @@ def _bulk(tmp_path: Path, n: int, digits: int = 17) -> tuple[float, float, int]:
     return t1 - t0, t2 - t1, path.stat().st_size
 
 
+@pytest.mark.slow  # a timing printout: it belongs with the 150k run, out of the unit tier
 def test_bulk_write_speed_printed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     n = 15_000  # 6 s at 2.5 kHz; the slow test below does the full 60 s
     w, r, size = _bulk(tmp_path, n)
@@ -435,7 +437,7 @@ def _traj_envelope(tmp_path: Path, **summary: object) -> dict:
     path.write_text("line: 1\n")
     base = {"duration_s": 1.0, "solve_seconds": 0.2, "max_limit_ratio": 0.98, "active_fraction": 0.6}
     base |= {"q_start": [0.0] * 6, "q_goal": [0.5, -0.3, 0.8, 1.0, -1.2, 2.0]}
-    return TrajectorySummary.envelope({"path": path}, {"grid": 400}, {**base, **summary})
+    return TrajectorySummary.envelope({"path": path}, {"intervals": 400}, {**base, **summary})
 
 
 def test_trajectory_mcap_round_trip_and_summary_yaml(tmp_path: Path) -> None:
@@ -455,7 +457,7 @@ def test_trajectory_mcap_round_trip_and_summary_yaml(tmp_path: Path) -> None:
     for name in ("q", "qd", "qdd", "tau_ff"):
         assert np.array_equal(getattr(back, name), getattr(traj, name)), name
     assert np.array_equal(back.extra["sigma_dot"], traj.extra["sigma_dot"]) and not back.tau_ff.any()
-    assert env["summary"]["max_limit_ratio"] == 0.98 and env["settings"] == {"grid": 400}
+    assert env["summary"]["max_limit_ratio"] == 0.98 and env["settings"] == {"intervals": 400}
     side = read_yaml_artefact(tmp_path / "cp.yaml", TrajectorySummary)
     assert side == summary and side.mcap_sha256 == sha256_file(out) and side.n_samples == 400
     assert side.fields == ["q", "qd", "qdd", "tau_ff", "sigma", "sigma_dot"]

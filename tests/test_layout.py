@@ -1,6 +1,7 @@
 """The architecture the layout promises: packages all installed, dependencies pointing one way."""
 
 import ast
+import functools
 import os
 import re
 import shutil
@@ -26,12 +27,22 @@ def test_every_package_directory_is_installed():
     assert on_disk <= listed, f"add to pyproject [tool.setuptools] packages: {sorted(on_disk - listed)}"
 
 
+@functools.cache
+def _imports() -> dict[Path, list[ast.Import | ast.ImportFrom]]:
+    """Every import statement of every rxcomm module (lazy ones inside functions too), parsed once for
+    the tests that follow the imports."""
+    return {
+        path: [n for n in ast.walk(ast.parse(path.read_text())) if isinstance(n, ast.Import | ast.ImportFrom)]
+        for path in sorted((ROOT / "rxcomm").rglob("*.py"))
+    }
+
+
 def test_library_never_imports_stages():
     offenders = []
-    for path in (ROOT / "rxcomm").rglob("*.py"):
+    for path, nodes in _imports().items():
         if (path.name == "cli.py" and path.parent == ROOT / "rxcomm") or "stages" in path.parts:
             continue  # the composition root and the stages themselves
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in nodes:
             names = []
             if isinstance(node, ast.Import):
                 names = [a.name for a in node.names]
@@ -92,13 +103,13 @@ def test_layer_contract_holds_and_catches_a_violation(tmp_path):
 def _module_imports() -> dict[str, set[str]]:
     """Every rxcomm module and the rxcomm modules it imports (lazy imports inside functions included)."""
     modules = {}
-    for path in (ROOT / "rxcomm").rglob("*.py"):
+    for path in _imports():
         parts = path.relative_to(ROOT).with_suffix("").parts
         modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
     graph: dict[str, set[str]] = {}
     for name, path in modules.items():
         deps = set()
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in _imports()[path]:
             targets = []
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]

@@ -158,6 +158,7 @@ def _payload_artefact(robot, path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_the_cli_refuses_a_bad_payload_file_with_exit_2(tmp_path, rx130l):
     plan = save_plan(tmp_path / "plan.mcap", cosine_plan(Q0, np.full(6, 0.1), 0.5))
     good = _payload_artefact(rx130l, tmp_path / "payload.yaml")

@@ -212,6 +212,7 @@ def test_not_converged_raises_with_status_and_fallback_is_feasible(rx130l, rx_dy
 
 
 # --- the stage ---------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_cli_joint_states_to_mcap_and_summary(tmp_path, m900):
     out = tmp_path / "ptp.mcap"
     r = RUNNER.invoke(
@@ -264,6 +265,7 @@ def test_cli_bad_numbers_are_exit_2(tmp_path):
     assert r.exit_code == 2 and "start" in r.output
 
 
+@pytest.mark.slow
 def test_cli_no_convergence_is_exit_3_and_writes_fallback_only_when_asked(tmp_path):
     args = ["plan-ptp", "--robot", str(SAMPLES / "rx130l"), "--start", "-0.5,0.3,1.2,0.4,0.5,-0.5",
             "--goal", "0.5,0.4,1.0,-0.4,0.6,0.5", "--time-intervals", "8",
@@ -329,6 +331,7 @@ def test_shooting_peer_reaches_the_same_time(rx130l, rx_dyn, line_ends):
     assert sol.duration_s == pytest.approx(ours.solution.duration_s, rel=0.03)
 
 
+@pytest.mark.slow
 def test_ocp_reuse_gives_the_same_answer(m900):
     """A built NLP serves other end points: the cache is keyed by dynamics, limits and options only."""
     dyn = PtpDynamics.from_parameters(m900)
@@ -346,6 +349,7 @@ def test_ocp_reuse_gives_the_same_answer(m900):
     np.testing.assert_allclose(tr.q[-1], q1)
 
 
+@pytest.mark.slow
 def test_cli_uses_identified_dynamics(tmp_path, m900):
     """With --dynamics the torques are the identified model's, not the URDF prior's."""
     truth = read_yaml_model(SAMPLES / "m900" / "truth.yaml", CellTruth)

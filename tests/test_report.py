@@ -32,6 +32,7 @@ from rxcomm.schemas.acceptance import VerdictRow as AcceptanceRow
 from rxcomm.schemas.calibration import CalibrationSummary
 from rxcomm.schemas.dynamics import DynamicsSummary
 from rxcomm.schemas.run_log import RunLog, RunLogSummary
+from rxcomm.schemas.run_settings import RunLogSettings
 from rxcomm.schemas.trajectory import TrajectoryFigures
 
 
@@ -44,7 +45,10 @@ def _p(model, figures: dict):
 
 def _logs(runs: dict) -> dict:
     """Run logs as the report holds them (RunLog models) from their top-level fields."""
-    return {n: RunLog.model_construct(**r) for n, r in runs.items()}
+    return {
+        n: RunLog.model_construct(**r | {"settings": RunLogSettings(**r.get("settings", {}))})
+        for n, r in runs.items()
+    }
 
 
 def test_calibration_table_has_papers_numbers_and_ours_in_mm_and_degrees():

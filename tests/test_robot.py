@@ -122,6 +122,7 @@ def test_missing_robot_dir(tmp_path):
     assert "drives.yaml" in result.output
 
 
+@pytest.mark.slow
 def test_robot_info_shows_why_the_spring_matters():
     result = CliRunner().invoke(app, ["robot-info", "--robot", str(SAMPLES / "rx130l")])
     assert result.exit_code == 0, result.output

@@ -74,6 +74,7 @@ def test_cell_checks_refuse_what_they_should(rx130l):
     assert feasibility(rx130l, cell, np.array([[3.0, 0, 0.5, 0, 0.5, 0]]))[0] == 6
 
 
+@pytest.mark.slow
 def test_reservoir_is_bounded_seeded_and_uniform(rx130l):
     cell = _cell("rx130l")
     a = stream_candidates(rx130l, cell, intervals=7, max_candidates=500, seed=3)
@@ -111,6 +112,7 @@ def test_best_addition_is_the_brute_force_best(rx_blocks, criterion):
     assert i == int(np.argmax(brute))
 
 
+@pytest.mark.slow
 def test_exchange_beats_random_and_evenly_spaced_sets(rx_blocks):
     _, blocks = rx_blocks
     res = select_poses(blocks, 32, "min-eig", restarts=3, seed=0)
@@ -250,6 +252,7 @@ def test_32_of_4000_candidates_and_timing(rx130l):
     assert time.perf_counter() - t0 < 60  # generous: shared CI machines; the bench reports the figure
 
 
+@pytest.mark.slow
 def test_stage_writes_configs_and_refuses_bad_cell(tmp_path):
     out = tmp_path / "configs.yaml"
     args = ["select-configs", "--robot", str(SAMPLES / "m900"), "--cell", str(SAMPLES / "m900" / "cell.yaml")]

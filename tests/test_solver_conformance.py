@@ -131,6 +131,7 @@ def test_a_local_scale_is_held_where_it_is_given_and_costs_time(case, name, free
     assert profile.duration_s > 1.02 * free_durations[name]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SOLVERS)
 def test_no_torque_to_hold_the_arm_is_an_infeasible_error_naming_the_path(case, name):
     solver = SOLVERS[name](case)

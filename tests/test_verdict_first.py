@@ -120,6 +120,7 @@ def _stricter(tmp: Path, criterion: str, bound: float) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_accepted_then_one_stricter_threshold_is_not_accepted_on_every_first_line(build, tmp_path):
     console = _accept(build, ROOT / "samples/rx130l/acceptance.yaml")
     assert console.splitlines()[0] == "ACCEPTED"
@@ -154,6 +155,7 @@ def test_accepted_then_one_stricter_threshold_is_not_accepted_on_every_first_lin
     assert html.index('id="headline"') < html.index('id="acceptance"') < html.index('id="checks"')
 
 
+@pytest.mark.slow
 def test_the_iso_section_has_every_pose_and_path_criterion_and_the_test_conditions(build):
     _accept(build, ROOT / "samples/rx130l/acceptance.yaml")
     md = (build / "report.md").read_text()

@@ -16,7 +16,6 @@ from rxcomm.calibration.measurements import MeasurementSet
 from rxcomm.model.geometric_errors import (
     ErrorModel,
     identification_jacobians,
-    joint_motion_jacobians,
     parameter_names,
     predict_poses,
 )
@@ -95,9 +94,10 @@ class Problem:
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         e, q = self.errors(x), self.q_link(x)
         po = self.r_meas is None
-        jac = identification_jacobians(self.robot, q, e, self.t2b, po, self.point)[:, :, self.idx]
-        if self.comp:
-            jq = joint_motion_jacobians(self.robot, q, e, self.t2b, po, self.point)[:, :, list(self.comp)]
+        full = identification_jacobians(self.robot, q, e, self.t2b, po, self.point, joints=bool(self.comp))
+        jac = full[:, :, self.idx]
+        if self.comp:  # the joint columns follow the 6·(n + 2) error parameters
+            jq = full[:, :, [6 * (self.robot.n + 2) + j for j in self.comp]]
             jac = np.concatenate([jac, jq * (-self.tau[:, None, list(self.comp)] / TAU_REF_NM)], axis=2)
         k = jac.shape[2]
         jp = jac[:, :3] / self.sigma_p

@@ -281,11 +281,15 @@ def identification_jacobians(
     tracker_to_base: pin.SE3 | None = None,
     position_only: bool = False,
     point: np.ndarray | None = None,
+    joints: bool = False,
 ) -> np.ndarray:
     """[N, 6 or 3, 48]: ∂(measured point position, orientation increment)/∂(error parameters) per pose.
 
     `point`: the measured point in the TCP frame (default the TCP origin). Tracker frame when
     `tracker_to_base` is given, else the base frame (σ of ΘᵀΘ does not depend on that choice).
+    With `joints`, n columns more (48 + j): ∂/∂q_j of the erroneous chain, joint j turning about its
+    own axis (a spatial twist Ad(B_j)·[0; axis_j], B_j the frame before Rot(q_j)); joint compliance
+    (a deflection δq_j = c_j·τ_j) enters the measured pose through them.
     """
     errors = ErrorModel.zeros(robot) if errors is None else errors
     ch = _chain(robot, qs, errors, tracker_to_base)
@@ -299,31 +303,13 @@ def identification_jacobians(
         )
     spatial[:, :, -6:] = _adjoint(ch.tcp) @ pin.Jexp6(errors.twist(TOOL))
     # A spatial twist (v, ω) moves a point p by v + ω × p = v − [p]× ω.
-    pos = spatial[:, :3] - _skew(p) @ spatial[:, 3:]
-    return _rows(pos, spatial[:, 3:], position_only)
-
-
-def joint_motion_jacobians(
-    robot: Robot,
-    qs: np.ndarray,
-    errors: ErrorModel | None = None,
-    tracker_to_base: pin.SE3 | None = None,
-    position_only: bool = False,
-    point: np.ndarray | None = None,
-) -> np.ndarray:
-    """[N, 6 or 3, n]: ∂(measured point position, orientation increment)/∂q_j of the erroneous chain.
-
-    The rows of `identification_jacobians`; column j is joint j turning about its own axis (a spatial
-    twist Ad(B_j)·[0; axis_j] with B_j the frame before Rot(q_j)). Joint compliance (a deflection
-    δq_j = c_j·τ_j) enters the measured pose through these columns.
-    """
-    ch = _chain(robot, qs, errors, tracker_to_base)
-    p = ch.point(point)
-    axes = _joint_axes(robot)
-    w = np.einsum("njab,jb->nja", ch.joint_frames[:, :, :3, :3], axes)  # [N, n, 3] axes in the world
-    o = ch.joint_frames[:, :, :3, 3]  # [N, n, 3] points on the axes
-    pos = np.cross(w, p[:, None, :] - o)  # ω × (p − o)
-    return _rows(pos.transpose(0, 2, 1), w.transpose(0, 2, 1), position_only)
+    pos, rot = spatial[:, :3] - _skew(p) @ spatial[:, 3:], spatial[:, 3:]
+    if joints:
+        w = np.einsum("njab,jb->nja", ch.joint_frames[:, :, :3, :3], _joint_axes(robot))  # world axes
+        o = ch.joint_frames[:, :, :3, 3]  # [N, n, 3] points on the axes
+        pos = np.concatenate([pos, np.cross(w, p[:, None, :] - o).transpose(0, 2, 1)], axis=2)  # ω × (p − o)
+        rot = np.concatenate([rot, w.transpose(0, 2, 1)], axis=2)
+    return _rows(pos, rot, position_only)
 
 
 def _rows(pos: np.ndarray, rot: np.ndarray, position_only: bool) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -44,30 +44,33 @@ class PositionLimit:
 
 
 @dataclass(frozen=True)
-class VelocityLimit:
-    v_max: np.ndarray
+class _MagnitudeLimit:
+    """|x| / bound per sample and joint; x the sampled signal the subclass names (`SIGNAL`: the index
+    into q, q̇, q̈, τ) in its unit (rad/s, rad/s², N·m)."""
+
+    bound: np.ndarray
+    SIGNAL: ClassVar[int]
+
+    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
+        return np.abs((q, qd, qdd, tau)[self.SIGNAL]) / self.bound
+
+
+@dataclass(frozen=True)
+class VelocityLimit(_MagnitudeLimit):
     name: str = "velocity"
-
-    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
-        return np.abs(qd) / self.v_max
+    SIGNAL = 1
 
 
 @dataclass(frozen=True)
-class AccelerationLimit:
-    a_max: np.ndarray
+class AccelerationLimit(_MagnitudeLimit):
     name: str = "acceleration"
-
-    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
-        return np.abs(qdd) / self.a_max
+    SIGNAL = 2
 
 
 @dataclass(frozen=True)
-class TorqueLimit:
-    tau_max: np.ndarray
+class TorqueLimit(_MagnitudeLimit):
     name: str = "torque"
-
-    def ratios(self, t, q, qd, qdd, tau) -> np.ndarray:
-        return np.abs(tau) / self.tau_max
+    SIGNAL = 3
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,7 @@ from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.limits import AccelerationLimit, LimitReport, PositionLimit, VelocityLimit, check_limits
 from rxcomm.model.robot import Robot
 from rxcomm.planning.commanded import Command, OnLink
-from rxcomm.planning.cp import CpPlan, CpSettings, active_segments, commanded_samples, tcp_limits
+from rxcomm.planning.cp import CpPlan, CpSettings, commanded_path, joint_samples, tcp_limits
 from rxcomm.planning.cp_grid import toppra_grid
 from rxcomm.planning.iso9283 import (
     cube_from_rectangle,
@@ -130,43 +130,21 @@ def plan_cp_catalogue(
         raise InfeasibleError(f"path {path.name!r}: {topp.message} under catalogue {limits_text(limits)}")
     cycle = robot.drives.cycle_s
     _, s, sd, sdd = topp.profile.sample(cycle)
-    q, qs, qss = jp(s), jp(s, 1), jp(s, 2)
-    qd = qs * sd[:, None]
-    qdd = qs * sdd[:, None] + qss * (sd**2)[:, None]
+    q, qd, qdd = joint_samples(jp, s, sd, sdd)
     n_filter = max(int(round(JERK_RAMP_S / cycle)), 1)
     q, qd, qdd = (moving_average(x, n_filter, rest) for x, rest in ((q, False), (qd, True), (qdd, True)))
     s = moving_average(s[:, None], n_filter, False)[:, 0]
     sd, sdd = (moving_average(x[:, None], n_filter, True)[:, 0] for x in (sd, sdd))
-    t = np.arange(len(q)) * cycle
-    q, qd, qdd, link = commanded_samples(command, q, qd, qdd)
-    tau = dynamics.smooth(q, qd, qdd)
+    x = commanded_path(np.arange(len(q)) * cycle, s, sd, sdd, q, qd, qdd, command, dynamics)
     checks = _kinematic_checks(robot, catalogue)
     tcp = tcp_limits(robot, settings.tcp_speed_max_m_s, settings.tcp_acceleration_max_m_s2)
-    checks += tcp if link is None else [OnLink(lim, *link) for lim in tcp]
-    report = check_limits(robot, t, q, qd, qdd, tau, limits=checks)
+    checks += tcp if x.link is None else [OnLink(lim, *x.link) for lim in tcp]
+    report = check_limits(robot, x.t, x.q, x.qd, x.qdd, x.tau, limits=checks)
     timings["total_s"] = time.perf_counter() - t0
-    return CpPlan(
-        joint_path=jp,
-        profile=topp.profile,
-        method="catalogue",
-        t=t,
-        sigma=s,
-        sigma_dot=sd,
-        sigma_ddot=sdd,
-        q=q,
-        qd=qd,
-        qdd=qdd,
-        tau=tau,
-        report=report,
-        limit_scale={},
-        toppra=topp,
-        nlp=None,
-        timings_s=timings,
-        refinements=0,
-        settings=settings,
-        active_segments=active_segments(t, s, report),
-        q_link=None if link is None else link[0],
-    )
+    return CpPlan.of(
+        x, report, joint_path=jp, profile=topp.profile, method="catalogue", limit_scale={}, toppra=topp,
+        nlp=None, timings_s=timings, refinements=0, settings=settings,
+    )  # fmt: skip
 
 
 def filtered_path_deviation_m(robot: Robot, plan: CpPlan, path: CartesianPath, n: int = 600) -> float:

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Literal
 
 import numpy as np
@@ -197,12 +197,10 @@ class ActiveSegment:
 
 
 @dataclass(frozen=True, eq=False)
-class CpPlan:
-    """A planned CP trajectory, sampled at the drive cycle, with its checks and timings."""
+class PathSamples:
+    """A timed path sampled: σ and its rates, the joint samples as commanded and their torques; `link`
+    the links' (q, q̇, q̈) where q is commanded through a compliance (None: the same)."""
 
-    joint_path: JointPath
-    profile: PathProfile
-    method: str
     t: np.ndarray
     sigma: np.ndarray
     sigma_dot: np.ndarray
@@ -211,6 +209,28 @@ class CpPlan:
     qd: np.ndarray
     qdd: np.ndarray
     tau: np.ndarray
+    link: tuple | None
+
+
+def joint_samples(jp: JointPath, s, sd, sdd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """q, q̇, q̈ along the path at σ, σ̇, σ̈ (chain rule: q̇ = q'σ̇, q̈ = q'σ̈ + q''σ̇²)."""
+    qs, qss = jp(s, 1), jp(s, 2)
+    return jp(s), qs * sd[:, None], qs * sdd[:, None] + qss * (sd**2)[:, None]
+
+
+def commanded_path(t, s, sd, sdd, q, qd, qdd, command: Command | None, dynamics: PlanDynamics) -> PathSamples:
+    """The samples `run` streams (through `command`'s compliance) with their smooth-friction torques."""
+    q, qd, qdd, link = commanded_samples(command, q, qd, qdd)
+    return PathSamples(t, s, sd, sdd, q, qd, qdd, dynamics.smooth(q, qd, qdd), link)
+
+
+@dataclass(frozen=True, eq=False)
+class CpPlan(PathSamples):
+    """A planned CP trajectory, sampled at the drive cycle, with its checks and timings."""
+
+    joint_path: JointPath
+    profile: PathProfile
+    method: str
     report: LimitReport
     limit_scale: dict[str, float]  # smallest local factor applied per limit
     toppra: ToppResult
@@ -219,7 +239,11 @@ class CpPlan:
     refinements: int
     settings: CpSettings
     active_segments: list[ActiveSegment] = field(default_factory=list)
-    q_link: np.ndarray | None = None  # the links' angles where q is commanded through a compliance
+
+    @property
+    def q_link(self) -> np.ndarray | None:
+        """The links' angles where q is commanded through a compliance (None: q)."""
+        return None if self.link is None else self.link[0]
 
     @property
     def link_angles(self) -> np.ndarray:
@@ -243,6 +267,13 @@ class CpPlan:
     @property
     def active_fraction(self) -> float:
         return self.report.active_fraction(ACTIVE_THRESHOLD, exclude=("position",))
+
+    @classmethod
+    def of(cls, x: PathSamples, report: LimitReport, **timing) -> CpPlan:
+        """The plan of samples `x` checked in `report`; `timing`: how they were timed (joint_path,
+        profile, method, limit_scale, toppra, nlp, timings_s, refinements, settings)."""
+        samples = {f.name: getattr(x, f.name) for f in fields(PathSamples)}
+        return cls(**samples, report=report, active_segments=active_segments(x.t, x.sigma, report), **timing)
 
 
 def plan_limits(robot: Robot, settings: CpSettings) -> PlanLimits:
@@ -397,13 +428,9 @@ def plan_cp(
         profile = solver.solve(scale)
         t4 = time.perf_counter()
         t, s, sd, sdd = profile.sample(robot.drives.cycle_s)
-        qs, qss = jp(s, 1), jp(s, 2)
-        q = jp(s)
-        qd = qs * sd[:, None]
-        qdd = qs * sdd[:, None] + qss * (sd**2)[:, None]
-        q, qd, qdd, link = commanded_samples(command, q, qd, qdd)
-        tau = dynamics.smooth(q, qd, qdd)
-        report = check_limits(robot, t, q, qd, qdd, tau, limits=_limit_objects(robot, limits, link))
+        x = commanded_path(t, s, sd, sdd, *joint_samples(jp, s, sd, sdd), command, dynamics)
+        checks = _limit_objects(robot, limits, x.link)
+        report = check_limits(robot, t, x.q, x.qd, x.qdd, x.tau, limits=checks)
         timings["check_s"] = timings.get("check_s", 0.0) + time.perf_counter() - t4
         carried = solver.regrid(profile, report, s, scale)
         if carried is not None:
@@ -423,28 +450,12 @@ def plan_cp(
             f"(σ = {s[min(i, len(s) - 1)]:.4f} m) after {refinements} local re-tightenings; "
             "try more --path-intervals"
         )
-    return CpPlan(
-        joint_path=jp,
-        profile=profile,
-        method=solver.method,
-        t=t,
-        sigma=s,
-        sigma_dot=sd,
-        sigma_ddot=sdd,
-        q=q,
-        qd=qd,
-        qdd=qdd,
-        tau=tau,
-        report=report,
+    return CpPlan.of(
+        x, report, joint_path=jp, profile=profile, method=solver.method, toppra=topp,
         limit_scale={k: float(v.min()) for k, v in scale.items()},
-        toppra=topp,
         nlp=solver.result if isinstance(solver, NlpTiming) else None,
-        timings_s=timings,
-        refinements=refinements,
-        settings=settings,
-        active_segments=active_segments(t, s, report),
-        q_link=None if link is None else link[0],
-    )
+        timings_s=timings, refinements=refinements, settings=settings,
+    )  # fmt: skip
 
 
 def _stretched(profile: PathProfile, duration_s: float, name: str) -> PathProfile:

@@ -35,7 +35,7 @@ def ran_on(runs: Mapping[str, RunLog]) -> str:
     gateways: dict[str, int] = {}
     for r in runs.values():
         if r.embedded_cell:
-            plant = (r.settings or {}).get("plant")
+            plant = r.settings.plant
             key = "" if plant is None else f", {PLANT_NAMES.get(plant, plant)} plant"
             cells[key] = cells.get(key, 0) + 1
         else:

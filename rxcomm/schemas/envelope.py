@@ -29,7 +29,15 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 import rxcomm
 from rxcomm.code_identity import code_identity
@@ -73,9 +81,6 @@ class Artefact(BaseModel):
 
     KIND: ClassVar[str]
     SCHEMA_VERSION: ClassVar[int]
-    # A kind whose settings are still recorded as a plain mapping (issue 28's remaining debt); its
-    # summary is typed all the same.
-    SETTINGS_UNTYPED: ClassVar[bool] = False
 
     kind: str
     schema_version: int
@@ -101,7 +106,7 @@ class Artefact(BaseModel):
             getattr(cls, "SCHEMA_VERSION", None), int
         ):
             raise TypeError(f"{cls.__name__} must set KIND (a str) and SCHEMA_VERSION (an int)")
-        for name in ("summary",) if cls.SETTINGS_UNTYPED else ("summary", "settings"):
+        for name in ("summary", "settings"):
             if not _is_model(cls.model_fields[name].annotation):
                 raise TypeError(f"{cls.__name__}.{name} must be a pydantic model (units in its field names)")
 
@@ -111,20 +116,19 @@ class Artefact(BaseModel):
         # Lets stages pass numpy arrays/scalars straight in; the stored model holds plain values.
         return to_plain(data) if isinstance(data, dict) else data
 
-    @field_validator("kind")
+    @field_validator("kind", "schema_version")
     @classmethod
-    def _check_kind(cls, v: str) -> str:
-        expected = getattr(cls, "KIND", None)
+    def _pinned(cls, v: str | int, info: ValidationInfo) -> str | int:
+        """``kind`` and ``schema_version`` equal the class's ``KIND`` and ``SCHEMA_VERSION`` (any on the
+        bare envelope)."""
+        kind = info.field_name == "kind"
+        expected = getattr(cls, "KIND" if kind else "SCHEMA_VERSION", None)
         if expected is not None and v != expected:
-            raise ValueError(f"unknown kind {v!r}; expected {expected!r}")
-        return v
-
-    @field_validator("schema_version")
-    @classmethod
-    def _check_version(cls, v: int) -> int:
-        expected = getattr(cls, "SCHEMA_VERSION", None)
-        if expected is not None and v != expected:
-            raise ValueError(f"unsupported schema_version {v}; this rxcomm reads version {expected}")
+            raise ValueError(
+                f"unknown kind {v!r}; expected {expected!r}"
+                if kind
+                else f"unsupported schema_version {v}; this rxcomm reads version {expected}"
+            )
         return v
 
     @field_validator("created")

@@ -18,6 +18,7 @@ from pydantic import Field, model_validator
 
 from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.run_settings import MeasurementsSettings
 from rxcomm.schemas.strict import Strict
 
 
@@ -59,7 +60,7 @@ class MeasurementsSummary(Strict):
 class Measurements(Artefact):
     KIND = "rxcomm/Measurements"
     SCHEMA_VERSION = 1
-    SETTINGS_UNTYPED = True  # issue 28: stage settings plus nested models not yet in the schema layer
+    settings: MeasurementsSettings
     summary: MeasurementsSummary
 
     robot: str = Field(description="robot name (URDF)")

@@ -39,6 +39,7 @@ from typing import Literal
 from pydantic import Field
 
 from rxcomm.schemas.envelope import McapSummary
+from rxcomm.schemas.run_settings import RunLogSettings
 from rxcomm.schemas.strict import Strict
 
 # The MCAP side of the contract: topics and their fields (unit, meaning).
@@ -157,7 +158,7 @@ class RunLog(McapSummary):
 
     KIND = "rxcomm/RunLog"
     SCHEMA_VERSION = 1
-    SETTINGS_UNTYPED = True  # issue 28: stage settings plus nested models not yet in the schema layer
+    settings: RunLogSettings
     summary: RunLogSummary
 
     joint_names: list[str]

@@ -109,7 +109,7 @@ def run_logs(build: Path) -> dict[str, RunLog]:
 def _tolerances(runs: dict[str, RunLog]) -> dict[str, Tolerance]:
     out = {}
     for key, log in EXECUTED_BY.items():
-        tol = runs[log].settings.get("limit_tolerance") if log in runs else None
+        tol = runs[log].settings.limit_tolerance if log in runs else None
         if tol is not None:
             out[key] = (float(tol), f"`run`'s limit_tolerance in {log}")
     return out

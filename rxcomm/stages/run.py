@@ -426,6 +426,7 @@ def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> 
     """PNG: lag (following) error per joint over time, and the TCP error; with ``compare``, both runs
     (the paper's Fig. 2: with and without feed-forward)."""
     from rxcomm.io.run_log import read_run_log
+    from rxcomm.schemas.run_settings import RunLogSettings
 
     plt = plotting.pyplot()
 
@@ -436,9 +437,10 @@ def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> 
     fig, axes = plt.subplots((n + 2) // 2, 2, sharex=True, figsize=(10, 2.0 * ((n + 2) // 2)))
     axes = axes.ravel()
     for k, (log, path) in enumerate(zip(logs, [log_path, compare], strict=False)):
-        settings = log.envelope.get("settings", {})
-        on = settings.get("feedforward", True)
-        ff = f"feed-forward ({settings.get('model')})" if on else "feed-forward off"
+        settings = RunLogSettings.model_validate(log.envelope.get("settings", {}))
+        on = settings.feedforward
+        ff = "feed-forward not recorded" if on is None else "feed-forward off"
+        ff = f"feed-forward ({settings.model or 'model not recorded'})" if on else ff
         label = f"{Path(path).name}: {ff}"
         j = log.joints
         style = {"lw": 0.9, "alpha": 0.9 if k == 0 else 0.7}
