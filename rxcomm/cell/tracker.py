@@ -147,9 +147,12 @@ class SimulatedTracker:
                     >= np.cos(spec.probe_half_angle_rad) * np.linalg.norm(probe, axis=1) * dist
                 )
             )
-        noise_p = self._rng.normal(0.0, self._sigma_p, (k, 3))
-        turn = Rotation.from_rotvec(self._rng.normal(0.0, self._sigma_o, (k, 3))).as_matrix()
-        return p + noise_p, turn @ r, visible
+        # One row of 6 draws per sample, so that sample i's noise does not depend on how many samples
+        # the batch holds (the export's length varies with when the master asks for it: drawing all
+        # positions first gave the same log other orientations on a re-run).
+        z = self._rng.standard_normal((k, 6))
+        turn = Rotation.from_rotvec(self._sigma_o * z[:, 3:]).as_matrix()
+        return p + self._sigma_p * z[:, :3], turn @ r, visible
 
     def true_poses(self, qs: np.ndarray, deflection_every: int = 25) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free poses (positions [k, 3], rotations [k, 3, 3]) of many states (`measure_many`)."""
