@@ -19,6 +19,7 @@ from bench.table import Row, median_seconds
 from rxcomm.execution.log import LAYOUTS, write_run_log
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.records import RunResult, StreamLog
+from rxcomm.gateway import codec
 from rxcomm.io.run_log import read_run_log
 from rxcomm.model.robot import load_robot
 from rxcomm.schemas.run_log import GATEWAY_FIELDS
@@ -27,8 +28,10 @@ ROBOT = Path("samples/rx130l")
 RATE_HZ = 2500.0
 
 
-def synthetic_result(duration_s: float) -> RunResult:
-    """A completed stream of ``duration_s`` at 2.5 kHz (R = 1) with a gateway block every 6 cycles."""
+def synthetic_result(duration_s: float, rated_nm: np.ndarray | None = None) -> RunResult:
+    """A completed stream of ``duration_s`` at 2.5 kHz (R = 1) with a gateway block every 6 cycles.
+    With ``rated_nm`` (the drives' rated torques) the actual values come in the gateway's register
+    units, as a real run's do: positions in counts of 1 µrad, torques in counts of 0.1 % rated."""
     dt = 1.0 / RATE_HZ
     t = np.arange(int(duration_s * RATE_HZ) + 1) * dt
     w = 2 * np.pi * np.array([0.2, 0.15, 0.25, 0.3, 0.35, 0.4])
@@ -39,6 +42,10 @@ def synthetic_result(duration_s: float) -> RunResult:
     plan = StreamPlan(dt, q, qd, qdd, tau)
     rng = np.random.default_rng(0)
     q_actual = q - 2e-3 * qd + 1e-6 * rng.standard_normal(q.shape)
+    tau_actual = tau + rng.standard_normal(q.shape)
+    if rated_nm is not None:
+        q_actual = codec.counts_to_rad(codec.rad_to_counts(q_actual))
+        tau_actual = codec.torque_counts_to_nm(codec.nm_to_torque_counts(tau_actual, rated_nm), rated_nm)
     tg = t[::6]
     k = np.arange(len(tg))
     gateway = {"t": tg} | {name: np.zeros(len(tg)) for name in GATEWAY_FIELDS}
@@ -46,7 +53,7 @@ def synthetic_result(duration_s: float) -> RunResult:
     gateway |= {"execute_index": 6 * k, "write_index": 6 * k + 24, "buffer_level": np.full(len(tg), 24)}
     gateway |= {"lead_s": np.full(len(tg), 24 * dt), "round_trip_s": np.full(len(tg), 3e-4), "wall_s": tg}
     log = StreamLog(
-        plan, 1, dt, q_actual, tau + rng.standard_normal(q.shape), gateway, 0, 0, 0,
+        plan, 1, dt, q_actual, tau_actual, gateway, 0, 0, 0,
         np.full(len(tg), 3e-4), duration_s, 0.1 * duration_s, True, virtual_time=True,
     )  # fmt: skip
     return RunResult("127.0.0.1:1502", 1, dt, log=log)

@@ -40,6 +40,9 @@ from rxcomm.schemas.run_log import (
 )
 
 DEMAND_PREFIX = "demand/"
+# The per-sample views' values in fixed point: 1 µm, and 1e-6 of a quaternion component (~2 µrad),
+# below anything a 3D view shows; the views then take half the bytes (docs/logs.md §2).
+VIEW_DECIMALS = 6
 
 
 @dataclass(frozen=True)
@@ -171,11 +174,12 @@ class FoxgloveFrames:
                 trans = np.concatenate([np.zeros((len(q), 1, 3)), trans], axis=1)
                 rot = np.concatenate([np.tile([0.0, 0.0, 0.0, 1.0], (len(q), 1, 1)), rot], axis=1)
             pos, ori = tcp_poses(self.robot, q)
-            template = self._templates.setdefault(tf_topic, frame_transforms_template(pairs))
+            template = self._templates.setdefault(tf_topic, frame_transforms_template(pairs, VIEW_DECIMALS))
             for i in range(len(q)):
                 stamp_ns = int(ns[i])
                 self.w.write_json(tf_topic, t[i], frame_transforms_json(template, stamp_ns, trans[i], rot[i]))
-                self.w.write(tcp_topic, t[i], pose_in_frame(stamp_ns, root, pos[i], ori[i]))
+                pose = pose_in_frame(stamp_ns, root, pos[i], ori[i], VIEW_DECIMALS)
+                self.w.write(tcp_topic, t[i], pose)
         self.n += int(pick.sum())
 
     def tracker(
