@@ -18,6 +18,7 @@ from mcap_protobuf.decoder import DecoderFactory
 import rxcomm
 from bench.logs import synthetic_result
 from rxcomm.errors import InputError
+from rxcomm.execution.frames import link_transforms, link_tree
 from rxcomm.execution.log import LAYOUTS, recover_run_log, write_run_log
 from rxcomm.execution.log_grid import joint_grid_steps
 from rxcomm.execution.summary import tcp_error_and_speed
@@ -260,3 +261,33 @@ def test_row_channel_metadata_names_the_fields(logs):
     assert [r[0] for r in rows] == list(JOINT_FIELDS) and rows[0][1:] == ["<f4", 6]
     assert json.loads(ch.metadata["rxcomm/grid"]) == joint_grid_steps()
     assert not any(c.topic.startswith("/columns/") for c in summary.channels.values())
+
+
+def _views(path: Path, topic: str) -> np.ndarray:
+    """Every number of every ``topic`` message (FrameTransforms or PoseInFrame JSON), in file order."""
+    with open(path, "rb") as f:
+        msgs = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=[topic])]
+
+    def numbers(x):
+        if isinstance(x, dict):
+            return [v for k, y in x.items() if k != "timestamp" for v in numbers(y)]
+        if isinstance(x, list):
+            return [v for y in x for v in numbers(y)]
+        return [x] if isinstance(x, float | int) and not isinstance(x, bool) else []
+
+    return np.array([numbers(m) for m in msgs], dtype=float)
+
+
+@pytest.mark.parametrize("topic", ["/run/tf", "/run/tf_demand", "/run/tcp", "/run/tcp_demand"])
+def test_the_views_keep_the_frames_to_a_micrometre(logs, rx130l, topic):
+    """The 3D views in fixed point (6 decimals: 1 µm, 1e-6 of a quaternion component) against the same
+    views with every digit (the float32 rows' writer): no value moves by more than the rounding."""
+    full, fixed = _views(logs["rows-float32"], topic), _views(logs["rows"], topic)
+    assert fixed.shape == full.shape and fixed.shape[0] > 100
+    assert np.max(np.abs(fixed - full)) <= 5e-7 + 1e-15
+    assert np.array_equal(np.round(fixed, 6), fixed) and not np.array_equal(np.round(full, 6), full)
+    if topic == "/run/tf":  # the full views are the FK of the logged encoders (sample 0)
+        trans, rot = link_transforms(
+            rx130l, link_tree(rx130l), read_run_log(logs["rows-float32"]).joints.q_actual[0]
+        )
+        np.testing.assert_allclose(full[0], np.concatenate([trans[0], rot[0]], axis=1).ravel(), atol=1e-6)

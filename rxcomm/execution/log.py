@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from rxcomm.errors import InputError
-from rxcomm.execution.frames import CalibratedView, FoxgloveFrames
+from rxcomm.execution.frames import VIEW_DECIMALS, CalibratedView, FoxgloveFrames
 from rxcomm.execution.log_grid import joint_grid_steps, on_grid
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.records import RunResult
@@ -141,7 +141,8 @@ class RunLogWriter:
             else:  # the layout before issue 32 (per-sample JSON + column blocks): benches and tests
                 w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n), constants=names)
                 w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
-            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s, self.view)
+            digits = VIEW_DECIMALS if self.layout == "rows" else None  # the layouts before: every digit
+            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s, self.view, digits)
             w.flush()
         except BaseException:
             w.abort()
