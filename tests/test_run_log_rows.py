@@ -182,6 +182,33 @@ def test_the_mcap_reader_decodes_every_message_with_its_protobuf_schema(logs):
     assert [m.execute_index for m in got[GATEWAY_TOPIC]] == log.gateway.execute_index.tolist()
 
 
+def test_every_message_of_the_new_log_decodes_with_the_schemas_in_the_file(logs):
+    """The mcap package's reader (CRCs checked) with nothing but the file: every protobuf message
+    decodes with its channel's FileDescriptorSet, every JSON message parses and has its schema's
+    properties (Foxglove's well-known schemas for the views), and the counts are the summary's."""
+    decoder = DecoderFactory()
+    counts: dict[str, int] = {}
+    with open(logs["rows"], "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        for schema, channel, message in reader.iter_messages():
+            assert schema is not None
+            if channel.message_encoding == "protobuf":
+                decode = decoder.decoder_for(channel.message_encoding, schema)
+                assert decode is not None
+                body = decode(message.data)
+                assert body.ListFields(), channel.topic  # every row field is always written
+            else:
+                assert (channel.message_encoding, schema.encoding) == ("json", "jsonschema")
+                props = json.loads(schema.data)["properties"]
+                assert set(json.loads(message.data)) == set(props), channel.topic
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    expected = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+    assert counts == expected and counts[JOINTS_TOPIC] == int(DURATION_S * 2500) + 1
+    assert {"/run/tf", "/run/tf_demand", "/run/tcp", "/run/tcp_demand", GATEWAY_TOPIC} <= set(counts)
+
+
 def test_a_message_of_another_layout_is_refused(tmp_path):
     rows = row_fields({"a": ("<f4", 3), "b": ("<i8", 0)})
     good = row_header(rows, 4)
