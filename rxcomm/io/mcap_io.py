@@ -234,8 +234,7 @@ class McapWriter:
         """Register ``topic`` as a row channel: one protobuf message ``schema_title`` per sample with
         ``fields`` (name -> (dtype ``<f4``/``<f8``/``<i8``, k values; k = 0 a scalar)), the one copy
         Foxglove plots and readers take (``mcap_format``, row messages). ``constants`` (joint names)
-        go once into the channel metadata, beside any other ``metadata`` (e.g. ``rxcomm/grid``). Write it
-        with :meth:`write_arrays`."""
+        and ``metadata`` (``rxcomm/grid``) go into the channel metadata; write it with ``write_arrays``."""
         if topic in self._channels:
             raise ValueError(f"channel {topic!r} already added")
         rows = row_fields(fields)
