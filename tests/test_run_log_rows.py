@@ -20,7 +20,7 @@ from bench.logs import synthetic_result
 from rxcomm.errors import InputError
 from rxcomm.execution.frames import link_transforms, link_tree
 from rxcomm.execution.log import LAYOUTS, recover_run_log, write_run_log
-from rxcomm.execution.log_grid import joint_grid_steps
+from rxcomm.execution.log_grid import joint_grid_steps, on_grid
 from rxcomm.execution.summary import tcp_error_and_speed
 from rxcomm.io.mcap_io import McapWriter, read_mcap
 from rxcomm.io.mcap_rows import check_rows, row_fields, row_header
@@ -318,3 +318,18 @@ def test_the_views_keep_the_frames_to_a_micrometre(logs, rx130l, topic):
             rx130l, link_tree(rx130l), read_run_log(logs["rows-float32"]).joints.q_actual[0]
         )
         np.testing.assert_allclose(full[0], np.concatenate([trans[0], rot[0]], axis=1).ravel(), atol=1e-6)
+
+
+def test_the_logged_joints_are_on_their_grids_and_a_lost_record_stays_lost(logs):
+    """Every value read back is a whole number of its field's grid steps (float32 holds them exactly),
+    and rounding keeps NaN (a record the gateway lost) and the grid values themselves."""
+    j = read_run_log(logs["rows"]).joints
+    for k, step in joint_grid_steps().items():
+        units = j[k] / step
+        assert np.array_equal(units, np.round(units)), k
+    x = np.array([[np.nan, 0.1, -3.0000001], [1e-9, 2.0**-22, 7.9]])
+    g = on_grid({"q_actual": x, "tau_actual": x, "other": x})
+    assert np.isnan(g["q_actual"][0, 0]) and g["other"] is x  # fields without a grid pass unchanged
+    np.testing.assert_array_equal(on_grid(g)["q_actual"], g["q_actual"])
+    assert np.all(np.abs(g["q_actual"] - x)[~np.isnan(x)] <= 2.0**-22)
+    assert np.array_equal(g["q_actual"].astype(np.float32).astype(float), g["q_actual"], equal_nan=True)
