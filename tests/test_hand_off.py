@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 
 from rxcomm.calibration.parity import HOLD_M, compare, mdh_fk, origins_fk, parity_poses, urdf_fk
 from rxcomm.cli import app
+from rxcomm.execution.log_grid import joint_grid_steps
 from rxcomm.io.csv_export import read_csv_table
 from rxcomm.io.ros2_bag import read_bag
 from rxcomm.io.ros2_trajectory import read_ros2_trajectory
@@ -161,8 +162,10 @@ def test_joint_trajectory_runs_and_its_log_reproduces_the_plan(tmp_path, rx130l)
     step = round(0.002 / rx130l.drives.cycle_s)  # the plan's samples fall on every 5th drive cycle
     k = np.arange(traj.n) * step
     assert q.shape[0] >= k[-1] + 1
-    # the plan's own samples, through YAML and run; run logs store float32 (docs/logs.md), so one ulp
-    assert np.all(np.abs(q[k] - traj.q) <= np.spacing(np.abs(traj.q).astype(np.float32)) + 1e-12)
+    # the plan's own samples, through YAML and run; run logs store float32 on a 2^-21 rad grid
+    # (docs/logs.md, execution/log_grid.py): half a grid step and one float32 ulp
+    half_step = joint_grid_steps()["q_demand"] / 2
+    assert np.all(np.abs(q[k] - traj.q) <= half_step + np.spacing(np.abs(traj.q).astype(np.float32)) + 1e-12)
 
 
 @pytest.mark.slow
@@ -189,7 +192,7 @@ def test_hand_edited_csv_runs_and_one_beyond_a_limit_is_refused_naming_the_row(t
     finally:
         srv.stop()
     q = read_run_log(tmp_path / "moved-log.mcap").joints.q_demand
-    # the moved sample, as sent (the log's float32: one ulp at |q| <= 4 rad is 4.8e-7)
+    # the moved sample, as sent (the log's float32 grid: 2.4e-7 rad, one ulp at |q| <= 4 rad 4.8e-7)
     assert q[500, 0] - traj.q[100, 0] == pytest.approx(2e-4, abs=5e-7)
     beyond = tmp_path / "beyond.csv"
     beyond.write_text(edited(101, float(rx130l.q_max[0]) + 0.1))

@@ -263,6 +263,8 @@ def test_import_tracker_puts_a_csv_on_a_run_log(tmp_path, rx130l):
     assert "tracker csv" in meta["inputs"]
     back = read_run_log(out)
     assert len(back.joints) == len(j) and np.allclose(back.joints.q_actual, j.q_actual, atol=1e-9)
+    for k, v in j.fields.items():  # the copy's joints on the same grids: the source's values exactly
+        np.testing.assert_array_equal(back.joints[k], v, err_msg=k)
     assert len(back.tracker) == ch["n_samples"] > 900
     # importing twice is refused, naming the field
     res2 = CliRunner().invoke(

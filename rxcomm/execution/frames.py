@@ -40,6 +40,9 @@ from rxcomm.schemas.run_log import (
 )
 
 DEMAND_PREFIX = "demand/"
+# The per-sample views' values in fixed point: 1 µm, and 1e-6 of a quaternion component (~2 µrad),
+# below anything a 3D view shows; the views then take half the bytes (docs/logs.md §2).
+VIEW_DECIMALS = 6
 
 
 @dataclass(frozen=True)
@@ -118,11 +121,18 @@ class FoxgloveFrames:
     """The 3D panel's channels of a run log: FK of every k-th sample (k: at most FOXGLOVE_RATE_HZ)."""
 
     def __init__(
-        self, w: McapWriter, robot: Robot, sample_s: float, view: CalibratedView | None = None
+        self,
+        w: McapWriter,
+        robot: Robot,
+        sample_s: float,
+        view: CalibratedView | None = None,
+        decimals: int | None = VIEW_DECIMALS,
     ) -> None:
         """With a ``view`` (a calibration) the frames are FK of the calibrated robot, the URDF is the
-        calibrated one and the ``tracker`` frame joins the tree (``/run/tf_tracker`` once)."""
+        calibrated one and the ``tracker`` frame joins the tree (``/run/tf_tracker`` once).
+        ``decimals``: the per-sample views' fixed point (None: every digit, the layouts before)."""
         self.w, self.robot, self.sample_s = w, robot if view is None else view.robot, sample_s
+        self.decimals = decimals
         self.stride = max(1, math.ceil(1.0 / (FOXGLOVE_RATE_HZ * sample_s) - 1e-9))  # at most the rate
         self.tree = link_tree(robot)
         self.n = 0
@@ -171,11 +181,12 @@ class FoxgloveFrames:
                 trans = np.concatenate([np.zeros((len(q), 1, 3)), trans], axis=1)
                 rot = np.concatenate([np.tile([0.0, 0.0, 0.0, 1.0], (len(q), 1, 1)), rot], axis=1)
             pos, ori = tcp_poses(self.robot, q)
-            template = self._templates.setdefault(tf_topic, frame_transforms_template(pairs))
+            template = self._templates.setdefault(tf_topic, frame_transforms_template(pairs, self.decimals))
             for i in range(len(q)):
                 stamp_ns = int(ns[i])
                 self.w.write_json(tf_topic, t[i], frame_transforms_json(template, stamp_ns, trans[i], rot[i]))
-                self.w.write(tcp_topic, t[i], pose_in_frame(stamp_ns, root, pos[i], ori[i]))
+                pose = pose_in_frame(stamp_ns, root, pos[i], ori[i], self.decimals)
+                self.w.write(tcp_topic, t[i], pose)
         self.n += int(pick.sum())
 
     def tracker(

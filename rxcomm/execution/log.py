@@ -16,6 +16,7 @@ power cut of the PC) leaves an unfinished ``.part`` whose envelope says ``outcom
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,12 +25,14 @@ from typing import Any
 import numpy as np
 
 from rxcomm.errors import InputError
-from rxcomm.execution.frames import CalibratedView, FoxgloveFrames
+from rxcomm.execution.frames import VIEW_DECIMALS, CalibratedView, FoxgloveFrames
+from rxcomm.execution.log_grid import joint_grid_steps, on_grid
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.records import RunResult
 from rxcomm.execution.summary import MotionStats, run_summary, tcp_error_and_speed
 from rxcomm.io.files import part_path
 from rxcomm.io.mcap_io import McapWriter, number_field, recover_mcap, vector_field
+from rxcomm.io.mcap_rows import GRID
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import mcap_summary, summary_yaml_path, write_mcap_summary
 from rxcomm.model.robot import Robot
@@ -46,10 +49,11 @@ from rxcomm.schemas.run_log import (
 )
 
 FLUSH_PERIOD_S = 0.5  # wall time between chunks handed to the OS: what a killed run can lose
-# "rows": one protobuf message per sample, float32 joint values (docs/logs.md §1); "json-columns": the
-# layout before issue 32 (per-sample JSON + float64 column blocks), kept writable for the bench's
-# before column and the test that both layouts read alike.
-LAYOUTS = ("rows", "json-columns")
+# "rows": one protobuf message per sample, float32 joint values on the fields' grids (docs/logs.md §1,
+# log_grid); "rows-float32": the same without the grids (issue 32's first step); "json-columns": the
+# layout before issue 32 (per-sample JSON + float64 column blocks). The last two stay writable for the
+# bench's before columns and the tests that every layout reads alike.
+LAYOUTS = ("rows", "rows-float32", "json-columns")
 JOINT_DTYPE = "<f4"  # 2.4e-7 rad at 4 rad, below the gateway's 1 µrad count; torque to 6e-8 relative
 
 
@@ -128,13 +132,17 @@ class RunLogWriter:
             # Channels first, with units in the schema, so even a log stopped before its first record
             # has them.
             names = {"joint_names": list(self.robot.joint_names)}
-            if self.layout == "rows":
-                w.add_row_channel(JOINTS_TOPIC, "rxcomm.RunJoints", joint_rows(self.robot.n), constants=names)
+            if self.layout.startswith("rows"):
+                grid = {GRID: json.dumps(joint_grid_steps())} if self.layout == "rows" else {}
+                w.add_row_channel(
+                    JOINTS_TOPIC, "rxcomm.RunJoints", joint_rows(self.robot.n), constants=names, metadata=grid
+                )
                 w.add_row_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", gateway_rows())
             else:  # the layout before issue 32 (per-sample JSON + column blocks): benches and tests
                 w.add_channel(JOINTS_TOPIC, "rxcomm.RunJoints", _joint_schema(self.robot.n), constants=names)
                 w.add_channel(GATEWAY_TOPIC, "rxcomm.RunGateway", _gateway_schema())
-            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s, self.view)
+            digits = VIEW_DECIMALS if self.layout == "rows" else None  # the layouts before: every digit
+            self._foxglove = FoxgloveFrames(w, self.robot, plan.sample_s, self.view, digits)
             w.flush()
         except BaseException:
             w.abort()
@@ -163,6 +171,8 @@ class RunLogWriter:
             "tcp_error_m": tcp,
             "tcp_speed_m_s": speed,
         }
+        if self.layout == "rows":
+            cols = on_grid(cols)
         self._w.write_arrays(JOINTS_TOPIC, np.arange(first, first + m) * p.sample_s, cols, digits=10)
         assert self._foxglove is not None
         self._foxglove.write(first, p.q[sl], q_actual)
@@ -205,7 +215,7 @@ class RunLogWriter:
         if self._tracker is not None:
             raise ValueError("tracker channel already written")
         self._tracker = write_tracker_channel(
-            self._w, t_tracker_s, position_m, quaternion_wxyz, channel, rows=self.layout == "rows"
+            self._w, t_tracker_s, position_m, quaternion_wxyz, channel, rows=self.layout != "json-columns"
         )
         # the 3D view's copy: the same samples (those kept) as /run/tracker_pose
         t = np.asarray(t_tracker_s) - channel.offset_s

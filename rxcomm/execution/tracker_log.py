@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -10,7 +11,9 @@ import numpy as np
 
 from rxcomm.errors import InputError
 from rxcomm.execution.log import gateway_rows, joint_rows, tracker_topic, write_tracker_channel
+from rxcomm.execution.log_grid import joint_grid_steps, on_grid
 from rxcomm.io.mcap_io import McapWriter, read_mcap
+from rxcomm.io.mcap_rows import GRID
 from rxcomm.io.yaml_io import read_yaml_artefact, summary_yaml_path, write_mcap_summary
 from rxcomm.schemas.plain import sha256_file
 from rxcomm.schemas.run_log import GATEWAY_TOPIC, JOINTS_TOPIC, TRACKER_TOPIC, RunLog, TrackerChannel
@@ -40,13 +43,14 @@ def attach_tracker(
     rows = {JOINTS_TOPIC: joint_rows(len(meta.joint_names)), GATEWAY_TOPIC: gateway_rows()}
     titles = {JOINTS_TOPIC: "rxcomm.RunJoints", GATEWAY_TOPIC: "rxcomm.RunGateway"}
     names = {JOINTS_TOPIC: {"joint_names": list(meta.joint_names)}, GATEWAY_TOPIC: None}
+    grid = {JOINTS_TOPIC: {GRID: json.dumps(joint_grid_steps())}, GATEWAY_TOPIC: None}
     w = McapWriter(out, env)
     try:
         for topic, fields in rows.items():
-            w.add_row_channel(topic, titles[topic], fields, constants=names[topic])
+            w.add_row_channel(topic, titles[topic], fields, constants=names[topic], metadata=grid[topic])
             if topic in contents.topics:
-                td = contents.topics[topic]
-                w.write_arrays(topic, td.t, td.fields)
+                td = contents.topics[topic]  # the joints on their grids, as the run writes them
+                w.write_arrays(topic, td.t, on_grid(td.fields) if topic == JOINTS_TOPIC else td.fields)
         kept = write_tracker_channel(w, t_tracker_s, position_m, quaternion_wxyz, channel)
     except BaseException:
         w.abort()

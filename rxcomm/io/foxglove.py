@@ -77,12 +77,14 @@ def stamp(ns: int) -> dict[str, int]:
     return {"sec": ns // NS, "nsec": ns % NS}
 
 
-def _vec(v: np.ndarray) -> dict[str, float]:
-    return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
+def _vec(v: np.ndarray, decimals: int | None = None) -> dict[str, float]:
+    x = [float(a) if decimals is None else round(float(a), decimals) for a in v[:3]]
+    return dict(zip("xyz", x, strict=True))
 
 
-def _quat_xyzw(q: np.ndarray) -> dict[str, float]:
-    return {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}
+def _quat_xyzw(q: np.ndarray, decimals: int | None = None) -> dict[str, float]:
+    x = [float(a) if decimals is None else round(float(a), decimals) for a in q[:4]]
+    return dict(zip("xyzw", x, strict=True))
 
 
 def frame_transforms(
@@ -106,25 +108,27 @@ def frame_transforms(
 
 
 def pose_in_frame(
-    ns: int, frame_id: str, position: np.ndarray, orientation_xyzw: np.ndarray
+    ns: int, frame_id: str, position: np.ndarray, orientation_xyzw: np.ndarray, decimals: int | None = None
 ) -> dict[str, Any]:
-    """One foxglove.PoseInFrame message (position in m)."""
-    pose = {"position": _vec(position), "orientation": _quat_xyzw(orientation_xyzw)}
+    """One foxglove.PoseInFrame message (position in m); values rounded to ``decimals`` if given."""
+    pose = {"position": _vec(position, decimals), "orientation": _quat_xyzw(orientation_xyzw, decimals)}
     return {"timestamp": stamp(ns), "frame_id": frame_id, "pose": pose}
 
 
-def frame_transforms_template(pairs: list[tuple[str, str]]) -> str:
+def frame_transforms_template(pairs: list[tuple[str, str]], decimals: int | None = None) -> str:
     """A %-template of the FrameTransforms JSON for ``pairs``: fill it with :func:`frame_transforms_json`.
     The same text as ``json.dumps(frame_transforms(...))`` without building the dicts (the writer does
-    this while the robot moves)."""
+    this while the robot moves); with ``decimals``, the values in fixed point with that many decimals
+    (shorter text that compresses better: a run log's views, docs/logs.md §2)."""
+    v = "%r" if decimals is None else f"%.{int(decimals)}f"
     items = []
     for parent, child in pairs:
         ids = f'"parent_frame_id":{json.dumps(parent)},"child_frame_id":{json.dumps(child)},'
         items.append(
             '{"timestamp":{"sec":%d,"nsec":%d},'
             + ids.replace("%", "%%")
-            + '"translation":{"x":%r,"y":%r,"z":%r},'
-            '"rotation":{"x":%r,"y":%r,"z":%r,"w":%r}}'
+            + f'"translation":{{"x":{v},"y":{v},"z":{v}}},'
+            f'"rotation":{{"x":{v},"y":{v},"z":{v},"w":{v}}}}}'
         )
     return '{"transforms":[' + ",".join(items) + "]}"
 

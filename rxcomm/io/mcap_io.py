@@ -229,18 +229,19 @@ class McapWriter:
         fields: Mapping[str, tuple[str, int]],
         *,
         constants: Mapping[str, Any] | None = None,
+        metadata: Mapping[str, str] | None = None,
     ) -> None:
         """Register ``topic`` as a row channel: one protobuf message ``schema_title`` per sample with
         ``fields`` (name -> (dtype ``<f4``/``<f8``/``<i8``, k values; k = 0 a scalar)), the one copy
         Foxglove plots and readers take (``mcap_format``, row messages). ``constants`` (joint names)
-        go once into the channel metadata. Write it with :meth:`write_arrays`."""
+        and ``metadata`` (``rxcomm/grid``) go into the channel metadata; write it with ``write_arrays``."""
         if topic in self._channels:
             raise ValueError(f"channel {topic!r} already added")
         rows = row_fields(fields)
         schema_id = self._w.register_schema(
             name=schema_title, encoding=ROW_ENCODING, data=row_descriptor_set(schema_title, rows)
         )
-        meta = {ROWS: json.dumps(rows, separators=(",", ":"))}
+        meta = {**(metadata or {}), ROWS: json.dumps(rows, separators=(",", ":"))}
         if constants:
             meta[CONSTANTS] = json.dumps(to_plain(dict(constants)), separators=(",", ":"))
         channel_id = self._w.register_channel(

@@ -37,6 +37,7 @@ from mcap.writer import Writer
 from rxcomm.io.mcap_format import _field_descriptor, _ld
 
 ROWS = "rxcomm/rows"  # channel metadata of a row channel: JSON [[name, dtype, k], ...]
+GRID = "rxcomm/grid"  # optional channel metadata: JSON {name: step}, the grid the values were rounded to
 ROW_ENCODING = "protobuf"
 _PROTO_TYPES = {"<f4": (2, 5), "<f8": (1, 1), "<i8": (16, 1)}  # dtype -> (FieldDescriptorProto type, wire)
 
