@@ -78,9 +78,12 @@ def resample(traj: Trajectory, sample_s: float) -> tuple[np.ndarray, np.ndarray,
     return q, qd, qdd
 
 
-# The smooth sign's Coulomb term is kept where a joint slides: a motion segment (a run of one sign of
-# q̇) whose peak speed reaches SLIDING_PEAK_FULL·ε keeps tanh(q̇/ε) (≥ 76 % of Fc at its peak: the
-# planners' model), one peaking below SLIDING_PEAK_NONE·ε (< 46 %) gets none, a smoothstep in between.
+# Until a joint first slides in a plan, its drive's integrator holds the friction of its motion before
+# the plan (the plan starts at rest, where the smooth sign is 0), so the feed-forward adds no Coulomb
+# term to its leading motion segments (runs of one sign of q̇) whose peak speed stays below
+# SLIDING_PEAK_NONE·ε; one peaking at SLIDING_PEAK_FULL·ε or more slides (tanh(q̇/ε) reaches 76 % of
+# Fc: the planners' model) and keeps the term, a smoothstep in between; every segment after the first
+# sliding one keeps it (the feed-forward has carried the friction since).
 SLIDING_PEAK_NONE = 0.5
 SLIDING_PEAK_FULL = 1.0
 
@@ -99,40 +102,41 @@ def segment_peak_speed(qd: np.ndarray) -> np.ndarray:
 
 
 def sliding_weight(qd: np.ndarray, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> np.ndarray:
-    """How much of the smooth Coulomb sign tanh(q̇/ε) a sample's motion segment keeps, in [0, 1].
+    """How much of the smooth Coulomb sign tanh(q̇/ε) each sample of a plan keeps, in [0, 1].
 
-    Constant over a segment and 0 or 1 away from [SLIDING_PEAK_NONE·ε, SLIDING_PEAK_FULL·ε]: a
-    segment ends where q̇ is zero or changes sign, where tanh(q̇/ε) is (about) zero, so the weighted
-    term is as continuous as the smooth sign and never steeper than it (|Δ(w·tanh)| ≤ |Δtanh|).
+    1 from a joint's first sliding segment on; before it, the smoothstep of the segment's peak speed
+    between SLIDING_PEAK_NONE·ε and SLIDING_PEAK_FULL·ε. Constant over a segment, and a segment ends
+    where q̇ is zero or changes sign, where tanh(q̇/ε) is (about) zero: the weighted term is as
+    continuous as the smooth sign and never steeper than it (|Δ(w·tanh)| ≤ |Δtanh| sample to sample).
     """
     x = (segment_peak_speed(qd) / eps_rad_s - SLIDING_PEAK_NONE) / (SLIDING_PEAK_FULL - SLIDING_PEAK_NONE)
     x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
+    w = x * x * (3.0 - 2.0 * x)
+    slid = np.maximum.accumulate(w >= 1.0, axis=0)  # at or after the joint's first sliding segment
+    return np.where(slid, 1.0, w)
 
 
 def model_torque(
     robot: Robot, params: DynamicParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
 ) -> np.ndarray:
     """τ = M(q)q̈ + g(q, q̇) of the model (paper eq. 7) along a whole plan ([n, dof] samples in time
-    order): the feed-forward torque.
+    order, from rest): the feed-forward torque.
 
     Coulomb friction uses the planners' smooth sign (tanh, ε = 0.02 rad/s: an exact sign would step
-    the feed-forward by 2·Fc through every velocity reversal), weighted per motion segment by
-    `sliding_weight`, joint and motor friction alike: a joint that never moves faster than about ε
-    creeps in stick-slip under its position loop, whose integrator already holds the friction of its
-    last motion; a fraction of Fc fed forward on top of it pushes the joint past its demand, where it
-    sticks (architecture §6.1: the M900's J4 on its CP line, 2.1 mrad rms instead of 0.04).
+    the feed-forward by 2·Fc through every velocity reversal), weighted by `sliding_weight`, joint and
+    motor friction alike: a joint that has not yet moved faster than about ε creeps in stick-slip under
+    its position loop, whose integrator holds the friction of its motion before the plan; a fraction of
+    Fc fed forward on top of it pushed the M900's J4 2 mrad past its demand on its CP line, where it
+    stuck (architecture §6.1).
     """
     eps = COULOMB_EPS_NLP_RAD_S
     tau = RobotDynamics(robot, params, coulomb_eps_rad_s=eps).inverse_dynamics(q, qd, qdd)
     qd = np.asarray(qd, dtype=float)
-    shape = np.tanh(qd / eps)
-    tau -= params.coulomb_nm * shape * (1.0 - sliding_weight(qd, eps))
+    tau -= params.coulomb_nm * np.tanh(qd / eps) * (1.0 - sliding_weight(qd, eps))
     if params.has_motor_friction:
         r = robot.joint_to_motor
         vm = qd @ r.T / np.abs(np.diag(r))  # motor speeds on the joint scale, as RobotDynamics smooths them
-        tm = params.motor_coulomb_nm * np.tanh(vm / eps) * (1.0 - sliding_weight(vm, eps))
-        tau -= tm @ r
+        tau -= (params.motor_coulomb_nm * np.tanh(vm / eps) * (1.0 - sliding_weight(vm, eps))) @ r
     return tau
 
 
