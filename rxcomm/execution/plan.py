@@ -78,56 +78,37 @@ def resample(traj: Trajectory, sample_s: float) -> tuple[np.ndarray, np.ndarray,
     return q, qd, qdd
 
 
-# Until a joint first slides in a plan, its drive's integrator holds the friction of its motion before
-# the plan (the plan starts at rest, where the smooth sign is 0), so the feed-forward adds no Coulomb
-# term to its leading motion segments (runs of one sign of q̇) whose peak speed stays below
-# SLIDING_PEAK_NONE·ε; one peaking at SLIDING_PEAK_FULL·ε or more slides (tanh(q̇/ε) reaches 76 % of
-# Fc: the planners' model) and keeps the term, a smoothstep in between; every segment after the first
-# sliding one keeps it (the feed-forward has carried the friction since).
+# A joint whose planned speed reaches SLIDING_PEAK_FULL·ε somewhere in the plan slides (tanh(q̇/ε)
+# reaches 76 % of Fc: the planners' model) and keeps the smooth sign's Coulomb term; one that never
+# exceeds SLIDING_PEAK_NONE·ε (< 46 %) creeps in stick-slip under its position loop and gets none; a
+# smoothstep in the plan's peak speed in between.
 SLIDING_PEAK_NONE = 0.5
 SLIDING_PEAK_FULL = 1.0
 
 
-def segment_peak_speed(qd: np.ndarray) -> np.ndarray:
-    """Per sample and axis (``qd`` [n, k]), the peak |q̇| of the motion segment it lies in: the run of
-    samples of one sign of q̇ (a zero or a sign change ends it); 0 where q̇ = 0."""
-    qd = np.asarray(qd, dtype=float)
-    out = np.zeros_like(qd)
-    for j in range(qd.shape[1]):
-        s = np.sign(qd[:, j])
-        starts = np.flatnonzero(np.r_[True, s[1:] != s[:-1]])
-        peaks = np.maximum.reduceat(np.abs(qd[:, j]), starts)
-        out[:, j] = np.repeat(peaks, np.diff(np.r_[starts, len(s)]))
-    return out
-
-
 def sliding_weight(qd: np.ndarray, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> np.ndarray:
-    """How much of the smooth Coulomb sign tanh(q̇/ε) each sample of a plan keeps, in [0, 1].
-
-    1 from a joint's first sliding segment on; before it, the smoothstep of the segment's peak speed
-    between SLIDING_PEAK_NONE·ε and SLIDING_PEAK_FULL·ε. Constant over a segment, and a segment ends
-    where q̇ is zero or changes sign, where tanh(q̇/ε) is (about) zero: the weighted term is as
-    continuous as the smooth sign and never steeper than it (|Δ(w·tanh)| ≤ |Δtanh| sample to sample).
-    """
-    x = (segment_peak_speed(qd) / eps_rad_s - SLIDING_PEAK_NONE) / (SLIDING_PEAK_FULL - SLIDING_PEAK_NONE)
-    x = np.clip(x, 0.0, 1.0)
-    w = x * x * (3.0 - 2.0 * x)
-    slid = np.maximum.accumulate(w >= 1.0, axis=0)  # at or after the joint's first sliding segment
-    return np.where(slid, 1.0, w)
+    """Per axis of a plan's velocities ``qd`` [n, k], how much of the smooth Coulomb sign tanh(q̇/ε)
+    its feed-forward keeps, in [0, 1]: the smoothstep of the axis's peak |q̇| over the plan between
+    SLIDING_PEAK_NONE·ε and SLIDING_PEAK_FULL·ε. One weight per axis and plan, so the weighted term is
+    as continuous as the smooth sign and never steeper than it, and nearly equal plans get nearly equal
+    weights."""
+    peak = np.abs(np.atleast_2d(np.asarray(qd, dtype=float))).max(axis=0)
+    x = np.clip((peak / eps_rad_s - SLIDING_PEAK_NONE) / (SLIDING_PEAK_FULL - SLIDING_PEAK_NONE), 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
 
 def model_torque(
     robot: Robot, params: DynamicParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
 ) -> np.ndarray:
     """τ = M(q)q̈ + g(q, q̇) of the model (paper eq. 7) along a whole plan ([n, dof] samples in time
-    order, from rest): the feed-forward torque.
+    order, from rest to rest): the feed-forward torque.
 
     Coulomb friction uses the planners' smooth sign (tanh, ε = 0.02 rad/s: an exact sign would step
     the feed-forward by 2·Fc through every velocity reversal), weighted by `sliding_weight`, joint and
-    motor friction alike: a joint that has not yet moved faster than about ε creeps in stick-slip under
-    its position loop, whose integrator holds the friction of its motion before the plan; a fraction of
-    Fc fed forward on top of it pushed the M900's J4 2 mrad past its demand on its CP line, where it
-    stuck (architecture §6.1).
+    motor friction alike. A joint that never moves faster than about ε in the plan creeps in
+    stick-slip under its position loop, whose integrator holds the friction of its motion before the
+    plan (a plan starts at rest, where the smooth sign is 0); a fraction of Fc fed forward on top of
+    it pushed the M900's J4 2 mrad past its demand on its CP line, where it stuck (architecture §6.1).
     """
     eps = COULOMB_EPS_NLP_RAD_S
     tau = RobotDynamics(robot, params, coulomb_eps_rad_s=eps).inverse_dynamics(q, qd, qdd)
