@@ -1,8 +1,10 @@
-"""The feed-forward's Coulomb term on joints that barely move (`execution.plan.sliding_weight`,
+"""The feed-forward's Coulomb term on joints that barely move (`execution.plan.coulomb_weight`,
 architecture §6.1): its value across slow reversals against the old smooth sign, its continuity, and
 the lag it removes in the simulated cell."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -29,15 +31,17 @@ def _bump(t: np.ndarray, t0: float, dur: float, dq: float) -> tuple[np.ndarray, 
 
 
 def _plan(n_joints: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """J1 swings fast; J2 slides, then reverses slowly (peak 0.5ε); J4 only creeps (peak ≈ 0.52ε),
-    reversing twice; J3 creeps at 0.75ε: the M900 CP line's J4 in miniature."""
+    """J1 swings fast; J2 slides, then reverses slowly (peak 0.5ε); J3 creeps at 0.75ε; J4 creeps at
+    ≈ 0.52ε (the M900 CP line's J4 in miniature), reversing twice through rests; J5 creeps the same
+    way twice with a rest between, never reversing."""
     t = np.arange(int(1.8 / DT) + 1) * DT
     q, qd, qdd = (np.zeros((len(t), n_joints)) for _ in range(3))
-    moves = [
+    moves = [  # (joint, [(start s, duration s, dq rad)]): peak speed 2·dq/duration
         (0, [(0.0, 0.6, 0.3)]),
-        (1, [(0.0, 0.4, 0.05), (0.5, 0.4, -0.002)]),  # peak speed 2·dq/dur
-        (3, [(0.0, 0.4, -0.0021), (0.5, 0.3, 0.0016), (1.0, 0.4, -0.0021)]),
+        (1, [(0.0, 0.4, 0.05), (0.5, 0.4, -0.002)]),
         (2, [(0.0, 0.5, 0.75 * EPS * 0.5 / 2)]),
+        (3, [(0.0, 0.4, -0.0021), (0.5, 0.3, 0.0016), (1.0, 0.4, -0.0021)]),
+        (4, [(0.0, 0.4, -0.0021), (0.6, 0.4, -0.0021)]),
     ]
     for j, bumps in moves:
         for t0, dur, dq in bumps:
@@ -48,30 +52,40 @@ def _plan(n_joints: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return q, qd, qdd
 
 
-def test_creeping_joint_gets_no_coulomb_term_across_its_slow_reversals():
+def test_creeping_joint_gets_no_coulomb_term_until_it_reverses():
+    """The new term against the old smooth sign, joint and motor friction (the RX130L's motor 6 turns
+    with q6 + 0.4·q5: J5 creeping makes it creep too)."""
     robot = load_robot(SAMPLES / "rx130l")
-    params = prior_parameters(robot)
+    params = replace(prior_parameters(robot), motor_coulomb_nm=np.array([0, 0, 0, 0, 0, 0.6]))
+    no_coulomb = replace(params, coulomb_nm=np.zeros(6), motor_coulomb_nm=np.zeros(6))
     q0 = np.array([0.0, -0.3, 1.2, 0.0, 0.6, 0.0])
     dq, qd, qdd = _plan()
     q = q0 + dq
     assert 0.5 * EPS < np.abs(qd[:, 3]).max() < 0.55 * EPS and np.sum(np.diff(np.sign(qd[:, 3])) != 0) >= 4
-    old = RobotDynamics(robot, params, coulomb_eps_rad_s=EPS).inverse_dynamics(q, qd, qdd)
-    new = model_torque(robot, params, q, qd, qdd)
-    old_c = params.coulomb_nm * np.tanh(qd / EPS)  # the old smoothed sign's Coulomb term
-    new_c = new - old + old_c
+    rest = RobotDynamics(robot, no_coulomb, coulomb_eps_rad_s=EPS).inverse_dynamics(q, qd, qdd)
+    old_c = RobotDynamics(robot, params, coulomb_eps_rad_s=EPS).inverse_dynamics(q, qd, qdd) - rest
+    new_c = model_torque(robot, params, q, qd, qdd) - rest
     fc = params.coulomb_nm
-    # J4: the old term swung through ±(0.45…0.48)·Fc and reversed with the plan; the new one is 0
-    assert old_c[:, 3].max() > 0.4 * fc[3] and old_c[:, 3].min() < -0.4 * fc[3]
-    assert np.abs(new_c[:, 3]).max() < 0.02 * fc[3]
+    # J4: the old term swung to −0.48·Fc on its first creep; the new one keeps < 2 % of it until J4
+    # reverses (its peak speed 0.53ε is just inside the smoothstep's band)
+    w = sliding_weight(qd)
+    first = np.arange(len(q)) * DT < 0.5
+    assert old_c[first, 3].min() < -0.4 * fc[3] and w[3] < 0.02
+    np.testing.assert_allclose(new_c[first, 3], w[3] * old_c[first, 3], rtol=0, atol=1e-12)
+    # from the first reversal on, the smooth sign (±0.48·Fc): it helps the integrator swing 2·Fc
+    np.testing.assert_allclose(new_c[~first, 3], old_c[~first, 3], rtol=0, atol=1e-12)
+    assert old_c[~first, 3].max() > 0.4 * fc[3]
+    # J5 creeps one way through a rest, and motor 6 with it: no Coulomb term at all on J5 and J6
+    assert old_c[:, 4].min() < -0.4 * fc[4] and np.abs(old_c[:, 5]).max() > 0.05
+    assert np.abs(new_c[:, 4:]).max() < 0.02 * np.abs(old_c[:, 4:]).max()
     # J1 slides: the planners' smooth sign exactly; J2 reverses at 0.5ε after sliding: kept too
-    np.testing.assert_allclose(new[:, [0, 1]], old[:, [0, 1]], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(new_c[:, :2], old_c[:, :2], rtol=0, atol=1e-12)
     assert np.abs(old_c[qd[:, 1] < 0, 1]).max() > 0.3 * fc[1]
     # J3 creeps at 0.75ε at most: half the smooth sign (the smoothstep's middle)
-    moving = np.abs(qd[:, 2]) > 0
-    np.testing.assert_allclose(sliding_weight(qd)[2], 0.5, atol=0.02)
-    np.testing.assert_allclose(new_c[moving, 2], 0.5 * old_c[moving, 2], rtol=0.05, atol=1e-6)
+    np.testing.assert_allclose(w[2], 0.5, atol=0.02)
+    np.testing.assert_allclose(new_c[:, 2], w[2] * old_c[:, 2], rtol=0, atol=1e-12)
     # continuous as the smooth sign and never steeper: sample-to-sample steps at most the old ones
-    assert np.all(np.abs(np.diff(new_c, axis=0)) <= np.abs(np.diff(old_c, axis=0)) + 1e-9)
+    assert np.all(np.abs(np.diff(new_c, axis=0)) <= np.abs(np.diff(old_c, axis=0)) + 1e-12)
 
 
 def test_a_step_in_the_peak_speed_changes_the_weight_continuously():
