@@ -103,7 +103,7 @@ def test_the_lag_of_a_creeping_joint_after_its_approach_drops_in_the_cell():
     """The M900 CP line's J4 (architecture §6.1) on our plant: the arm approaches the line's start
     from zero as `run --approach` does (J4 creeps 1.2 mrad in 2.6 s, its integrator ends holding the
     friction), then J4 turns on 2 mrad at ≤ 0.0105 rad/s. The true model's feed-forward with the old
-    smooth sign pushes it ~2.7 mrad past its demand; with the sliding weight it follows within 0.1."""
+    smooth sign pushes it 2.9 mrad past its demand; with `coulomb_weight` it follows within 0.1."""
     truth = load_truth(SAMPLES / "m900" / "truth.yaml")
     robot, params = truth.robot, truth.params
     dt = robot.drives.cycle_s
