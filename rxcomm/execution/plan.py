@@ -78,15 +78,67 @@ def resample(traj: Trajectory, sample_s: float) -> tuple[np.ndarray, np.ndarray,
     return q, qd, qdd
 
 
+# A joint whose planned speed reaches SLIDING_PEAK_FULL·ε somewhere in the plan slides (tanh(q̇/ε)
+# reaches 76 % of Fc: the planners' model) and keeps the smooth sign's Coulomb term throughout. One
+# that never exceeds SLIDING_PEAK_NONE·ε (< 46 %) creeps in stick-slip under its position loop: on its
+# first direction of motion, the drive's integrator already holds the friction (the motion before the
+# plan, which starts at rest), so it gets no Coulomb term there; from its first reversal on, the
+# smooth sign helps the integrator swing through 2·Fc. A smoothstep in the plan's peak speed between.
+SLIDING_PEAK_NONE = 0.5
+SLIDING_PEAK_FULL = 1.0
+
+
+def sliding_weight(qd: np.ndarray, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> np.ndarray:
+    """Per axis of a plan's velocities ``qd`` [n, k], how much of the smooth Coulomb sign tanh(q̇/ε)
+    its first direction of motion keeps, in [0, 1]: the smoothstep of the axis's peak |q̇| over the
+    plan between SLIDING_PEAK_NONE·ε and SLIDING_PEAK_FULL·ε (nearly equal plans, nearly equal
+    weights)."""
+    peak = np.abs(np.atleast_2d(np.asarray(qd, dtype=float))).max(axis=0)
+    x = np.clip((peak / eps_rad_s - SLIDING_PEAK_NONE) / (SLIDING_PEAK_FULL - SLIDING_PEAK_NONE), 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def first_direction(qd: np.ndarray) -> np.ndarray:
+    """Per sample and axis of ``qd`` [n, k]: True up to the axis's first reversal (a sign change of q̇,
+    rests in between ignored), False from the first sample of the other sign on."""
+    s = np.sign(np.asarray(qd, dtype=float))
+    first = np.zeros(s.shape[1])
+    for j in range(s.shape[1]):
+        moving = np.flatnonzero(s[:, j])
+        first[j] = s[moving[0], j] if moving.size else 0.0
+    return ~np.maximum.accumulate(s == -first, axis=0)
+
+
+def coulomb_weight(qd: np.ndarray, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> np.ndarray:
+    """The weight [n, k] on tanh(q̇/ε) in the feed-forward: `sliding_weight` on each axis's first
+    direction of motion, 1 after it. It changes only where q̇ changes sign, where tanh(q̇/ε) is about 0,
+    so the weighted term is as continuous as the smooth sign and never steeper than it
+    (|Δ(w·tanh)| ≤ |Δtanh| sample to sample)."""
+    qd = np.atleast_2d(np.asarray(qd, dtype=float))
+    return np.where(first_direction(qd), sliding_weight(qd, eps_rad_s), 1.0)
+
+
 def model_torque(
     robot: Robot, params: DynamicParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
 ) -> np.ndarray:
-    """τ = M(q)q̈ + g(q, q̇) of the model (paper eq. 7): the feed-forward torque.
+    """τ = M(q)q̈ + g(q, q̇) of the model (paper eq. 7) along a whole plan ([n, dof] samples in time
+    order, from rest to rest): the feed-forward torque.
 
-    Coulomb friction uses the planners' smooth sign (tanh, ε = 0.02 rad/s): an exact sign would step
-    the feed-forward by 2·Fc through every velocity reversal.
+    Coulomb friction uses the planners' smooth sign (tanh, ε = 0.02 rad/s: an exact sign would step
+    the feed-forward by 2·Fc through every velocity reversal), weighted by `coulomb_weight`, joint and
+    motor friction alike: the smooth sign's fraction of Fc fed forward on top of the friction the
+    integrator held pushed the M900's J4, creeping 2 mrad at ≤ 0.52·ε on its CP line, 2 mrad past its
+    demand, where it stuck (architecture §6.1).
     """
-    return RobotDynamics(robot, params, coulomb_eps_rad_s=COULOMB_EPS_NLP_RAD_S).inverse_dynamics(q, qd, qdd)
+    eps = COULOMB_EPS_NLP_RAD_S
+    tau = RobotDynamics(robot, params, coulomb_eps_rad_s=eps).inverse_dynamics(q, qd, qdd)
+    qd = np.asarray(qd, dtype=float)
+    tau -= params.coulomb_nm * np.tanh(qd / eps) * (1.0 - coulomb_weight(qd, eps))
+    if params.has_motor_friction:
+        r = robot.joint_to_motor
+        vm = qd @ r.T / np.abs(np.diag(r))  # motor speeds on the joint scale, as RobotDynamics smooths them
+        tau -= (params.motor_coulomb_nm * np.tanh(vm / eps) * (1.0 - coulomb_weight(vm, eps))) @ r
+    return tau
 
 
 def check_plan_shape(robot: Robot, traj: Trajectory, what: str = "plan") -> None:
