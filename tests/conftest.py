@@ -82,6 +82,14 @@ def pytest_runtest_teardown(item):
     yield
 
 
+@pytest.fixture(autouse=True)
+def _no_compiler_without_processes(request, monkeypatch):
+    """A test that may not start a process gets CasADi's virtual machine (rxcomm.casadi_build runs no
+    C compiler: `RXCOMM_NO_COMPILE`), whatever the on-disk cache holds."""
+    if "process" not in set().union(*(ALLOWS.get(m.name, set()) for m in request.node.iter_markers())):
+        monkeypatch.setenv("RXCOMM_NO_COMPILE", "1")
+
+
 @pytest.fixture(scope="session")
 def rx130l():
     return load_robot(SAMPLES / "rx130l")

@@ -403,20 +403,29 @@ def test_pose_ik_honours_the_calibration(tmp_path, rx130l):
 def test_compiled_node_functions_match_and_are_cached(tmp_path, monkeypatch, m900):
     monkeypatch.setenv("RXCOMM_CACHE_DIR", str(tmp_path))
     dyn, lim = PtpDynamics.from_parameters(m900), PtpLimits.from_robot(m900)
-    plain = PtpOcp(dyn, lim, PtpOptions(n_intervals=10))
+    monkeypatch.delenv("RXCOMM_NO_COMPILE", raising=False)
+    plain = PtpOcp(dyn, lim, PtpOptions(n_intervals=10, compile=False))
+    assert not list(tmp_path.glob("casadi/*.so"))
     opts = PtpOptions(n_intervals=10, compile=True)
-    fast = PtpOcp(dyn, lim, opts)
     x = np.random.default_rng(0).uniform(0.2, 0.8, plain.nx)
     lam = np.random.default_rng(1).normal(size=len(plain.row_kinds))
-    for name, args in (("nlp_jac_g", (x, [])), ("nlp_grad_f", (x, [])), ("nlp_hess_l", (x, [], 1.0, lam))):
-        a, b = plain.solver.get_function(name)(*args), fast.solver.get_function(name)(*args)
-        a, b = (a, b) if isinstance(a, tuple) else ((a,), (b,))
-        for u, v in zip(a, b, strict=True):
-            np.testing.assert_allclose(
-                np.asarray(ca.densify(v)), np.asarray(ca.densify(u)), rtol=1e-9, atol=1e-9
-            )
+    # the default (compile None: -O0) and --compile (-O1): each the Jacobian, gradient and Hessian of
+    # the node window, compiled once, equal to the virtual machine's
+    for options, n_libs in ((PtpOptions(n_intervals=10), 3), (opts, 6)):
+        fast = PtpOcp(dyn, lim, options)
+        for name, args in (
+            ("nlp_jac_g", (x, [])),
+            ("nlp_grad_f", (x, [])),
+            ("nlp_hess_l", (x, [], 1.0, lam)),
+        ):
+            a, b = plain.solver.get_function(name)(*args), fast.solver.get_function(name)(*args)
+            a, b = (a, b) if isinstance(a, tuple) else ((a,), (b,))
+            for u, v in zip(a, b, strict=True):
+                np.testing.assert_allclose(
+                    np.asarray(ca.densify(v)), np.asarray(ca.densify(u)), rtol=1e-9, atol=1e-9
+                )
+        assert len(list(tmp_path.glob("casadi/*.so"))) == n_libs
     libs = sorted(p.name for p in tmp_path.glob("casadi/*.so"))
-    assert len(libs) == 3  # Jacobian, gradient, Hessian of the node window
     again = PtpOcp(dyn, lim, opts)  # from the cache: no compiler run
     assert again.build_seconds < 5.0
     assert sorted(p.name for p in tmp_path.glob("casadi/*.so")) == libs

@@ -55,6 +55,11 @@ from rxcomm.planning.path_dynamics import PathDynamics
 from rxcomm.planning.path_profile import PathProfile
 from rxcomm.planning.topp import PlanLimits, velocity_bound_x
 
+# IPOPT's time here is its linear algebra (6425 rows on 402 variables at N = 200; the functions are
+# ~10 %), a third of it the adaptive barrier's safeguard: without it and without the residual checks of
+# each step, 25 instead of 28 iterations and −35 % CPU on the RX130L line, the same durations and limit
+# ratios on all nine sample paths of both robots (issue 32; `make bench` times the NLP without them too)
+SPEED_OPTIONS = {"adaptive_mu_globalization": "never-monotone-mode", "fast_step_computation": "yes"}
 S_MIN = 1e-3  # m/s: interior nodes keep moving (Δt = 2Δσ/(s_k + s_{k+1}) stays finite)
 _SIZES_PER_NODE_JOINT = (
     "qs",
@@ -248,7 +253,7 @@ def _solver(
         "ipopt.acceptable_tol": 1e-5,
         "ipopt.constr_viol_tol": 1e-8,
         "ipopt.mu_strategy": "adaptive",
-    }
+    } | {f"ipopt.{k}": v for k, v in SPEED_OPTIONS.items()}
     if warm:  # re-solves start from a solution and its multipliers: skip the barrier's first phase
         opts |= {
             "ipopt.mu_init": 1e-4,

@@ -121,7 +121,7 @@ class PtpOcp:
     its Lagrangian; they are mapped over the N + 1 windows and scattered into IPOPT's sparse matrices
     by index (custom `jac_g`, `grad_f`, `hess_lag`). This builds in a fraction of a second, where
     letting CasADi expand and differentiate the whole NLP took 5–15 s for N = 100. The Jacobian and
-    Hessian maps run on two threads (CasADi's "thread" map, no compiler): they are most of the work.
+    Hessian maps run on two threads (CasADi's "thread" map), compiled to C by default (`_compiled`).
     `q_ref` and `t_ref_s` set the variable scaling only (inertia at `q_ref`, default mid-range).
     """
 
@@ -167,26 +167,35 @@ class PtpOcp:
 
         x = ca.MX.sym("x", self.nx)
         p = ca.MX.sym("p", 0)
-        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ng)
+        lam_g = ca.MX.sym("lam_g", ng)
         x_pad = ca.vertcat(x, 0)
         xi = ca.reshape(x_pad[np.where(var_index >= 0, var_index, self.nx).ravel().tolist()], m, N + 1)
         wts = np.ones(N + 1)
         wts[[0, -1]] = 0.5  # trapezoid weights of ∫τᵀτ dt
         wts = ca.DM(wts).T
 
-        # compiled derivatives when asked; g and f stay SX so CasADi can still differentiate them
-        # (IPOPT's final multiplier computation)
-        fast = self._compiled if options.compile else (lambda f: f)
         rows, f_win = window.map(N + 1)(xi, wts)
         g = ca.vec(rows)[np.flatnonzero(row_valid.ravel()).tolist()]
         f = options.k1 * self.t_ref * x[0] + ca.sum2(f_win)
 
-        # Jacobian: window Jacobians scattered by index (each global row lives in one window)
+        # the window's Jacobian, gradient and Lagrangian Hessian, compiled together (options.compile,
+        # `_compiled`); g and f stay SX so CasADi can still differentiate them (IPOPT's final
+        # multiplier computation)
         xs, ws = window.sx_in()
         rows_s, f_s = window(xs, ws)
         jac_s = ca.jacobian(rows_s, xs)
+        windows = [
+            ca.Function("window_jac", [xs, ws], [_nonzeros(jac_s)]),
+            ca.Function("window_grad", [xs, ws], [ca.densify(ca.gradient(f_s, xs))]),
+        ]
+        if options.hessian == "exact":
+            lf, lr = ca.SX.sym("lam_f"), ca.SX.sym("lam_rows", rows_s.numel())
+            hess_s = ca.triu(ca.hessian(lf * f_s + ca.dot(lr, rows_s), xs)[0])
+            windows.append(ca.Function("window_hess", [xs, ws, lf, lr], [_nonzeros(hess_s)]))
+        jw, gw, *hw = windows if options.compile is False else self._compiled(windows)
+
+        # Jacobian: window Jacobians scattered by index (each global row lives in one window)
         sp_w = jac_s.sparsity()
-        jw = ca.Function("window_jac", [xs, ws], [_nonzeros(jac_s)])
         r_loc, c_loc = (np.array(a) for a in sp_w.get_triplet())
         nnz_w = sp_w.nnz()
         g_rows = row_index[:, r_loc]  # [N+1, nnz_w]
@@ -194,24 +203,23 @@ class PtpOcp:
         keep = (g_rows >= 0) & (g_cols >= 0)
         src = (np.arange(N + 1)[:, None] * nnz_w + np.arange(nnz_w)[None, :])[keep]
         jac_sp, jac_perm = _csc(ng, self.nx, g_rows[keep], g_cols[keep])
-        jac_nz = ca.vec(fast(jw).map(N + 1, "thread", 2)(xi, wts))[src[jac_perm].tolist()]
+        jac_nz = ca.vec(jw.map(N + 1, "thread", 2)(xi, wts))[src[jac_perm].tolist()]
         jac_g = ca.Function("jac_g", [x, p], [g, ca.MX(jac_sp, jac_nz)], ["x", "p"], ["g", "jac_g_x"])
 
         # gradient of f: window gradients summed into the variables they share
-        gw = ca.Function("window_grad", [xs, ws], [ca.densify(ca.gradient(f_s, xs))])
         cols = var_index.ravel()
         ok = cols >= 0
         assemble = ca.DM(
             ca.Sparsity.triplet(self.nx, cols.size, cols[ok].tolist(), np.flatnonzero(ok).tolist()), 1.0
         )
-        grad = ca.mtimes(assemble, ca.vec(fast(gw).map(N + 1)(xi, wts)))
+        grad = ca.mtimes(assemble, ca.vec(gw.map(N + 1)(xi, wts)))
         grad = grad + ca.DM([options.k1 * self.t_ref] + [0.0] * (self.nx - 1))
         grad_f = ca.Function("grad_f", [x, p], [f, grad], ["x", "p"], ["f", "grad_f_x"])
 
         nlp_opts: dict = {"print_time": False, "jac_g": jac_g, "grad_f": grad_f}
-        if options.hessian == "exact":
+        if hw:
             nlp_opts["hess_lag"] = self._hessian(
-                window, xi, wts, x, p, lam_f, lam_g, var_index, row_index, fast
+                hw[0], hess_s.sparsity(), xi, wts, x, p, lam_g, var_index, row_index
             )
 
         nlp_opts["ipopt"] = ipopt_options(options, options.hessian)
@@ -287,15 +295,11 @@ class PtpOcp:
                     idx[k, 1 + 9 * n + s * n : 1 + 10 * n + s * n] = o_u + iv * n + j
         return idx
 
-    def _hessian(self, window, xi, wts, x, p, lam_f, lam_g, var_index, row_index, fast) -> ca.Function:
-        """Exact Hessian of the Lagrangian, assembled from window Hessians (upper triangle)."""
+    def _hessian(self, hw, sp_w, xi, wts, x, p, lam_g, var_index, row_index) -> ca.Function:
+        """Exact Hessian of the Lagrangian, assembled from the window Hessians `hw` (upper triangle,
+        sparsity `sp_w`)."""
         N = self.N
-        xs, ws = window.sx_in()
-        rows, f_k = window(xs, ws)
-        lf, lr = ca.SX.sym("lam_f"), ca.SX.sym("lam_rows", rows.numel())
-        hess = ca.triu(ca.hessian(lf * f_k + ca.dot(lr, rows), xs)[0])
-        sp_w = hess.sparsity()
-        hw = ca.Function("window_hess", [xs, ws, lf, lr], [_nonzeros(hess)])
+        lam_f = ca.MX.sym("lam_f")
         r_loc, c_loc = (np.array(a) for a in sp_w.get_triplet())
         nnz_w = sp_w.nnz()
         a, b = var_index[:, r_loc], var_index[:, c_loc]
@@ -312,7 +316,7 @@ class PtpOcp:
         lam_w = ca.reshape(
             lam_pad[np.where(row_index >= 0, row_index, lam_g.numel()).ravel().tolist()], -1, N + 1
         )
-        nz = ca.mtimes(assemble, ca.vec(fast(hw).map(N + 1, "thread", 2)(xi, wts, lam_f, lam_w)))
+        nz = ca.mtimes(assemble, ca.vec(hw.map(N + 1, "thread", 2)(xi, wts, lam_f, lam_w)))
         return ca.Function(
             "hess_lag",
             [x, p, lam_f, lam_g],
@@ -321,10 +325,14 @@ class PtpOcp:
             ["triu_hess_gamma_x_x"],
         )
 
-    @staticmethod
-    def _compiled(fn: ca.Function) -> ca.Function:
-        """`fn` as C compiled once per content (robot, limits, N, options) into the cache directory."""
-        return casadi_build.compiled([fn])[0]
+    def _compiled(self, fns: list[ca.Function]) -> list[ca.Function]:
+        """`fns` as C compiled once per content (robot, limits, N, options) into the cache directory.
+
+        By default unoptimised: gcc -O0 compiles the Hessian window (~1 MB of C) in ~1 s CPU and it
+        runs in 4.2 ms per map of 101 windows against 23 ms in CasADi's virtual machine; -O1
+        (`compile=True`) runs in 1.8 ms but takes ~1 min to compile (RX130L, N = 100, measured)."""
+        flags = ("-O1",) if self.options.compile else ("-O0",)
+        return casadi_build.compiled(fns, flags)
 
     # --- bounds and guesses -------------------------------------------------------------------------
     def margins(self, **override: float) -> dict[str, float]:

@@ -181,11 +181,12 @@ ElbowOption = Annotated[Elbow, typer.Option(help="IK branch for poses: elbow.")]
 WristOption = Annotated[Wrist, typer.Option(help="IK branch for poses: sign of J5.")]
 MaxWallOption = Annotated[float | None, typer.Option("--max-wall-s", help="Solver wall-time cap, s.")]
 CompileOption = Annotated[
-    bool,
+    bool | None,
     typer.Option(
         "--compile/--no-compile",
-        help="Compile the NLP's node functions to C (needs gcc/cc; cached in ~/.cache/rxcomm, "
-        "or $RXCOMM_CACHE_DIR): ~2× faster solves after a one-off ~1 min compile.",
+        help="The NLP's node functions as C (needs gcc/cc; cached in ~/.cache/rxcomm, or "
+        "$RXCOMM_CACHE_DIR). Default: compiled unoptimised (~1 s once, ~2× faster solves); --compile "
+        "optimised (~1 min once, ~10 % faster again); --no-compile: CasADi's virtual machine.",
     ),
 ]
 FallbackOption = Annotated[
@@ -220,7 +221,7 @@ def command(
     elbow: ElbowOption = "up",
     wrist: WristOption = "positive",
     max_wall: MaxWallOption = None,
-    compile_: CompileOption = False,
+    compile_: CompileOption = None,
     fallback: FallbackOption = False,
     plot: PlotOption = False,
     timing: TimingOption = "optimal",
