@@ -7,12 +7,21 @@ SLSQP); here the multi-start design.
 **Starts.** SLSQP from several random *feasible* trajectories (random rest pose inside the region,
 random coefficients scaled down by bisection until every limit holds densely); the best feasible
 result wins. The same random feasible trajectories give the baseline figure the summary reports.
+
+**Parallel starts.** The starts are independent (each seeded by its index) and SLSQP holds the GIL,
+so they run in forked worker processes, one per available core (at most one per start), while the
+parent computes the baseline. A child inherits the built problem (its compiled CasADi functions)
+through the fork and computes exactly what the serial loop would: the result is identical, bit for
+bit, for the same seed (tested). Where fork is unavailable, or one core or one start, it is serial.
 """
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,6 +75,48 @@ class ExcitationDesign:
 
 
 # ------------------------------------------------------------------------------------------------
+# The starts
+
+# The problem a forked worker inherits (set in the parent just before the pool forks).
+_PROBLEM: ExcitationProblem | None = None
+
+
+def _run_start(i: int, prob: ExcitationProblem | None = None) -> StartResult:
+    """One seeded start: a random feasible trajectory, then SLSQP from it."""
+    prob = prob or _PROBLEM
+    assert prob is not None
+    ts = time.perf_counter()
+    x0 = prob.random_feasible(np.random.default_rng([prob.settings.seed, i]))
+    c0 = prob.cond(x0)[0]
+    x, iters, ok = prob.optimise(x0)
+    return StartResult(
+        seed=i,
+        initial_cond=c0,
+        cond=prob.cond(x)[0],
+        feasible=ok,
+        iterations=iters,
+        seconds=time.perf_counter() - ts,
+        trajectory=prob.trajectory(x),
+    )
+
+
+def available_workers() -> int:
+    """Cores this process may run on (its affinity mask, not the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def _start_pool(prob: ExcitationProblem, workers: int) -> ProcessPoolExecutor | None:
+    global _PROBLEM
+    if workers <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        return None
+    _PROBLEM = prob
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))
+
+
+# ------------------------------------------------------------------------------------------------
 # The design
 
 
@@ -76,39 +127,36 @@ def design_excitation(
     *,
     bset: BaseParameterSet | None = None,
     progress: Progress | None = None,
+    workers: int | None = None,
 ) -> ExcitationDesign:
     """Optimal exciting trajectory: the best of `settings.starts` seeded SLSQP runs, verified at the
-    drive cycle. Raises InfeasibleError when no start gives a trajectory within every limit."""
+    drive cycle, the starts on `workers` processes (default: the available cores, at most one per
+    start; 1 = serial; the result is the same either way). Raises InfeasibleError when no start gives
+    a trajectory within every limit."""
     t0 = time.perf_counter()
     settings = settings or ExcitationSettings()
     prob = ExcitationProblem(robot, region, settings, bset)
-    n_base = settings.baseline_trajectories
-    baseline = []
-    for i in range(n_base):
-        x = prob.random_feasible(np.random.default_rng([settings.seed, 1_000_003, i]))
-        baseline.append(prob.cond(x)[0])
-        if progress:
-            progress("baseline", i + 1, n_base)
-
-    starts: list[StartResult] = []
-    for i in range(settings.starts):
-        ts = time.perf_counter()
-        x0 = prob.random_feasible(np.random.default_rng([settings.seed, i]))
-        c0 = prob.cond(x0)[0]
-        x, iters, ok = prob.optimise(x0)
-        starts.append(
-            StartResult(
-                seed=i,
-                initial_cond=c0,
-                cond=prob.cond(x)[0],
-                feasible=ok,
-                iterations=iters,
-                seconds=time.perf_counter() - ts,
-                trajectory=prob.trajectory(x),
-            )
+    n_workers = min(settings.starts, available_workers() if workers is None else workers)
+    pool = _start_pool(prob, n_workers)
+    try:
+        futures: list[Future[StartResult]] = (
+            [pool.submit(_run_start, i) for i in range(settings.starts)] if pool else []
         )
-        if progress:
-            progress("starts", i + 1, settings.starts)
+        n_base = settings.baseline_trajectories
+        baseline = []
+        for i in range(n_base):
+            x = prob.random_feasible(np.random.default_rng([settings.seed, 1_000_003, i]))
+            baseline.append(prob.cond(x)[0])
+            if progress:
+                progress("baseline", i + 1, n_base)
+        starts: list[StartResult] = []
+        for i in range(settings.starts):
+            starts.append(futures[i].result() if pool else _run_start(i, prob))
+            if progress:
+                progress("starts", i + 1, settings.starts)
+    finally:
+        if pool:
+            pool.shutdown(cancel_futures=True)
     feasible = [s for s in starts if s.feasible]
     if not feasible:
         raise InfeasibleError(

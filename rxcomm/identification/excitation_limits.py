@@ -166,7 +166,12 @@ def robot_limit_ratios(
 
 
 def reversal_ratios(
-    xf: np.ndarray, t: np.ndarray, omega: float, harmonics: int, qdd_cross_max: np.ndarray
+    xf: np.ndarray,
+    t: np.ndarray,
+    omega: float,
+    harmonics: int,
+    qdd_cross_max: np.ndarray,
+    bv: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The torque-rate limit where a joint's velocity changes sign, for the Fourier variables xf
     [n, 2N − 1] with reversals found on the grid t: (ratios [n, 2N], ∂ratio/∂xf [n, 2N, n, 2N − 1]);
@@ -177,10 +182,12 @@ def reversal_ratios(
     where it happens. q̇_j, a trigonometric polynomial of degree N, has at most 2N zeros per
     period, found by sign changes on the check grid and refined by Newton steps; the ratio is
     |q̈_j(t*)|·Fc_j/ε / (budget·rate_max_j), its gradient ∂q̈/∂x + q⃛·∂t*/∂x with
-    ∂t*/∂x = −(∂q̇/∂x)/q̈ (implicit function)."""
+    ∂t*/∂x = −(∂q̇/∂x)/q̈ (implicit function). `bv`, the velocity basis on t, when the caller has
+    it cached (the NLP calls this every iteration on the same grid)."""
 
     n, m, k = xf.shape[0], xf.shape[1], 2 * harmonics
-    _, bv, _ = fourier_basis(t, omega, harmonics)
+    if bv is None:
+        _, bv, _ = fourier_basis(t, omega, harmonics)
     v = bv @ xf.T  # [len(t), n]
     ratios = np.zeros((n, k))
     jac = np.zeros((n, k, n, m))

@@ -272,7 +272,8 @@ class ExcitationProblem:
     def crossings(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """`reversal_ratios` of the trajectory on the check grid: the torque-rate limit where a joint's
         velocity changes sign, (ratios [n, 2N], ∂ratio/∂x_full [n, 2N, n, 2N − 1])."""
-        return reversal_ratios(self.full(x), self.t_check, self.omega, self.n_h, self.qdd_cross_max)
+        bv = self._basis(self.t_check)[1]
+        return reversal_ratios(self.full(x), self.t_check, self.omega, self.n_h, self.qdd_cross_max, bv)
 
     def _peak_constraints(self):
         """SLSQP inequality constraints (fun, jac) on the dense check grid: for every limited quantity
