@@ -111,7 +111,7 @@ def bench_identification(quick: bool = False) -> dict[str, float | list[float]]:
     return {
         "excitation_design_s": t_design,
         "excitation_design_serial_s": t_serial,
-        "excitation_workers": float(min(settings.starts, available_workers())),
+        "excitation_workers": float(min(settings.starts, 2 * available_workers())),
         "excitation_design_repeats": float(len(times[1])),
         "excitation_starts": float(settings.starts),
         "excitation_cond": design.cond,

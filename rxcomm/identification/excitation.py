@@ -9,10 +9,14 @@ random coefficients scaled down by bisection until every limit holds densely); t
 result wins. The same random feasible trajectories give the baseline figure the summary reports.
 
 **Parallel starts.** The starts are independent (each seeded by its index) and SLSQP holds the GIL,
-so they run in forked worker processes, one per available core (at most one per start), while the
-parent computes the baseline. A child inherits the built problem (its compiled CasADi functions)
-through the fork and computes exactly what the serial loop would: the result is identical, bit for
-bit, for the same seed (tested). Where fork is unavailable, or one core or one start, it is serial.
+so they run in forked worker processes while the parent computes the baseline: one process per
+start, up to twice the available cores. The starts' times differ up to 6× (RX130L, 4 starts: 0.7 to
+4.1 s, the slow one an SLSQP run of 322 evaluations that ends outside a limit), so one process per
+core would queue a short start behind the slow one; with a process each the OS shares the cores
+and the wall time approaches the slowest start (measured 6.0 s against 6.6 s for one per core). A
+child inherits the built problem (its compiled CasADi functions) through the fork and computes
+exactly what the serial loop would: the result is identical, bit for bit, for the same seed
+(tested). Where fork is unavailable, or with one start, it is serial.
 """
 
 from __future__ import annotations
@@ -130,13 +134,13 @@ def design_excitation(
     workers: int | None = None,
 ) -> ExcitationDesign:
     """Optimal exciting trajectory: the best of `settings.starts` seeded SLSQP runs, verified at the
-    drive cycle, the starts on `workers` processes (default: the available cores, at most one per
-    start; 1 = serial; the result is the same either way). Raises InfeasibleError when no start gives
-    a trajectory within every limit."""
+    drive cycle, the starts on `workers` processes (default: one per start, up to twice the
+    available cores; 1 = serial; the result is the same either way). Raises InfeasibleError when no
+    start gives a trajectory within every limit."""
     t0 = time.perf_counter()
     settings = settings or ExcitationSettings()
     prob = ExcitationProblem(robot, region, settings, bset)
-    n_workers = min(settings.starts, available_workers() if workers is None else workers)
+    n_workers = min(settings.starts, 2 * available_workers() if workers is None else workers)
     pool = _start_pool(prob, n_workers)
     try:
         futures: list[Future[StartResult]] = (
