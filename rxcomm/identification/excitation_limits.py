@@ -192,19 +192,33 @@ def reversal_ratios(
     ratios = np.zeros((n, k))
     jac = np.zeros((n, k, n, m))
     dt = t[1] - t[0]
+    # Every joint's reversals in one array (the bases on one call, not one per joint and step).
+    joints, guesses = [], []
     for j in np.flatnonzero(qdd_cross_max < np.inf):
         vj = v[:, j]
         nxt = np.roll(vj, -1)
         idx = np.flatnonzero(vj * nxt < 0)
-        if not len(idx):
-            continue
-        ts = t[idx] + dt * vj[idx] / (vj[idx] - nxt[idx])
-        for _ in range(2):  # Newton on q̇_j(t) = 0
-            _, bvs, bas = fourier_basis(ts, omega, harmonics)
-            ts = ts - (bvs @ xf[j]) / (bas @ xf[j])
-        _, bvs, bas = fourier_basis(ts, omega, harmonics)
-        bjs = fourier_jerk_basis(ts, omega, harmonics)
-        a, jerk = bas @ xf[j], bjs @ xf[j]
+        if len(idx):
+            joints.append(j)
+            guesses.append(t[idx] + dt * vj[idx] / (vj[idx] - nxt[idx]))
+    if not joints:
+        return ratios, jac
+    ends = np.cumsum([len(g) for g in guesses])
+    spans = [slice(e - len(g), e) for e, g in zip(ends, guesses, strict=True)]
+    ts = np.concatenate(guesses)
+    for _ in range(2):  # Newton on q̇_j(t) = 0
+        _, bv_all, ba_all = fourier_basis(ts, omega, harmonics)
+        ts = np.concatenate(
+            [
+                ts[sp] - (bv_all[sp] @ xf[j]) / (ba_all[sp] @ xf[j])
+                for j, sp in zip(joints, spans, strict=True)
+            ]
+        )
+    _, bv_all, ba_all = fourier_basis(ts, omega, harmonics)
+    bj_all = fourier_jerk_basis(ts, omega, harmonics)
+    for j, sp in zip(joints, spans, strict=True):
+        bvs, bas = bv_all[sp], ba_all[sp]
+        a, jerk = bas @ xf[j], bj_all[sp] @ xf[j]
         order = np.argsort(-np.abs(a))[:k]  # at most 2N; keep the largest if rounding found more
         a, jerk, bvs, bas = a[order], jerk[order], bvs[order], bas[order]
         sgn = np.sign(a) / qdd_cross_max[j]

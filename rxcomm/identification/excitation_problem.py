@@ -300,7 +300,10 @@ class ExcitationProblem:
         def select(s: np.ndarray, k: int) -> np.ndarray:
             """Indices [k, cols] of the k largest local maxima per column (periodic), padded with the
             largest remaining samples where a column has fewer maxima."""
-            is_max = (s >= np.roll(s, 1, axis=0)) & (s > np.roll(s, -1, axis=0))
+            is_max = np.empty(s.shape, dtype=bool)  # periodic neighbours, without np.roll's copies
+            is_max[1:-1] = (s[1:-1] >= s[:-2]) & (s[1:-1] > s[2:])
+            is_max[0] = (s[0] >= s[-1]) & (s[0] > s[1])
+            is_max[-1] = (s[-1] >= s[-2]) & (s[-1] > s[0])
             key = np.where(is_max, s, s - 1e6)
             return np.argpartition(-key, k, axis=0)[:k]
 
