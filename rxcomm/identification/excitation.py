@@ -16,7 +16,7 @@ core would queue a short start behind the slow one; with a process each the OS s
 and the wall time approaches the slowest start (measured 6.0 s against 6.6 s for one per core). A
 child inherits the built problem (its compiled CasADi functions) through the fork and computes
 exactly what the serial loop would: the result is identical, bit for bit, for the same seed
-(tested). Where fork is unavailable, or with one start, it is serial.
+(tested). Where fork is unavailable, inside a daemonic process, or with one start, it is serial.
 """
 
 from __future__ import annotations
@@ -114,7 +114,11 @@ def available_workers() -> int:
 
 def _start_pool(prob: ExcitationProblem, workers: int) -> ProcessPoolExecutor | None:
     global _PROBLEM
-    if workers <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+    if (
+        workers <= 1
+        or "fork" not in multiprocessing.get_all_start_methods()
+        or multiprocessing.current_process().daemon  # a daemonic process may not have children
+    ):
         return None
     _PROBLEM = prob
     return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))
