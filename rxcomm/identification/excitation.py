@@ -13,7 +13,9 @@ so they run in forked worker processes while the parent computes the baseline: o
 start, up to twice the available cores. The starts' times differ up to 6× (RX130L, 4 starts: 0.7 to
 4.1 s, the slow one an SLSQP run of 322 evaluations that ends outside a limit), so one process per
 core would queue a short start behind the slow one; with a process each the OS shares the cores
-and the wall time approaches the slowest start (measured 6.0 s against 6.6 s for one per core). A
+and the wall time approaches the slowest start (measured 6.0 s against 6.6 s for one per core and
+8.5 s serial, machine at load 1). On a loaded machine (load 3–7 on 2 cores) the workers get about
+one core between them and the wall time is the serial one (15.3 against 15.7 s). A
 child inherits the built problem (its compiled CasADi functions) through the fork and computes
 exactly what the serial loop would: the result is identical, bit for bit, for the same seed
 (tested). Where fork is unavailable, inside a daemonic process, or with one start, it is serial.
