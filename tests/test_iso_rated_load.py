@@ -13,6 +13,7 @@ from rxcomm.cli import app
 from rxcomm.io.yaml_io import write_yaml_artefact
 from rxcomm.schemas.plain import sha256_file
 
+from .conftest import ROOT
 from .test_acceptance import _run_log
 from .test_payload import _payload_artefact
 from .test_verdict_first import _iso
@@ -94,3 +95,51 @@ def test_a_set_without_a_payload_or_with_one_not_in_the_build_says_so(tmp_path, 
     _set(build, "", build / "payload-100.yaml", 2e-4)
     md = _report(build)
     assert "not at 10 % of the rated load" in md and "no payload" not in md
+
+
+def test_the_report_shows_the_time_energy_curve_accept_plots(tmp_path):
+    """`accept --plot` with the curve's runs draws time-energy.png; the report's energy section embeds it
+    (Markdown link, HTML data URL); a build without the curve's runs has no such figure."""
+    import base64
+
+    build = tmp_path / "build"
+    build.mkdir()
+    for name, t, tau2, e in (
+        ("run-factory-cp", 4.0, 2e5, 900.0),
+        ("run-factory-ptp", 3.0, 1.5e5, 600.0),
+        ("run-ff", 1.2, 1.8e5, 800.0),
+        ("run-ptp", 0.9, 1.2e5, 500.0),
+        ("run-cp-at-factory-time", 4.0, 0.9e5, 700.0),
+        ("run-ptp-at-factory-time", 3.0, 0.6e5, 450.0),
+    ):
+        _run_log(build / f"{name}.yaml", t, tau2, e)
+    _run_log(build / "run-cp-curve-0.5.yaml", 2.6, 1.2e5, 740.0)
+    _run_log(build / "run-ptp-curve-0.5.yaml", 1.9, 0.8e5, 470.0)
+    args = [
+        "accept",
+        "--thresholds",
+        str(ROOT / "samples/rx130l/acceptance.yaml"),
+        "-o",
+        str(build / "verdict.yaml"),
+    ]
+    for flag, names in (
+        ("--factory-log", ("run-factory-cp", "run-factory-ptp")),
+        ("--commissioned-log", ("run-ff", "run-ptp")),
+        ("--commissioned-equal-time-log", ("run-cp-at-factory-time", "run-ptp-at-factory-time")),
+        ("--commissioned-curve-log", ("run-cp-curve-0.5", "run-ptp-curve-0.5")),
+    ):
+        for n in names:
+            args += [flag, str(build / f"{n}.mcap")]
+    res = runner.invoke(app, [*args, "--plot"])
+    assert res.exit_code == 0, res.output
+    png = build / "time-energy.png"
+    assert png.is_file() and png.read_bytes()[:4] == b"\x89PNG"
+    md = _report(build)
+    energy = md.split("Energy of the reference task at equal cycle time", 1)[1]
+    assert "](time-energy.png)" in energy.split("\n## ", 1)[0]
+    html = (build / "report.html").read_text()
+    assert base64.b64encode(png.read_bytes()).decode() in html
+    # without the curve's runs: no figure claimed
+    for n in ("run-cp-curve-0.5.yaml", "run-ptp-curve-0.5.yaml", "time-energy.png"):
+        (build / n).unlink()
+    assert "time-energy.png" not in _report(build)

@@ -281,6 +281,9 @@ def test_make_acceptance_rules_at_rated_load_read_and_write_what_they_declare(tm
     for name in ("run-poses-load-10", "run-iso-line-load-10"):
         assert rules[f"{build}/{name}.mcap"].options["--payload"] == [f"{build}/payload-10.yaml"]
     assert {f"{build}/iso9283-load-10.yaml", f"{build}/iso9283-factory-load-10.yaml"} <= set(rules)
+    # the verdict draws time-energy.png (accept --plot) from the curve's runs; the report embeds it
+    verdict = rules[f"{build}/verdict.yaml"].options
+    assert "--plot" in verdict and len(verdict["--commissioned-curve-log"]) >= 2
     # make commission's reduced set carries none
     plain = chain_rules(ROOT / "Makefile", build)
     assert not any("--payload" in r.options or "--truth-payload" in r.options for r in plain.values())
