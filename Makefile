@@ -227,13 +227,26 @@ $(ROBOT)/paths/%.yaml:
 LOAD        ?=
 LOADS_EXTRA ?=
 cell_load    = $(dir $(TRUTH))truth-payload-$(1).yaml
+# The identification's motions with the load on: the excitation and the validation path, each as one
+# cycle slowed PAYLOAD_SLOWDOWN× (plan-cycles --duration-s): they are timed for the arm without it, and
+# at their own timing the load saturates the RX130L's joint 3 and trips the M900's wrist following error.
+PAYLOAD_SLOWDOWN ?= 1.5
+SLOWED = $$($(PY) -c "import yaml; print($(PAYLOAD_SLOWDOWN) * yaml.safe_load(open('$(1)'))['summary']['duration_s'])")
+SLOW_ARGS = --robot $(ROBOT) --cycles 1
+$(B)/excitation-loaded.mcap: $(B)/excitation.yaml $(ROBOT_FILES) \
+		$(call params,excitation-loaded,$(SLOW_ARGS) $(PAYLOAD_SLOWDOWN))
+	$(RX) plan-cycles $(B)/excitation-trajectory.mcap $(SLOW_ARGS) \
+		--duration-s $(call SLOWED,$(B)/excitation-trajectory.yaml) -o $@
+$(B)/validation-loaded.mcap: $(B)/validation-plan.mcap $(ROBOT_FILES) \
+		$(call params,validation-loaded,$(SLOW_ARGS) $(PAYLOAD_SLOWDOWN))
+	$(RX) plan-cycles $< $(SLOW_ARGS) --duration-s $(call SLOWED,$(B)/validation-plan.yaml) -o $@
 PAYLOAD_ARGS = --robot $(ROBOT) --dynamics $(B)/dynamics.yaml --plot
 # $(call payload_rules,L): the runs with load L on and its identification, $(B)/payload-L.yaml.
 define payload_rules
-$(B)/excite-log-load-$(1).mcap: $(B)/excitation.yaml $(call cell_load,$(1)) $(SIM_FILES) \
+$(B)/excite-log-load-$(1).mcap: $(B)/excitation-loaded.mcap $(call cell_load,$(1)) $(SIM_FILES) \
 		$$(call params,excite-run-load-$(1),$$(RUN_SIM) --truth-payload $(call cell_load,$(1)))
-	$$(RX) run $(B)/excitation-trajectory.mcap $$(RUN_SIM) --truth-payload $(call cell_load,$(1)) -o $$@
-$(B)/validation-log-load-$(1).mcap: $(B)/validation-plan.mcap $(call cell_load,$(1)) $(SIM_FILES) \
+	$$(RX) run $$< $$(RUN_SIM) --truth-payload $(call cell_load,$(1)) -o $$@
+$(B)/validation-log-load-$(1).mcap: $(B)/validation-loaded.mcap $(call cell_load,$(1)) $(SIM_FILES) \
 		$$(call params,validation-run-load-$(1),$$(RUN_SIM) --truth-payload $(call cell_load,$(1)))
 	$$(RX) run $$< $$(RUN_SIM) --truth-payload $(call cell_load,$(1)) -o $$@
 $(B)/payload-$(1).yaml: $(B)/excite-log-load-$(1).mcap $(B)/validation-log-load-$(1).mcap \
@@ -243,6 +256,7 @@ $(B)/excite-log-load-$(1).mcap $(B)/validation-log-load-$(1).mcap: $$(code_run)
 $(B)/payload-$(1).yaml: $$(code_identify-payload)
 endef
 $(foreach l,$(sort $(LOAD) $(LOADS_EXTRA)),$(eval $(call payload_rules,$(l))))
+$(B)/excitation-loaded.mcap $(B)/validation-loaded.mcap: $(code_plan-cycles)
 PAYLOAD_LOGS := $(foreach l,$(sort $(LOAD) $(LOADS_EXTRA)),$(B)/excite-log-load-$(l).mcap \
 	$(B)/validation-log-load-$(l).mcap)
 PAYLOADS     := $(foreach l,$(sort $(LOAD) $(LOADS_EXTRA)),$(B)/payload-$(l).yaml)
