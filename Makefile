@@ -233,6 +233,7 @@ cell_load    = $(dir $(TRUTH))truth-payload-$(1).yaml
 PAYLOAD_SLOWDOWN ?= 1.5
 SLOWED = $$($(PY) -c "import yaml; print($(PAYLOAD_SLOWDOWN) * yaml.safe_load(open('$(1)'))['summary']['duration_s'])")
 SLOW_ARGS = --robot $(ROBOT) --cycles 1
+ifneq ($(strip $(LOAD) $(LOADS_EXTRA)),)
 $(B)/excitation-loaded.mcap: $(B)/excitation.yaml $(ROBOT_FILES) \
 		$(call params,excitation-loaded,$(SLOW_ARGS) $(PAYLOAD_SLOWDOWN))
 	$(RX) plan-cycles $(B)/excitation-trajectory.mcap $(SLOW_ARGS) \
@@ -257,6 +258,7 @@ $(B)/payload-$(1).yaml: $$(code_identify-payload)
 endef
 $(foreach l,$(sort $(LOAD) $(LOADS_EXTRA)),$(eval $(call payload_rules,$(l))))
 $(B)/excitation-loaded.mcap $(B)/validation-loaded.mcap: $(code_plan-cycles)
+endif
 PAYLOAD_LOGS := $(foreach l,$(sort $(LOAD) $(LOADS_EXTRA)),$(B)/excite-log-load-$(l).mcap \
 	$(B)/validation-log-load-$(l).mcap)
 PAYLOADS     := $(foreach l,$(sort $(LOAD) $(LOADS_EXTRA)),$(B)/payload-$(l).yaml)
