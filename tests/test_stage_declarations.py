@@ -278,6 +278,7 @@ def test_make_acceptance_rules_at_rated_load_read_and_write_what_they_declare(tm
     assert "--payload" not in factory and factory["--truth-payload"] == [
         "samples/rx130l/truth-payload-100.yaml"
     ]
+    assert factory["--speed-fraction"] == ["0.1"]  # the factory's slower approach with the load on
     for name in ("run-poses-load-10", "run-iso-line-load-10"):
         assert rules[f"{build}/{name}.mcap"].options["--payload"] == [f"{build}/payload-10.yaml"]
     assert {f"{build}/iso9283-load-10.yaml", f"{build}/iso9283-factory-load-10.yaml"} <= set(rules)
