@@ -105,10 +105,12 @@ def _parse_args(text: str) -> tuple[dict[str, list[str]], list[str]]:
     return options, args
 
 
-def chain_rules(makefile: Path, build: str) -> dict[str, Rule]:
-    """Every rule of `make commission` whose recipe runs rxcomm, by target, from `make -pn -B`."""
+def chain_rules(makefile: Path, build: str, *variables: str) -> dict[str, Rule]:
+    """Every rule of `make commission` (with make `variables`, NAME=VALUE) whose recipe runs rxcomm, by
+    target, from `make -pn -B`."""
     out = subprocess.run(
-        ["make", "--no-print-directory", "-f", str(makefile), "-pn", "-B", "commission", f"BUILD={build}"],
+        ["make", "--no-print-directory", "-f", str(makefile), "-pn", "-B", "commission", f"BUILD={build}"]
+        + list(variables),
         cwd=ROOT,
         env=_env(),
         capture_output=True,
@@ -206,14 +208,16 @@ def check_rule(rule: Rule, rules: dict[str, Rule], build: str) -> list[str]:
     return errors
 
 
-def check_makefile(makefile: Path, build: str) -> list[str]:
-    rules = chain_rules(makefile, build)
+def check_makefile(makefile: Path, build: str, *variables: str) -> list[str]:
+    rules = chain_rules(makefile, build, *variables)
     errors = [e for r in rules.values() for e in check_rule(r, rules, build)]
     # `report` reads its artefacts by name (report.SECTIONS, these), every run log of the build
     producer = {p: r.target for r in rules.values() for p in _products(r)}
     also = ["calibration-prior.yaml", "iso9283-factory.yaml", "iso9283.yaml", "verdict.yaml"]
     reads = {producer[f"{build}/{n}"] for n in [*report.SECTIONS, *also, "exports/parity.yaml"]}
     reads |= {r.target for r in rules.values() if r.command == "run" and r.target.endswith(".mcap")}
+    # every ISO 9283 set (iso9283-load-L.yaml: make acceptance) and identified test load (payload-L.yaml)
+    reads |= {r.target for r in rules.values() if r.command in ("iso9283", "identify-payload")}
     page = rules[f"{build}/report.md"]
     listed = {p for p in page.prereqs if p in rules}
     errors += [f"report.md: reads {f} but does not list it" for f in sorted(reads - listed)]
@@ -236,6 +240,54 @@ def test_the_makefile_rules_read_and_write_what_their_commands_declare(tmp_path)
     assert {r.command for r in rules.values()} >= {"select-configs", "run", "identify", "plan-cp", "report"}
     assert len(rules) >= 40
     assert check_makefile(ROOT / "Makefile", build) == []
+
+
+# `make acceptance`'s variables (the Makefile's acceptance rule): the rated-load rules are checked too.
+ACCEPTANCE_VARS = (
+    "POSE_CYCLES=30",
+    "LINE_CYCLES=10",
+    "LINE_SPEEDS_EXTRA=0.5 0.1",
+    "LOAD=100",
+    "LOADS_EXTRA=10",
+)
+
+
+@pytest.mark.make
+@needs_make
+def test_make_acceptance_rules_at_rated_load_read_and_write_what_they_declare(tmp_path):
+    recipe = (ROOT / "Makefile").read_text().split("\nacceptance:\n", 1)[1].split("\n\n", 1)[0]
+    for var in ACCEPTANCE_VARS:  # the variables `make acceptance` passes
+        name, value = var.split("=", 1)
+        assert re.search(rf"{name}=\"?{re.escape(value)}\"?(\s|$)", recipe), var
+    build = str(tmp_path / "build")
+    rules = chain_rules(ROOT / "Makefile", build, *ACCEPTANCE_VARS)
+    assert check_makefile(ROOT / "Makefile", build, *ACCEPTANCE_VARS) == []
+    # the load is identified on the cell carrying it, and the ISO tests carry and feed it forward
+    ident = rules[f"{build}/payload-100.yaml"]
+    assert ident.command == "identify-payload" and ident.options["--log"] == [
+        f"{build}/excite-log-load-100.mcap"
+    ]
+    cell = rules[f"{build}/excite-log-load-100.mcap"].options["--truth-payload"]
+    assert cell == ["samples/rx130l/truth-payload-100.yaml"]
+    for name in ("run-poses", "run-iso-line", "run-iso-circle", "run-iso-line-0.1"):
+        opts = rules[f"{build}/{name}.mcap"].options
+        assert opts["--payload"] == [f"{build}/payload-100.yaml"], name
+        assert opts["--truth-payload"] == ["samples/rx130l/truth-payload-100.yaml"], name
+    assert rules[f"{build}/iso-line.mcap"].options["--payload"] == [f"{build}/payload-100.yaml"]
+    factory = rules[f"{build}/run-factory-poses.mcap"].options
+    assert "--payload" not in factory and factory["--truth-payload"] == [
+        "samples/rx130l/truth-payload-100.yaml"
+    ]
+    assert factory["--speed-fraction"] == ["0.1"]  # the factory's slower approach with the load on
+    for name in ("run-poses-load-10", "run-iso-line-load-10"):
+        assert rules[f"{build}/{name}.mcap"].options["--payload"] == [f"{build}/payload-10.yaml"]
+    assert {f"{build}/iso9283-load-10.yaml", f"{build}/iso9283-factory-load-10.yaml"} <= set(rules)
+    # the verdict draws time-energy.png (accept --plot) from the curve's runs; the report embeds it
+    verdict = rules[f"{build}/verdict.yaml"].options
+    assert "--plot" in verdict and len(verdict["--commissioned-curve-log"]) >= 2
+    # make commission's reduced set carries none
+    plain = chain_rules(ROOT / "Makefile", build)
+    assert not any("--payload" in r.options or "--truth-payload" in r.options for r in plain.values())
 
 
 @pytest.mark.make

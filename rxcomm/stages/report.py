@@ -34,7 +34,7 @@ from rxcomm.reporting.document import (
 )
 from rxcomm.reporting.exports import exports_section
 from rxcomm.reporting.identification import dynamics_section, excitation_section
-from rxcomm.reporting.iso9283 import iso9283_sections
+from rxcomm.reporting.iso9283 import TestSet, iso9283_sections
 from rxcomm.reporting.runs import (
     energy_section,
     execution_section,
@@ -48,6 +48,7 @@ from rxcomm.schemas.acceptance import Acceptance
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.envelope import Artefact
 from rxcomm.schemas.iso9283 import Iso9283
+from rxcomm.schemas.payload import Payload
 from rxcomm.schemas.run_log import RunLog
 from rxcomm.stages.declarations import DECLARATIONS
 
@@ -181,12 +182,7 @@ def build_report(
     keys |= {"cp": "cp.yaml", "ptp": "ptp.yaml", "run-ff": "run-ff.yaml", "run-noff": "run-noff.yaml"}
     summaries = {k: None if a.get(name) is None else a[name].summary for k, name in keys.items()}
     checks = stage_verdicts(summaries, runs, tol)
-    iso = iso9283_sections(
-        _load(build / "iso9283-factory.yaml", Iso9283),
-        _load(build / "iso9283.yaml", Iso9283),
-        runs,
-        summaries["calibration"],
-    )
+    iso = iso9283_sections(iso_sets(build), runs, summaries["calibration"])
     named = a["calibration.yaml"] or a["dynamics.yaml"] or a["configs.yaml"]
     robot = None if named is None else named.robot
     preamble = (
@@ -216,6 +212,22 @@ def build_report(
         acceptance_sections=[*iso, energy_section(runs)],
     )
     return report, missing
+
+
+def iso_sets(build: Path) -> list[TestSet]:
+    """The build's ISO 9283 test sets: iso9283(-factory).yaml, then iso9283(-factory)-load-L.yaml (make
+    acceptance's further loads, heaviest first), each with the build's identified payloads."""
+    from rxcomm.schemas.plain import sha256_file
+
+    payloads = {}
+    for path in sorted(build.glob("payload-*.yaml")):
+        if (art := _load(path, Payload)) is not None:
+            payloads[path.name] = (sha256_file(path), art)
+    names = [("iso9283-factory.yaml", "iso9283.yaml")]
+    loads = [p for p in build.glob("iso9283-load-*.yaml") if p.stem.rsplit("-", 1)[1].isdigit()]
+    loads.sort(key=lambda p: -int(p.stem.rsplit("-", 1)[1]))
+    names += [(p.name.replace("iso9283-", "iso9283-factory-"), p.name) for p in loads]
+    return [TestSet(_load(build / f, Iso9283), _load(build / c, Iso9283), payloads) for f, c in names]
 
 
 def stale_artefacts(build: Path) -> list[str]:
