@@ -118,8 +118,56 @@ def coulomb_weight(qd: np.ndarray, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> 
     return np.where(first_direction(qd), sliding_weight(qd, eps_rad_s), 1.0)
 
 
+# How long a joint that came to rest takes to let go of the Coulomb term it held through its stop
+# (`held_sign`): a smoothstep over this long, at most 1.5·Fc/RELEASE_S (M900 J1: 330 N·m/s against its
+# 5000 N·m/s torque-rate limit). A rest shorter than this keeps the smooth sign (the joint barely stops).
+RELEASE_S = 0.05
+MOVING_RAD_S = 1e-9  # |q̇| above this is motion; the planners' rests are exact zeros
+
+
+def held_sign(qd: np.ndarray, sample_s: float, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> np.ndarray:
+    """The Coulomb sign [n, k] the feed-forward uses along a plan sampled every ``sample_s``: the smooth
+    sign tanh(q̇/ε), except on a joint's stretch of one sign that ends in a rest of at least
+    RELEASE_S: there it holds its running peak of |tanh(q̇/ε)| down to the stop (a joint sliding to rest
+    has its full friction until it stops; the smooth sign's fade below ε left the M900's J1–J3 stopped
+    0.5–0.75 mrad short at the end of the ISO line's return move, and their integrators wound up the full
+    Fc against the next motion during the dwell, architecture §6.1), then lets go over RELEASE_S while
+    the joint rests: friction at rest is set-valued, so a stuck joint holds any torque within ±Fc and
+    the release moves nothing. Continuous (the hold starts from the sign's own value) and monotone."""
+    qd = np.atleast_2d(np.asarray(qd, dtype=float))
+    c = np.tanh(qd / eps_rad_s)
+    n_release = int(np.ceil(RELEASE_S / sample_s - 1e-9))
+    release = 1.0 - _smoothstep(np.arange(1, n_release + 1) / n_release)
+    for j in range(qd.shape[1]):
+        moving = np.abs(qd[:, j]) > MOVING_RAD_S
+        edges = np.flatnonzero(np.diff(moving.astype(np.int8)))  # last index before each change
+        stops = edges[~moving[edges + 1]] + 1  # first rest sample after a motion
+        for b in stops:
+            after = moving[b:]
+            rest = int(np.argmax(after)) if after.any() else len(after)
+            if rest < n_release:
+                continue
+            s = np.sign(qd[b - 1, j])
+            a = b - 1  # back to where this stretch of one sign began
+            while a > 0 and moving[a - 1] and np.sign(qd[a - 1, j]) == s:
+                a -= 1
+            peak = np.maximum.accumulate(np.abs(c[a:b, j]))
+            c[a:b, j] = s * peak
+            c[b : b + n_release, j] = s * peak[-1] * release
+    return c
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    return x * x * (3.0 - 2.0 * x)
+
+
 def model_torque(
-    robot: Robot, params: DynamicParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+    robot: Robot,
+    params: DynamicParameters,
+    q: np.ndarray,
+    qd: np.ndarray,
+    qdd: np.ndarray,
+    sample_s: float | None = None,
 ) -> np.ndarray:
     """τ = M(q)q̈ + g(q, q̇) of the model (paper eq. 7) along a whole plan ([n, dof] samples in time
     order, from rest to rest): the feed-forward torque.
@@ -128,16 +176,22 @@ def model_torque(
     the feed-forward by 2·Fc through every velocity reversal), weighted by `coulomb_weight`, joint and
     motor friction alike: the smooth sign's fraction of Fc fed forward on top of the friction the
     integrator held pushed the M900's J4, creeping 2 mrad at ≤ 0.52·ε on its CP line, 2 mrad past its
-    demand, where it stuck (architecture §6.1).
+    demand, where it stuck (architecture §6.1). Given the plan's ``sample_s``, the sign is held through
+    each stop into a rest and let go at rest (`held_sign`); without it, the smooth sign throughout.
     """
     eps = COULOMB_EPS_NLP_RAD_S
     tau = RobotDynamics(robot, params, coulomb_eps_rad_s=eps).inverse_dynamics(q, qd, qdd)
     qd = np.asarray(qd, dtype=float)
-    tau -= params.coulomb_nm * np.tanh(qd / eps) * (1.0 - coulomb_weight(qd, eps))
+
+    def sign(v: np.ndarray) -> np.ndarray:
+        return np.tanh(v / eps) if sample_s is None else held_sign(v, sample_s, eps)
+
+    # the model's smooth-sign Coulomb term out, the weighted (held) one in
+    tau += params.coulomb_nm * (coulomb_weight(qd, eps) * sign(qd) - np.tanh(qd / eps))
     if params.has_motor_friction:
         r = robot.joint_to_motor
         vm = qd @ r.T / np.abs(np.diag(r))  # motor speeds on the joint scale, as RobotDynamics smooths them
-        tau -= (params.motor_coulomb_nm * np.tanh(vm / eps) * (1.0 - coulomb_weight(vm, eps))) @ r
+        tau += (params.motor_coulomb_nm * (coulomb_weight(vm, eps) * sign(vm) - np.tanh(vm / eps))) @ r
     return tau
 
 
@@ -181,7 +235,7 @@ def prepare_plan(
     """
     check_plan_shape(robot, traj, what)
     q, qd, qdd = resample(traj, cycle_s)
-    tau = model_torque(robot, params, q, qd, qdd)
+    tau = model_torque(robot, params, q, qd, qdd, cycle_s)
     t = np.arange(q.shape[0]) * cycle_s
     report = check_limits(robot, t, q, qd, qdd, tau)
     if report.max_ratio > 1.0 + limit_tolerance:
