@@ -129,3 +129,82 @@ def test_the_lag_of_a_creeping_joint_after_its_approach_drops_in_the_cell():
     new = j4_lag(lambda *s: model_torque(robot, params, *s))
     print(f"\nJ4 rms lag after the approach: smooth sign {old * 1e3:.3f} mrad, weighted {new * 1e3:.3f}")
     assert old > 1.0e-3 and new < 0.1e-3 and new < old / 10
+
+
+def _m900_lags(moves: list[tuple[int, float, float, float]], end_s: float, window_s: tuple[float, float]):
+    """Max |demand − actual| per joint within ``window_s`` on our plant (M900 truth, the arm starting at
+    rest on its demand), the TRUE model fed forward: (the smooth sign throughout, what `run` sends:
+    `prepare_plan`'s feed-forward). ``moves``: (joint, start s, duration s, Δq rad) 1 − cos bumps."""
+    from rxcomm.execution.plan import prepare_plan
+    from rxcomm.io.trajectory import Trajectory
+
+    truth = load_truth(SAMPLES / "m900" / "truth.yaml")
+    robot, params = truth.robot, truth.params
+    dt = robot.drives.cycle_s
+    t = np.arange(int(round(end_s / dt)) + 1) * dt
+    q, qd, qdd = (np.zeros((len(t), 6)) for _ in range(3))
+    for j, t0, dur, dq in moves:
+        a, b, c = _bump(t, t0, dur, dq)
+        q[:, j] += a
+        qd[:, j] += b
+        qdd[:, j] += c
+    q0 = np.array([-0.34724, 0.60513, 2.23524, -0.0012062, 0.29242, 2.79684])
+    q += q0
+    smooth = RobotDynamics(robot, params, coulomb_eps_rad_s=EPS).inverse_dynamics(q, qd, qdd)
+    sent = prepare_plan(robot, Trajectory(t, q, qd, qdd), params, dt).tau_ff
+    inside = (t >= window_s[0]) & (t <= window_s[1])
+    out = []
+    for ff in (smooth, sent):
+        actual = stream(enabled_core(cell_at(truth, q0)), q, ff)[: len(q)]
+        out.append(np.abs(q - actual)[inside].max(axis=0))
+    return out
+
+
+def test_a_joint_that_stops_into_a_dwell_does_not_wind_up_against_its_next_move():
+    """The M900's ISO line cycles in miniature (architecture §6.1, "through stops and reversals"): J1–J3
+    turn 0.05 rad on a 1 − cos speed profile (its slow tail like the cycles' return move), rest 0.3 s,
+    and turn back in 0.5 s. With the smooth sign the feed-forward's friction fades below ε before the
+    joints stop, they stop short, and in the dwell their integrators wind up the friction against the
+    move back: J1 lags 1.98 mrad as it starts. Held through the stop, the joints stop on their demand."""
+    moves = [(j, 0.0, 1.0, 0.05) for j in range(3)] + [(j, 1.3, 0.5, -0.05) for j in range(3)]
+    smooth, sent = _m900_lags(moves, 1.9, (1.3, 1.55))
+    print(f"\nmax lag J1–J3 after the dwell, mrad: smooth sign {smooth[:3] * 1e3}, sent {sent[:3] * 1e3}")
+    assert smooth[0] > 1.5e-3
+    assert np.all(sent[:3] < 0.3 * smooth[:3]) and sent[:3].max() < 0.6e-3
+
+
+def test_a_slow_reversal_gets_the_friction_of_its_new_direction():
+    """J2 reverses at 0.06 rad/s² (the M900's ISO line at 0.1 m/s reverses J2 at ≈ 0.08): the smooth
+    sign takes 0.6 s to swing through ±0.76·Fc while the joint's friction flips as it passes rest; J2
+    lags 0.82 mrad. The sign flipped over FLIP_S at the reversal: ≤ 0.4 mrad."""
+    smooth, sent = _m900_lags([(1, 0.0, 1.0, -0.015), (1, 0.4, 1.2, 0.03)], 1.8, (0.3, 1.0))
+    print(
+        f"\nJ2 max lag around its reversal, mrad: smooth sign {smooth[1] * 1e3:.3f}, sent {sent[1] * 1e3:.3f}"
+    )
+    assert smooth[1] > 0.6e-3 and sent[1] < 0.4 * smooth[1] and sent[1] < 0.4e-3
+
+
+def test_the_held_sign_is_continuous_and_lets_go_at_rest():
+    """`held_sign` on the creeping-joint plan above: never steeper than the smooth sign plus the flip's
+    3·Δt/FLIP_S (the torque-rate limits the planners kept hold), ±its stretch's peak down to each stop,
+    zero once a joint has rested RELEASE_S, the smooth sign where nothing stops or reverses."""
+    from rxcomm.execution.plan import FLIP_S, RELEASE_S, held_sign
+
+    _, qd, _ = _plan()
+    smooth, held = np.tanh(qd / EPS), held_sign(qd, DT)
+    assert np.all(np.abs(np.diff(held, axis=0)) <= np.abs(np.diff(smooth, axis=0)) + 3 * DT / FLIP_S + 1e-12)
+    t = np.arange(len(qd)) * DT
+    # J1 slides to rest at 0.6 s: its peak held to the stop (the smooth sign had faded to 0), 0 after
+    stop = np.flatnonzero(qd[:, 0] > 0)[-1]
+    assert held[stop, 0] > 0.99 and smooth[stop, 0] < 0.01
+    assert np.all(held[t >= 0.6 + RELEASE_S + DT, 0] == 0.0)
+    # a joint reversing at 0.5 s without resting: the new stretch's peak from FLIP_S/2 after it on
+    tr = np.arange(int(1.2 / DT) + 1) * DT
+    qd_rev = (0.03 * np.sin(2 * np.pi * tr) * (tr < 1.0))[:, None]  # then 0.2 s at rest
+    rev = held_sign(qd_rev, DT)[:, 0]
+    back = (tr >= 0.5 + FLIP_S / 2) & (qd_rev[:, 0] < 0)
+    np.testing.assert_allclose(rev[back], -np.tanh(0.03 / EPS), rtol=1e-9)
+    assert np.abs(np.tanh(qd_rev[back, 0] / EPS)).min() < 0.01  # where the smooth sign had faded
+    # a plan without rests or reversals: the smooth sign exactly
+    qd_one_way = np.outer(np.sin(np.linspace(0, np.pi, 501)), [0.03, -0.2])
+    np.testing.assert_array_equal(held_sign(qd_one_way, DT), np.tanh(qd_one_way / EPS))

@@ -118,42 +118,58 @@ def coulomb_weight(qd: np.ndarray, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> 
     return np.where(first_direction(qd), sliding_weight(qd, eps_rad_s), 1.0)
 
 
-# How long a joint that came to rest takes to let go of the Coulomb term it held through its stop
-# (`held_sign`): a smoothstep over this long, at most 1.5·Fc/RELEASE_S (M900 J1: 330 N·m/s against its
-# 5000 N·m/s torque-rate limit). A rest shorter than this keeps the smooth sign (the joint barely stops).
+# The feed-forward's Coulomb sign through stops and reversals (`held_sign`, architecture §6.1). A joint
+# that came to rest lets go of the sign it held through its stop over RELEASE_S (a smoothstep: at most
+# 1.5·Fc/RELEASE_S, M900 J1 330 N·m/s against its 5000 N·m/s torque-rate limit); a rest shorter than
+# that is a pause (held on the same way) or a reversal. A reversal flips the sign over FLIP_S centred
+# on it (at most 3·Fc/FLIP_S: M900 J1 1.6 kN·m/s).
 RELEASE_S = 0.05
+FLIP_S = 0.02
 MOVING_RAD_S = 1e-9  # |q̇| above this is motion; the planners' rests are exact zeros
 
 
 def held_sign(qd: np.ndarray, sample_s: float, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> np.ndarray:
-    """The Coulomb sign [n, k] the feed-forward uses along a plan sampled every ``sample_s``: the smooth
-    sign tanh(q̇/ε), except on a joint's stretch of one sign that ends in a rest of at least
-    RELEASE_S: there it holds its running peak of |tanh(q̇/ε)| down to the stop (a joint sliding to rest
-    has its full friction until it stops; the smooth sign's fade below ε left the M900's J1–J3 stopped
-    0.5–0.75 mrad short at the end of the ISO line's return move, and their integrators wound up the full
-    Fc against the next motion during the dwell, architecture §6.1), then lets go over RELEASE_S while
-    the joint rests: friction at rest is set-valued, so a stuck joint holds any torque within ±Fc and
-    the release moves nothing. Continuous (the hold starts from the sign's own value) and monotone."""
+    """The Coulomb sign [n, k] the feed-forward uses along a plan sampled every ``sample_s``, per axis
+    and stretch of one sign of ``qd`` [n, k]: from rest, the running peak of |tanh(q̇/ε)| (the planners'
+    smooth sign as the joint breaks away, never falling back), held to the stretch's end; into a rest
+    ≥ RELEASE_S, let go over RELEASE_S while the joint rests; through a reversal, flipped over FLIP_S
+    from the old stretch's peak to the new one's. A joint sliding to rest has its full friction until
+    it stops, and one passing through rest has it the other way as soon as it moves: the smooth sign
+    fades below ε, and its deficit stopped the M900's J1–J3 up to 0.75 mrad short of the ISO line's
+    start, where their integrators wound up the full Fc against the line during the dwell, and held J2
+    back 1.5 mrad through its slow reversal on the line at 0.1 m/s. Friction at rest is set-valued, so
+    a stuck joint holds whatever it is given within ±Fc and the release moves nothing. A plan that ends
+    within a short rest keeps the smooth sign on its last stretch (nothing to release into). Continuous:
+    a sample-to-sample step is at most the smooth sign's plus 3·sample_s/FLIP_S."""
     qd = np.atleast_2d(np.asarray(qd, dtype=float))
     c = np.tanh(qd / eps_rad_s)
+    n = qd.shape[0]
     n_release = int(np.ceil(RELEASE_S / sample_s - 1e-9))
     release = 1.0 - _smoothstep(np.arange(1, n_release + 1) / n_release)
+    half_flip = max(1, int(np.ceil(FLIP_S / 2 / sample_s - 1e-9)))
     for j in range(qd.shape[1]):
-        moving = np.abs(qd[:, j]) > MOVING_RAD_S
-        edges = np.flatnonzero(np.diff(moving.astype(np.int8)))  # last index before each change
-        stops = edges[~moving[edges + 1]] + 1  # first rest sample after a motion
-        for b in stops:
-            after = moving[b:]
-            rest = int(np.argmax(after)) if after.any() else len(after)
-            if rest < n_release:
-                continue
-            s = np.sign(qd[b - 1, j])
-            a = b - 1  # back to where this stretch of one sign began
-            while a > 0 and moving[a - 1] and np.sign(qd[a - 1, j]) == s:
-                a -= 1
+        sg = np.sign(qd[:, j]) * (np.abs(qd[:, j]) > MOVING_RAD_S)
+        cuts = np.r_[0, np.flatnonzero(sg[1:] != sg[:-1]) + 1, n]
+        runs = [(int(a), int(b), sg[a]) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if sg[a] != 0]
+        level, flips = c[:, j].copy(), []
+        for i, (a, b, s) in enumerate(runs):
             peak = np.maximum.accumulate(np.abs(c[a:b, j]))
-            c[a:b, j] = s * peak
-            c[b : b + n_release, j] = s * peak[-1] * release
+            reversed_into = i > 0 and runs[i - 1][2] == -s and a - runs[i - 1][1] < n_release
+            level[a:b] = s * (peak[-1] if reversed_into else peak)
+            gap = (runs[i + 1][0] if i + 1 < len(runs) else n) - b
+            if i + 1 < len(runs) and runs[i + 1][2] == -s and gap < n_release:
+                mid = b + gap // 2
+                flips.append((max(a, mid - half_flip), min(runs[i + 1][1], mid + half_flip)))
+            elif gap >= n_release:
+                level[b : b + n_release] = s * peak[-1] * release
+            elif i + 1 < len(runs):  # a short pause, going on the same way
+                level[b : b + gap] = s * peak[-1]
+            else:
+                level[a:b] = c[a:b, j]
+        c[:, j] = level
+        for lo, hi in flips:
+            r = _smoothstep((np.arange(lo, hi) - lo + 0.5) / (hi - lo))
+            c[lo:hi, j] = (1.0 - r) * level[max(lo - 1, 0)] + r * level[min(hi, n - 1)]
     return c
 
 
