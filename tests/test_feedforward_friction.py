@@ -10,7 +10,7 @@ import numpy as np
 
 from rxcomm.cell.truth import load_truth
 from rxcomm.execution.approach import move_trajectory
-from rxcomm.execution.plan import model_torque, sliding_weight
+from rxcomm.execution.plan import coulomb_weight, model_torque, sliding_weight
 from rxcomm.model.dynamics import COULOMB_EPS_NLP_RAD_S as EPS
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters
 from rxcomm.model.robot import load_robot
@@ -205,6 +205,13 @@ def test_the_held_sign_is_continuous_and_lets_go_at_rest():
     back = (tr >= 0.5 + FLIP_S / 2) & (qd_rev[:, 0] < 0)
     np.testing.assert_allclose(rev[back], -np.tanh(0.03 / EPS), rtol=1e-9)
     assert np.abs(np.tanh(qd_rev[back, 0] / EPS)).min() < 0.01  # where the smooth sign had faded
+    # a creeping joint (weight 0 on its first direction) reversing straight into a faster stretch
+    # (weight 1): the weighted stretches are blended, so its weight's step at the reversal steps nothing
+    qd_creep = (np.where(tr < 0.5, 0.004, 0.010) * np.sin(2 * np.pi * tr) * (tr < 1.0))[:, None]
+    w = coulomb_weight(qd_creep)
+    assert w[0, 0] == 0.0 and w[-1, 0] == 1.0
+    step = np.abs(np.diff(held_sign(qd_creep, DT, weight=w), axis=0))
+    assert np.all(step <= np.abs(np.diff(w * np.tanh(qd_creep / EPS), axis=0)) + 3 * DT / FLIP_S + 1e-12)
     # a plan without rests or reversals: the smooth sign exactly
     qd_one_way = np.outer(np.sin(np.linspace(0, np.pi, 501)), [0.03, -0.2])
     np.testing.assert_array_equal(held_sign(qd_one_way, DT), np.tanh(qd_one_way / EPS))

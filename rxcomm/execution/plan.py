@@ -128,7 +128,12 @@ FLIP_S = 0.02
 MOVING_RAD_S = 1e-9  # |q̇| above this is motion; the planners' rests are exact zeros
 
 
-def held_sign(qd: np.ndarray, sample_s: float, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> np.ndarray:
+def held_sign(
+    qd: np.ndarray,
+    sample_s: float,
+    eps_rad_s: float = COULOMB_EPS_NLP_RAD_S,
+    weight: np.ndarray | None = None,
+) -> np.ndarray:
     """The Coulomb sign [n, k] the feed-forward uses along a plan sampled every ``sample_s``, per axis
     and stretch of one sign of ``qd`` [n, k]: from rest, the running peak of |tanh(q̇/ε)| (the planners'
     smooth sign as the joint breaks away, never falling back), held to the stretch's end; into a rest
@@ -139,9 +144,12 @@ def held_sign(qd: np.ndarray, sample_s: float, eps_rad_s: float = COULOMB_EPS_NL
     start, where their integrators wound up the full Fc against the line during the dwell, and held J2
     back 1.5 mrad through its slow reversal on the line at 0.1 m/s. Friction at rest is set-valued, so
     a stuck joint holds whatever it is given within ±Fc and the release moves nothing. A plan that ends
-    within a short rest keeps the smooth sign on its last stretch (nothing to release into). Continuous:
-    a sample-to-sample step is at most the smooth sign's plus 3·sample_s/FLIP_S."""
+    within a short rest keeps the smooth sign on its last stretch (nothing to release into). ``weight``
+    [n, k] (`coulomb_weight`, constant along a stretch) scales each stretch's sign before the flips
+    blend them, so a creeping joint's weight changing at its first reversal steps nothing. Continuous:
+    a sample-to-sample step is at most the (weighted) smooth sign's plus 3·sample_s/FLIP_S."""
     qd = np.atleast_2d(np.asarray(qd, dtype=float))
+    w = np.ones_like(qd) if weight is None else np.asarray(weight, dtype=float)
     c = np.tanh(qd / eps_rad_s)
     n = qd.shape[0]
     n_release = int(np.ceil(RELEASE_S / sample_s - 1e-9))
@@ -166,6 +174,7 @@ def held_sign(qd: np.ndarray, sample_s: float, eps_rad_s: float = COULOMB_EPS_NL
                 level[b : b + gap] = s * peak[-1]
             else:
                 level[a:b] = c[a:b, j]
+        level *= w[:, j]
         c[:, j] = level
         for lo, hi in flips:
             r = _smoothstep((np.arange(lo, hi) - lo + 0.5) / (hi - lo))
@@ -199,15 +208,16 @@ def model_torque(
     tau = RobotDynamics(robot, params, coulomb_eps_rad_s=eps).inverse_dynamics(q, qd, qdd)
     qd = np.asarray(qd, dtype=float)
 
-    def sign(v: np.ndarray) -> np.ndarray:
-        return np.tanh(v / eps) if sample_s is None else held_sign(v, sample_s, eps)
+    def weighted_sign(v: np.ndarray) -> np.ndarray:
+        w = coulomb_weight(v, eps)
+        return w * np.tanh(v / eps) if sample_s is None else held_sign(v, sample_s, eps, w)
 
     # the model's smooth-sign Coulomb term out, the weighted (held) one in
-    tau += params.coulomb_nm * (coulomb_weight(qd, eps) * sign(qd) - np.tanh(qd / eps))
+    tau += params.coulomb_nm * (weighted_sign(qd) - np.tanh(qd / eps))
     if params.has_motor_friction:
         r = robot.joint_to_motor
         vm = qd @ r.T / np.abs(np.diag(r))  # motor speeds on the joint scale, as RobotDynamics smooths them
-        tau += (params.motor_coulomb_nm * (coulomb_weight(vm, eps) * sign(vm) - np.tanh(vm / eps))) @ r
+        tau += (params.motor_coulomb_nm * (weighted_sign(vm) - np.tanh(vm / eps))) @ r
     return tau
 
 
