@@ -212,6 +212,11 @@ def test_the_held_sign_is_continuous_and_lets_go_at_rest():
     assert w[0, 0] == 0.0 and w[-1, 0] == 1.0
     step = np.abs(np.diff(held_sign(qd_creep, DT, weight=w), axis=0))
     assert np.all(step <= np.abs(np.diff(w * np.tanh(qd_creep / EPS), axis=0)) + 3 * DT / FLIP_S + 1e-12)
+    # a fast reversal (the smooth sign swings within FLIP_S): the smooth sign exactly, up to the stop
+    qd_fast = (0.3 * np.sin(2 * np.pi * tr) * (tr < 1.0))[:, None]
+    fast = held_sign(qd_fast, DT)
+    np.testing.assert_array_equal(fast[tr < 0.75, 0], np.tanh(qd_fast[tr < 0.75, 0] / EPS))
+    assert fast[np.flatnonzero(qd_fast[:, 0])[-1], 0] < -0.99  # held into the final rest
     # a plan without rests or reversals: the smooth sign exactly
     qd_one_way = np.outer(np.sin(np.linspace(0, np.pi, 501)), [0.03, -0.2])
     np.testing.assert_array_equal(held_sign(qd_one_way, DT), np.tanh(qd_one_way / EPS))

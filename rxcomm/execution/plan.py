@@ -121,8 +121,10 @@ def coulomb_weight(qd: np.ndarray, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> 
 # The feed-forward's Coulomb sign through stops and reversals (`held_sign`, architecture §6.1). A joint
 # that came to rest lets go of the sign it held through its stop over RELEASE_S (a smoothstep: at most
 # 1.5·Fc/RELEASE_S, M900 J1 330 N·m/s against its 5000 N·m/s torque-rate limit); a rest shorter than
-# that is a pause (held on the same way) or a reversal. A reversal flips the sign over FLIP_S centred
-# on it (at most 3·Fc/FLIP_S: M900 J1 1.6 kN·m/s).
+# that is a pause (held on the same way) or a reversal. A reversal on which the smooth sign takes longer
+# than FLIP_S to swing (half its peak one way to half the other) is flipped over FLIP_S centred on it
+# (at most 3·Fc/FLIP_S: M900 J1 1.6 kN·m/s); a faster one keeps the smooth sign, so a plan with neither
+# rests nor slow reversals (the planners' CP and PtP plans) gets exactly the planners' friction model.
 RELEASE_S = 0.05
 FLIP_S = 0.02
 MOVING_RAD_S = 1e-9  # |q̇| above this is motion; the planners' rests are exact zeros
@@ -134,20 +136,21 @@ def held_sign(
     eps_rad_s: float = COULOMB_EPS_NLP_RAD_S,
     weight: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The Coulomb sign [n, k] the feed-forward uses along a plan sampled every ``sample_s``, per axis
-    and stretch of one sign of ``qd`` [n, k]: from rest, the running peak of |tanh(q̇/ε)| (the planners'
-    smooth sign as the joint breaks away, never falling back), held to the stretch's end; into a rest
-    ≥ RELEASE_S, let go over RELEASE_S while the joint rests; through a reversal, flipped over FLIP_S
-    from the old stretch's peak to the new one's. A joint sliding to rest has its full friction until
-    it stops, and one passing through rest has it the other way as soon as it moves: the smooth sign
-    fades below ε, and its deficit stopped the M900's J1–J3 up to 0.75 mrad short of the ISO line's
-    start, where their integrators wound up the full Fc against the line during the dwell, and held J2
-    back 1.5 mrad through its slow reversal on the line at 0.1 m/s. Friction at rest is set-valued, so
-    a stuck joint holds whatever it is given within ±Fc and the release moves nothing. A plan that ends
-    within a short rest keeps the smooth sign on its last stretch (nothing to release into). ``weight``
-    [n, k] (`coulomb_weight`, constant along a stretch) scales each stretch's sign before the flips
-    blend them, so a creeping joint's weight changing at its first reversal steps nothing. Continuous:
-    a sample-to-sample step is at most the (weighted) smooth sign's plus 3·sample_s/FLIP_S."""
+    """The Coulomb sign [n, k] the feed-forward uses along a plan sampled every ``sample_s``: the
+    smooth sign tanh(q̇/ε), except per axis on a stretch of one sign of ``qd`` [n, k] that ends in a
+    rest ≥ RELEASE_S, a pause or a slow reversal: from its peak |tanh| on held to its end; into the
+    rest, let go over RELEASE_S while the joint rests; through a slow reversal, flipped over FLIP_S
+    from the old stretch's peak to the new one's (held from the reversal on). A joint sliding to rest
+    has its full friction until it stops, and one passing through rest has it the other way as soon as
+    it moves: the smooth sign fades below ε, and its deficit stopped the M900's J1–J3 up to 0.75 mrad
+    short of the ISO line's start, where their integrators wound up the full Fc against the line during
+    the dwell, and held J2 back 1.5 mrad through its slow reversal on the line at 0.1 m/s. Friction at
+    rest is set-valued, so a stuck joint holds whatever it is given within ±Fc and the release moves
+    nothing. A plan that ends within a short rest keeps the smooth sign on its last stretch (nothing
+    to release into). ``weight`` [n, k] (`coulomb_weight`, constant along a stretch) scales each
+    stretch's sign before the flips blend them, so a creeping joint's weight changing at its first
+    reversal steps nothing. Continuous: a sample-to-sample step is at most the (weighted) smooth
+    sign's plus 3·sample_s/FLIP_S."""
     qd = np.atleast_2d(np.asarray(qd, dtype=float))
     w = np.ones_like(qd) if weight is None else np.asarray(weight, dtype=float)
     c = np.tanh(qd / eps_rad_s)
@@ -159,27 +162,45 @@ def held_sign(
         sg = np.sign(qd[:, j]) * (np.abs(qd[:, j]) > MOVING_RAD_S)
         cuts = np.r_[0, np.flatnonzero(sg[1:] != sg[:-1]) + 1, n]
         runs = [(int(a), int(b), sg[a]) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if sg[a] != 0]
+        mag = [np.abs(c[a:b, j]) for a, b, _ in runs]
+        gaps = [(runs[i + 1][0] if i + 1 < len(runs) else n) - b for i, (_, b, _) in enumerate(runs)]
+        slow = [
+            i + 1 < len(runs)
+            and runs[i + 1][2] == -s
+            and gaps[i] < n_release
+            and _swing(mag[i], mag[i + 1], b, runs[i + 1][0]) > 2 * half_flip
+            for i, (_, b, s) in enumerate(runs)
+        ]
         level, flips = c[:, j].copy(), []
         for i, (a, b, s) in enumerate(runs):
-            peak = np.maximum.accumulate(np.abs(c[a:b, j]))
-            reversed_into = i > 0 and runs[i - 1][2] == -s and a - runs[i - 1][1] < n_release
-            level[a:b] = s * (peak[-1] if reversed_into else peak)
-            gap = (runs[i + 1][0] if i + 1 < len(runs) else n) - b
-            if i + 1 < len(runs) and runs[i + 1][2] == -s and gap < n_release:
-                mid = b + gap // 2
+            m, k = mag[i].copy(), int(np.argmax(mag[i]))
+            pause = i + 1 < len(runs) and runs[i + 1][2] == s and gaps[i] < n_release
+            if slow[i] or pause or gaps[i] >= n_release:
+                m[k:] = m[k]  # held from its peak to the stretch's end
+            if i > 0 and slow[i - 1]:
+                m[:k] = m[k]  # the new direction's friction from the reversal on
+            level[a:b] = s * m
+            if gaps[i] >= n_release:
+                level[b : b + n_release] = s * m[k] * release
+            elif pause:
+                level[b : b + gaps[i]] = s * m[k]
+            if slow[i]:
+                mid = b + gaps[i] // 2
                 flips.append((max(a, mid - half_flip), min(runs[i + 1][1], mid + half_flip)))
-            elif gap >= n_release:
-                level[b : b + n_release] = s * peak[-1] * release
-            elif i + 1 < len(runs):  # a short pause, going on the same way
-                level[b : b + gap] = s * peak[-1]
-            else:
-                level[a:b] = c[a:b, j]
         level *= w[:, j]
         c[:, j] = level
         for lo, hi in flips:
             r = _smoothstep((np.arange(lo, hi) - lo + 0.5) / (hi - lo))
             c[lo:hi, j] = (1.0 - r) * level[max(lo - 1, 0)] + r * level[min(hi, n - 1)]
     return c
+
+
+def _swing(before: np.ndarray, after: np.ndarray, end: int, start: int) -> int:
+    """Samples the smooth sign takes through a reversal: from the last sample of the stretch ending at
+    ``end`` at half its peak |tanh| to the first of the one starting at ``start`` at half its peak."""
+    last = int(np.flatnonzero(before >= 0.5 * before.max())[-1]) - len(before)
+    first = int(np.flatnonzero(after >= 0.5 * after.max())[0])
+    return start + first - (end + last)
 
 
 def _smoothstep(x: np.ndarray) -> np.ndarray:
