@@ -57,12 +57,9 @@ class MeasurementsSummary(Strict):
     seconds: float | None = None
 
 
-class Measurements(Artefact):
-    KIND = "rxcomm/Measurements"
-    SCHEMA_VERSION = 1
-    settings: MeasurementsSettings
-    summary: MeasurementsSummary
-
+class Measurements(
+    Artefact[MeasurementsSettings, MeasurementsSummary], kind="rxcomm/Measurements", schema_version=1
+):
     robot: str = Field(description="robot name (URDF)")
     joint_names: list[str]
     tracker_to_base: Placement | None = Field(

@@ -153,13 +153,8 @@ class RunLogSummary(Strict):
     planned_duration_s: float | None = Field(None, description="while running: the plan's duration")
 
 
-class RunLog(McapSummary):
+class RunLog(McapSummary[RunLogSettings, RunLogSummary], kind="rxcomm/RunLog", schema_version=1):
     """Envelope + summary of a run log MCAP, plus how to read it."""
-
-    KIND = "rxcomm/RunLog"
-    SCHEMA_VERSION = 1
-    settings: RunLogSettings
-    summary: RunLogSummary
 
     joint_names: list[str]
     cycle_s: float = Field(gt=0, description="drive cycle of the gateway, s")
