@@ -11,7 +11,7 @@ from rxcomm.errors import InputError
 from rxcomm.model.geometric_errors import (
     ErrorModel,
     identifiable_parameters,
-    identification_jacobian,
+    identification_jacobians,
     measured_pose,
     parameter_names,
     predict_poses,
@@ -107,7 +107,7 @@ def test_identification_jacobian_equals_central_differences(robot, position_only
     errors, t2b = _errors_and_t2b(robot)  # at the (non-zero) truth: exercises the exp6 right Jacobian
     rng = np.random.default_rng(2)
     for q in random_poses(robot, 3, rng):
-        jac = identification_jacobian(robot, q, errors, t2b, position_only, point)
+        jac = identification_jacobians(robot, q[None], errors, t2b, position_only, point)[0]
         fd = _fd_jacobian(robot, q, errors, t2b, position_only, point)
         assert jac.shape == (3 if position_only else 6, 48)
         rel = np.max(np.abs(jac - fd)) / np.max(np.abs(jac))

@@ -11,7 +11,6 @@ import textwrap
 import threading
 import time
 from pathlib import Path
-from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -57,11 +56,7 @@ class DemoSummary(BaseModel):
     per_joint_rad: list[float] | None = None
 
 
-class Demo(Artefact):
-    KIND: ClassVar[str] = "rxcomm/Demo"
-    SCHEMA_VERSION: ClassVar[int] = 1
-    settings: DemoSettings
-    summary: DemoSummary
+class Demo(Artefact[DemoSettings, DemoSummary], kind="rxcomm/Demo", schema_version=1):
     joints: list[Joint]
     params_m: list[float]
 

@@ -51,11 +51,8 @@ def test_kinds_and_file_names_are_unique() -> None:
 
 
 def test_file_names() -> None:
-    class RunLog(Artefact):
-        KIND = "rxcomm/RunLog"
-        SCHEMA_VERSION = 1
-        settings: Strict
-        summary: Strict
+    class RunLog(Artefact[Strict, Strict], kind="rxcomm/RunLog", schema_version=1):
+        pass
 
     class CellConfig(BaseModel):
         pass
@@ -81,17 +78,23 @@ def test_a_kind_with_an_untyped_summary_or_settings_is_refused() -> None:
     """Issue 28: every kind narrows summary and settings to models; a dict fails when it is defined."""
     with pytest.raises(TypeError, match="Loose.summary must be a pydantic model"):
 
-        class Loose(Artefact):
-            KIND = "rxcomm/Loose"
-            SCHEMA_VERSION = 1
-            settings: Strict
+        class Loose(Artefact[Strict, dict[str, float]], kind="rxcomm/Loose", schema_version=1):
+            pass
 
     with pytest.raises(TypeError, match="Loose2.settings must be a pydantic model"):
 
-        class Loose2(Artefact):
-            KIND = "rxcomm/Loose2"
-            SCHEMA_VERSION = 1
-            summary: Strict
+        class Loose2(Artefact[dict[str, float], Strict], kind="rxcomm/Loose2", schema_version=1):
+            pass
+
+    with pytest.raises(TypeError, match="Bare.summary must be a pydantic model"):
+
+        class Bare(Artefact, kind="rxcomm/Bare", schema_version=1):
+            pass
+
+    with pytest.raises(TypeError, match="Kindless must set kind="):
+
+        class Kindless(Artefact[Strict, Strict]):
+            pass
 
 
 # ---- what `run` and the planners record (issue 28: no untyped settings) ---------------------------

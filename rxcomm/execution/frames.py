@@ -16,14 +16,12 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.io.foxglove import (
-    FRAME_TRANSFORMS,
-    FRAME_TRANSFORMS_SCHEMA,
-    POSE_IN_FRAME,
-    POSE_IN_FRAME_SCHEMA,
-    STRING_SCHEMA,
+    add_frame_transforms_channel,
+    add_pose_channel,
     frame_transforms_json,
     frame_transforms_template,
     pose_in_frame,
+    write_robot_description,
 )
 from rxcomm.io.mcap_io import McapWriter
 from rxcomm.model.robot import Robot
@@ -117,6 +115,27 @@ def tcp_poses(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pos, rot
 
 
+def write_view(
+    w: McapWriter,
+    topics: tuple[str, str],
+    template: str,
+    root: str,
+    t: np.ndarray,
+    links: tuple[np.ndarray, np.ndarray],
+    tcp: tuple[np.ndarray, np.ndarray],
+    decimals: int | None = None,
+) -> None:
+    """One robot's 3D view at log times ``t`` (s): on ``topics[0]`` the links' FrameTransforms
+    (``template`` of `frame_transforms_template` filled with ``links``, `link_transforms`), on
+    ``topics[1]`` the TCP's PoseInFrame in the ``root`` link (``tcp``, `tcp_poses`)."""
+    tf_topic, tcp_topic = topics
+    ns = w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
+    for i in range(len(t)):
+        stamp_ns, t_i = int(ns[i]), float(t[i])
+        w.write_json(tf_topic, t_i, frame_transforms_json(template, stamp_ns, links[0][i], links[1][i]))
+        w.write(tcp_topic, t_i, pose_in_frame(stamp_ns, root, tcp[0][i], tcp[1][i], decimals))
+
+
 class FoxgloveFrames:
     """The 3D panel's channels of a run log: FK of every k-th sample (k: at most FOXGLOVE_RATE_HZ)."""
 
@@ -140,20 +159,14 @@ class FoxgloveFrames:
         self.tracker_period_s: float | None = None
         self._templates: dict[str, str] = {}
         for topic in (TF_TOPIC, TF_DEMAND_TOPIC):
-            w.add_channel(topic, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
+            add_frame_transforms_channel(w, topic)
         for topic in (TCP_TOPIC, TCP_DEMAND_TOPIC):
-            fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
-            w.add_channel(topic, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
-        # The URDF itself, so the 3D panel's URDF layers (source: topic) need no file of their own.
-        w.add_channel(ROBOT_DESCRIPTION_TOPIC, "std_msgs/String", {"data": {}}, schema=STRING_SCHEMA)
-        urdf = robot.urdf_path.read_text() if view is None else view.urdf_text
-        w.write(ROBOT_DESCRIPTION_TOPIC, 0.0, {"data": urdf})
+            add_pose_channel(w, topic)
+        write_robot_description(w, 0.0, robot.urdf_path.read_text() if view is None else view.urdf_text)
         self.has_tracker_frame = view is not None
         if view is not None:
             inv = view.tracker_to_base.inverse()  # the tracker frame in the root link
-            w.add_channel(
-                TF_TRACKER_TOPIC, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA
-            )
+            add_frame_transforms_channel(w, TF_TRACKER_TOPIC)
             text = frame_transforms_json(
                 frame_transforms_template([(self.tree.root, "tracker")]),
                 w.time_origin_ns,
@@ -169,8 +182,7 @@ class FoxgloveFrames:
         if not pick.any():
             return
         t = rows[pick] * self.sample_s
-        ns = self.w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
-        tree, root = self.tree, self.tree.root
+        tree = self.tree
         demand_pairs = list(tree.prefixed(DEMAND_PREFIX))
         for q, tf_topic, tcp_topic, pairs in (
             (q_actual[pick], TF_TOPIC, TCP_TOPIC, list(tree.pairs)),
@@ -180,13 +192,11 @@ class FoxgloveFrames:
             if tf_topic == TF_DEMAND_TOPIC:  # the prefixed root at the actual root
                 trans = np.concatenate([np.zeros((len(q), 1, 3)), trans], axis=1)
                 rot = np.concatenate([np.tile([0.0, 0.0, 0.0, 1.0], (len(q), 1, 1)), rot], axis=1)
-            pos, ori = tcp_poses(self.robot, q)
             template = self._templates.setdefault(tf_topic, frame_transforms_template(pairs, self.decimals))
-            for i in range(len(q)):
-                stamp_ns = int(ns[i])
-                self.w.write_json(tf_topic, t[i], frame_transforms_json(template, stamp_ns, trans[i], rot[i]))
-                pose = pose_in_frame(stamp_ns, root, pos[i], ori[i], self.decimals)
-                self.w.write(tcp_topic, t[i], pose)
+            tcp = tcp_poses(self.robot, q)
+            write_view(
+                self.w, (tf_topic, tcp_topic), template, tree.root, t, (trans, rot), tcp, self.decimals
+            )
         self.n += int(pick.sum())
 
     def tracker(
@@ -197,8 +207,7 @@ class FoxgloveFrames:
         at ``rate_hz``, at most FOXGLOVE_RATE_HZ like the other 3D channels. Once per log."""
         if self.n_tracker:
             raise ValueError("tracker poses already written")
-        fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
-        self.w.add_channel(TRACKER_POSE_TOPIC, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
+        add_pose_channel(self.w, TRACKER_POSE_TOPIC)
         self.tracker_stride = max(1, math.ceil(rate_hz / FOXGLOVE_RATE_HZ - 1e-9))
         self.tracker_period_s = self.tracker_stride / rate_hz
         k = self.tracker_stride

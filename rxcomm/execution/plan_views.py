@@ -12,16 +12,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from rxcomm.execution.frames import link_transforms, link_tree, tcp_poses
+from rxcomm.execution.frames import link_transforms, link_tree, tcp_poses, write_view
 from rxcomm.io.foxglove import (
-    FRAME_TRANSFORMS,
-    FRAME_TRANSFORMS_SCHEMA,
-    POSE_IN_FRAME,
-    POSE_IN_FRAME_SCHEMA,
-    STRING_SCHEMA,
-    frame_transforms_json,
+    add_frame_transforms_channel,
+    add_pose_channel,
     frame_transforms_template,
-    pose_in_frame,
+    write_robot_description,
 )
 from rxcomm.io.mcap_io import McapWriter
 from rxcomm.io.trajectory import Trajectory
@@ -47,19 +43,11 @@ def plan_views(robot: Robot, urdf_text: str | None = None) -> Callable[[McapWrit
         tree = link_tree(robot)
         rows = view_rows(traj.t)
         q, t = traj.q[rows], traj.t[rows]
-        trans, rot = link_transforms(robot, tree, q)
-        pos, ori = tcp_poses(robot, q)
-        w.add_channel(PLAN_TF_TOPIC, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
-        fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
-        w.add_channel(PLAN_TCP_TOPIC, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
-        w.add_channel(ROBOT_DESCRIPTION_TOPIC, "std_msgs/String", {"data": {}}, schema=STRING_SCHEMA)
-        w.write(ROBOT_DESCRIPTION_TOPIC, float(traj.t[0]), {"data": urdf_text or robot.urdf_path.read_text()})
+        add_frame_transforms_channel(w, PLAN_TF_TOPIC)
+        add_pose_channel(w, PLAN_TCP_TOPIC)
+        write_robot_description(w, float(traj.t[0]), urdf_text or robot.urdf_path.read_text())
         template = frame_transforms_template(list(tree.pairs))
-        ns = w.time_origin_ns + np.round(t * 1e9).astype(np.int64)
-        for i in range(len(rows)):
-            w.write_json(
-                PLAN_TF_TOPIC, float(t[i]), frame_transforms_json(template, int(ns[i]), trans[i], rot[i])
-            )
-            w.write(PLAN_TCP_TOPIC, float(t[i]), pose_in_frame(int(ns[i]), tree.root, pos[i], ori[i]))
+        links, tcp = link_transforms(robot, tree, q), tcp_poses(robot, q)
+        write_view(w, (PLAN_TF_TOPIC, PLAN_TCP_TOPIC), template, tree.root, t, links, tcp)
 
     return write

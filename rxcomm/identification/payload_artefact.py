@@ -9,7 +9,7 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.identification.payload import PayloadResult
-from rxcomm.identification.settings import IdentifySettings
+from rxcomm.identification.settings import MODEL_SETTINGS, IdentifySettings
 from rxcomm.identification.validation import Validation
 from rxcomm.io.validate import settings_from_options
 from rxcomm.model.payload import FlangeInertia
@@ -21,8 +21,6 @@ from rxcomm.schemas.payload import (
     PayloadValidation,
     body_inertia_problem,
 )
-
-MODEL_SETTINGS = ("cutoff_hz", "decimate_hz", "min_speed_rad_s", "friction", "filter_order", "torque_lag_s")
 
 
 def model_settings(art: Dynamics) -> IdentifySettings:

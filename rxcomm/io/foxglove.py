@@ -10,11 +10,15 @@ builds its transform tree from every FrameTransforms channel, so a URDF whose li
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from rxcomm.io.mcap_format import NS, TIME_SCHEMA
+from rxcomm.schemas.run_log import ROBOT_DESCRIPTION_TOPIC
+
+if TYPE_CHECKING:
+    from rxcomm.io.mcap_io import McapWriter
 
 FRAME_TRANSFORMS = "foxglove.FrameTransforms"
 POSE_IN_FRAME = "foxglove.PoseInFrame"
@@ -70,6 +74,24 @@ STRING_SCHEMA: dict[str, Any] = {
     "type": "object",
     "properties": {"data": {"type": "string", "description": "the robot's URDF (XML)"}},
 }
+
+
+def add_frame_transforms_channel(w: McapWriter, topic: str) -> None:
+    """Register a foxglove.FrameTransforms channel (part of the 3D panel's transform tree)."""
+    w.add_channel(topic, FRAME_TRANSFORMS, {"transforms": {}}, schema=FRAME_TRANSFORMS_SCHEMA)
+
+
+def add_pose_channel(w: McapWriter, topic: str) -> None:
+    """Register a foxglove.PoseInFrame channel (messages: :func:`pose_in_frame`)."""
+    fields = {"timestamp": {}, "frame_id": {}, "pose": {}}
+    w.add_channel(topic, POSE_IN_FRAME, fields, schema=POSE_IN_FRAME_SCHEMA)
+
+
+def write_robot_description(w: McapWriter, t: float, urdf_text: str) -> None:
+    """The URDF itself on ``/robot_description``, so the 3D panel's URDF layers (source: topic) need no
+    file of their own."""
+    w.add_channel(ROBOT_DESCRIPTION_TOPIC, "std_msgs/String", {"data": {}}, schema=STRING_SCHEMA)
+    w.write(ROBOT_DESCRIPTION_TOPIC, t, {"data": urdf_text})
 
 
 def stamp(ns: int) -> dict[str, int]:

@@ -24,7 +24,7 @@ real TCP in the cell's nominal robot base frame, and `measured_pose` = tracker_t
 Paper symbols: p_n are the nominal placements M_j, F_tcp of the URDF / drives.yaml; p_e is
 `ErrorModel.values` (the paper's p_e ∈ R³⁹ is a subset of our 48: 6·3 lengths, 6 offsets, 6·2
 misalignments, 3 base terms); z_E = f_DKe(q, p_n, p_e) is `measured_pose`; Θ̂ (= ∂e/∂p_e, the
-identification Jacobian, eq. 11) is `identification_jacobian` (up to sign: we differentiate the
+identification Jacobian, eq. 11) is `identification_jacobians` (up to sign: we differentiate the
 prediction, the paper the error e = z_M − f_DKe); Λ = ΘᵀΘ is the information matrix of §3.3.
 
 Identification Jacobian. Rows are the measured quantity's first-order change: position of the
@@ -324,18 +324,6 @@ def joint_offset_names(robot: Robot) -> tuple[str, ...]:
         f"{name}.{COMPONENTS[3 + int(np.argmax(np.abs(axes[j])))]}"
         for j, name in enumerate(robot.joint_names)
     )
-
-
-def identification_jacobian(
-    robot: Robot,
-    q: np.ndarray,
-    errors: ErrorModel | None = None,
-    tracker_to_base: pin.SE3 | None = None,
-    position_only: bool = False,
-    point: np.ndarray | None = None,
-) -> np.ndarray:
-    """[6 or 3, 48] for one pose (see `identification_jacobians`)."""
-    return identification_jacobians(robot, np.atleast_2d(q), errors, tracker_to_base, position_only, point)[0]
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -129,12 +129,7 @@ class AcceptanceSummary(Strict):
     n_not_measured: int
 
 
-class Acceptance(Artefact):
+class Acceptance(Artefact[AcceptanceSettings, AcceptanceSummary], kind="rxcomm/Acceptance", schema_version=1):
     """Factory vs commissioned, criterion by criterion, with the verdict."""
-
-    KIND = "rxcomm/Acceptance"
-    SCHEMA_VERSION = 1
-    settings: AcceptanceSettings
-    summary: AcceptanceSummary
 
     rows: list[VerdictRow]

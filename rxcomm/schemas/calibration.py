@@ -210,12 +210,9 @@ class CalibrationSummary(Strict):
     stiffness_std_nm_per_rad: dict[str, float | None] = Field({}, description="joint name -> its 1σ, N·m/rad")
 
 
-class Calibration(Artefact):
-    KIND = "rxcomm/Calibration"
-    SCHEMA_VERSION = 2
-    settings: CalibrateSettings
-    summary: CalibrationSummary
-
+class Calibration(
+    Artefact[CalibrateSettings, CalibrationSummary], kind="rxcomm/Calibration", schema_version=2
+):
     robot: str
     joint_names: list[str]
     measurement: Literal["pose", "position"]

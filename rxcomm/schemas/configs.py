@@ -84,12 +84,7 @@ class ConfigsSummary(Strict):
     rejected_joint_limits: int | None = None
 
 
-class Configs(Artefact):
-    KIND = "rxcomm/Configs"
-    SCHEMA_VERSION = 2
-    settings: ConfigsSettings
-    summary: ConfigsSummary
-
+class Configs(Artefact[ConfigsSettings, ConfigsSummary], kind="rxcomm/Configs", schema_version=2):
     robot: str
     joint_names: list[str]
     criterion: Literal["min-eig", "det-root", "cond"]

@@ -219,12 +219,7 @@ class DynamicsSummary(Strict):
     cutoff_grid_cv_nrmse: list[float | None] | None = None
 
 
-class Dynamics(Artefact):
-    KIND = "rxcomm/Dynamics"
-    SCHEMA_VERSION = 1
-    settings: IdentifySettings
-    summary: DynamicsSummary
-
+class Dynamics(Artefact[IdentifySettings, DynamicsSummary], kind="rxcomm/Dynamics", schema_version=1):
     robot: str = Field(description="robot name (URDF)")
     robot_joints: list[str]
     parameter_names: list[str] = Field(description="full parameter names, regressor column order")

@@ -1,33 +1,32 @@
 """The artefact envelope every rxcomm artefact carries (architecture §3).
 
-Subclasses are the artefacts of the stages. They set ``KIND`` (``"rxcomm/Calibration"``) and
-``SCHEMA_VERSION`` (class variables, declared here once: a subclass assigns them without annotation,
-as it does ``model_config``), narrow ``summary`` and ``settings`` to their own models (`Strict`:
-an unknown or renamed key is an error naming it; units in the field names; an optional field is
-None when not measured, and an older file without it still reads), and add their data fields
-after the envelope fields::
+Subclasses are the artefacts of the stages. A kind is declared in its class line: ``Artefact`` is
+parametrised by the kind's settings and summary models (`Strict`: an unknown or renamed key is an
+error naming it; units in the field names; an optional field is None when not measured, and an older
+file without it still reads), and the class keywords ``kind`` and ``schema_version`` set the class
+variables ``KIND`` (``"rxcomm/Calibration"``) and ``SCHEMA_VERSION``. The kind's data fields follow
+the envelope fields::
 
-    class Calibration(Artefact):
-        KIND = "rxcomm/Calibration"
-        SCHEMA_VERSION = 1
-        settings: CalibrateSettings
-        summary: CalibrationSummary
+    class Calibration(Artefact[CalibrateSettings, CalibrationSummary], kind="rxcomm/Calibration",
+                      schema_version=2):
+        robot: str
         params_m: list[float]
 
     cal = Calibration(**Calibration.envelope({"robot": urdf_path}, settings, summary), params_m=[...])
 
-A kind that leaves ``summary`` or ``settings`` a dict is refused when its class is defined. The bare
-``Artefact`` (no ``KIND``) validates the envelope fields of any kind; the MCAP reader uses it.
-The summary YAML beside an MCAP (a trajectory, a run log) derives from ``McapSummary``, which adds the
-MCAP's file name and hash after the envelope. A base of kinds that is no kind itself says
-``__abstract__ = True``.
+A kind that leaves ``summary`` or ``settings`` a dict (not parametrised) is refused when its class is
+defined. The bare ``Artefact`` (no ``KIND``) validates the envelope fields of any kind; the MCAP
+reader uses it. The summary YAML beside an MCAP (a trajectory, a run log) derives from
+``McapSummary``, which adds the MCAP's file name and hash after the envelope. A base of kinds that is
+no kind itself says ``__abstract__ = True``; a kind that overrides ``settings`` or ``summary`` (to
+describe it) keeps the same model.
 """
 
 from __future__ import annotations
 
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, get_args
+from typing import Annotated, Any, ClassVar, Generic, get_args
 
 from pydantic import (
     BaseModel,
@@ -38,6 +37,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from typing_extensions import TypeVar
 
 import rxcomm
 from rxcomm.code_identity import code_identity
@@ -55,6 +55,9 @@ ENVELOPE_FIELDS = (
     "settings",
     "summary",
 )
+# A kind's settings and summary models; the bare envelope (any kind) reads them as mappings.
+SettingsT = TypeVar("SettingsT", default=dict[str, Any])
+SummaryT = TypeVar("SummaryT", default=dict[str, SummaryValue])
 
 
 def _schema_extra(schema: dict[str, Any], cls: type) -> None:
@@ -74,7 +77,7 @@ def _is_model(annotation: Any) -> bool:
     return bool(args) and all(_is_model(a) for a in args)
 
 
-class Artefact(BaseModel):
+class Artefact(BaseModel, Generic[SettingsT, SummaryT]):
     """Envelope fields shared by every artefact; subclasses add their data after them."""
 
     model_config = ConfigDict(extra="forbid", json_schema_extra=_schema_extra)
@@ -93,22 +96,37 @@ class Artefact(BaseModel):
         "(rxcomm/code_identity.py)",
     )
     inputs: dict[str, Sha256Hex]
-    # The bare envelope (any kind) only: every kind narrows both to its models.
-    settings: dict[str, Any]
-    summary: dict[str, SummaryValue]
+    settings: SettingsT
+    summary: SummaryT
+
+    def __init_subclass__(cls, kind: str | None = None, schema_version: int | None = None, **kwargs: Any):
+        # The class keywords of a kind's class line (pydantic passes them on here and below).
+        super().__init_subclass__(**kwargs)
+        if kind is not None:
+            cls.KIND = kind
+        if schema_version is not None:
+            cls.SCHEMA_VERSION = schema_version
 
     @classmethod
     def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
+        kwargs.pop("kind", None)
+        kwargs.pop("schema_version", None)
         super().__pydantic_init_subclass__(**kwargs)
-        if cls.__dict__.get("__abstract__"):
+        # A base of kinds, or a parametrisation `Artefact[S, U]` on its way to one.
+        if cls.__dict__.get("__abstract__") or cls.__pydantic_generic_metadata__["origin"] is not None:
             return
         if not isinstance(getattr(cls, "KIND", None), str) or not isinstance(
             getattr(cls, "SCHEMA_VERSION", None), int
         ):
-            raise TypeError(f"{cls.__name__} must set KIND (a str) and SCHEMA_VERSION (an int)")
+            raise TypeError(
+                f"{cls.__name__} must set kind= (a str) and schema_version= (an int) in its class line"
+            )
         for name in ("summary", "settings"):
             if not _is_model(cls.model_fields[name].annotation):
-                raise TypeError(f"{cls.__name__}.{name} must be a pydantic model (units in its field names)")
+                raise TypeError(
+                    f"{cls.__name__}.{name} must be a pydantic model (units in its field names): "
+                    "parametrise Artefact[SettingsModel, SummaryModel]"
+                )
 
     @model_validator(mode="before")
     @classmethod
@@ -170,7 +188,7 @@ class Artefact(BaseModel):
         return self.model_dump(mode="json", include=set(ENVELOPE_FIELDS))
 
 
-class McapSummary(Artefact):
+class McapSummary(Artefact[SettingsT, SummaryT]):
     """The summary YAML beside an MCAP (``NAME.mcap`` -> ``NAME.yaml``): envelope, the MCAP's file name
     and hash, then the kind's fields. The MCAP carries the same envelope as its ``rxcomm/envelope``
     metadata record."""

@@ -97,12 +97,7 @@ class ExcitationSummary(Strict):
     starts_feasible: int | None = None
 
 
-class Excitation(Artefact):
-    KIND = "rxcomm/Excitation"
-    SCHEMA_VERSION = 1
-    settings: ExcitationSettings
-    summary: ExcitationSummary
-
+class Excitation(Artefact[ExcitationSettings, ExcitationSummary], kind="rxcomm/Excitation", schema_version=1):
     robot: str = Field(description="robot name (URDF)")
     robot_joints: list[str]
     harmonics: int

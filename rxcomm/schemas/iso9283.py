@@ -115,13 +115,8 @@ class Iso9283Summary(Strict):
     measuring_window_s: float | None = None
 
 
-class Iso9283(Artefact):
+class Iso9283(Artefact[Iso9283Settings, Iso9283Summary], kind="rxcomm/Iso9283", schema_version=1):
     """ISO 9283 criteria measured by the tracker on one state of the robot."""
-
-    KIND = "rxcomm/Iso9283"
-    SCHEMA_VERSION = 1
-    settings: Iso9283Settings
-    summary: Iso9283Summary
 
     robot: str
     cube: CubeDefinition

@@ -64,12 +64,7 @@ class KinematicsSummary(Strict):
     n_sample_poses: int
 
 
-class Kinematics(Artefact):
-    KIND = "rxcomm/Kinematics"
-    SCHEMA_VERSION = 1
-    settings: KinematicsSettings
-    summary: KinematicsSummary
-
+class Kinematics(Artefact[KinematicsSettings, KinematicsSummary], kind="rxcomm/Kinematics", schema_version=1):
     robot: str
     joint_names: list[str]
     convention: str = Field(description="the row transform, spelled out")

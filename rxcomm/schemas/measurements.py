@@ -18,6 +18,7 @@ from pydantic import Field, model_validator
 
 from rxcomm.schemas.cell import Placement
 from rxcomm.schemas.envelope import Artefact
+from rxcomm.schemas.run_log import RunReport
 from rxcomm.schemas.run_settings import MeasurementsSettings
 from rxcomm.schemas.strict import Strict
 
@@ -40,29 +41,20 @@ class MeasuredPose(Strict):
         return self
 
 
-class MeasurementsSummary(Strict):
+class MeasurementsSummary(RunReport):
     """What a rxcomm/Measurements summary holds (units in the names; None: not measured)."""
 
     n_poses: int
     n_valid: int
     n_planned: int | None = None
-    underruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
-    cell_overruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
     max_move_lag_rad: float | None = None
     max_tracker_attempts: int | None = None
-    interpolation_ratio: int | None = None
-    outcome: str | None = None
-    stop_reason: str | None = None
-    stop_note: str | None = None
     seconds: float | None = None
 
 
-class Measurements(Artefact):
-    KIND = "rxcomm/Measurements"
-    SCHEMA_VERSION = 1
-    settings: MeasurementsSettings
-    summary: MeasurementsSummary
-
+class Measurements(
+    Artefact[MeasurementsSettings, MeasurementsSummary], kind="rxcomm/Measurements", schema_version=1
+):
     robot: str = Field(description="robot name (URDF)")
     joint_names: list[str]
     tracker_to_base: Placement | None = Field(

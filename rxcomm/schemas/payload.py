@@ -122,11 +122,8 @@ class PayloadSummary(Strict):
     seconds: float | None = Field(description="required; None: not measured")
 
 
-class Payload(Artefact):
-    KIND = "rxcomm/Payload"
-    SCHEMA_VERSION = 1
+class Payload(Artefact[IdentifySettings, PayloadSummary], kind="rxcomm/Payload", schema_version=1):
     settings: IdentifySettings = Field(description="the identified model's processing the fit used")
-    summary: PayloadSummary
 
     robot: str = Field(description="robot name (URDF)")
     flange_frame: str = Field(description="the frame mass and centre of mass are given in")

@@ -123,11 +123,21 @@ class TrackerChannel(Strict):
     )
 
 
-class RunLogSummary(Strict):
-    """What a rxcomm/RunLog summary holds (units in the names; None: not measured)."""
+class RunReport(Strict):
+    """What both kinds of `run` report in their summaries (a run log, a campaign's measurements): how
+    the stream kept time and how the run ended (None: not measured)."""
 
     underruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
     cell_overruns: int | str | None = Field(None, description="a count in real time; a note in virtual time")
+    interpolation_ratio: int | None = None
+    outcome: str | None = None
+    stop_reason: str | None = None
+    stop_note: str | None = None
+
+
+class RunLogSummary(RunReport):
+    """What a rxcomm/RunLog summary holds (units in the names; None: not measured)."""
+
     max_lag_rad: list[float | None] | None = Field(description="required; None: not measured")
     rms_lag_rad: list[float | None] | None = Field(description="required; None: not measured")
     max_tcp_error_m: float | None = Field(description="required; None: not measured")
@@ -135,10 +145,6 @@ class RunLogSummary(Strict):
     duration_s: float
     tau_squared_integral_nm2_s: float | None = None
     electrical_energy_j: float | None = None
-    outcome: str | None = None
-    stop_reason: str | None = None
-    stop_note: str | None = None
-    interpolation_ratio: int | None = None
     sample_s: float | None = None
     n_setpoints: int | None = None
     n_records: int | None = None
@@ -153,13 +159,8 @@ class RunLogSummary(Strict):
     planned_duration_s: float | None = Field(None, description="while running: the plan's duration")
 
 
-class RunLog(McapSummary):
+class RunLog(McapSummary[RunLogSettings, RunLogSummary], kind="rxcomm/RunLog", schema_version=1):
     """Envelope + summary of a run log MCAP, plus how to read it."""
-
-    KIND = "rxcomm/RunLog"
-    SCHEMA_VERSION = 1
-    settings: RunLogSettings
-    summary: RunLogSummary
 
     joint_names: list[str]
     cycle_s: float = Field(gt=0, description="drive cycle of the gateway, s")

@@ -193,16 +193,15 @@ class TrajectoryFigures(Strict):
     energy_objective_j: float | None = Field(None, description="an energy-objective NLP's own value")
 
 
-class TrajectorySummary(McapSummary):
+class TrajectorySummary(
+    McapSummary[TrajectorySettings, TrajectoryFigures], kind="rxcomm/Trajectory", schema_version=1
+):
     """Envelope + summary of a trajectory MCAP (cp, ptp), plus where its samples are.
 
     The MCAP carries the same envelope as its ``rxcomm/envelope`` metadata record.
     """
 
-    KIND = "rxcomm/Trajectory"
-    SCHEMA_VERSION = 1
     settings: TrajectorySettings = Field(union_mode="left_to_right")
-    summary: TrajectoryFigures
 
     topic: str = Field(description="MCAP topic of the samples")
     n_samples: int = Field(ge=1)

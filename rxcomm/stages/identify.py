@@ -339,7 +339,7 @@ def score_run(
     from rxcomm.identification.export import write_torques_csv
     from rxcomm.identification.fit import score
     from rxcomm.identification.logs import load_joint_log
-    from rxcomm.identification.settings import IdentifySettings
+    from rxcomm.identification.settings import MODEL_SETTINGS, IdentifySettings
     from rxcomm.model.base_parameters import dynamics_from_artefact
     from rxcomm.model.robot import load_robot
 
@@ -356,7 +356,7 @@ def score_run(
     values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
     # The model's own processing and friction model, unless given other than the defaults here.
     fields = IdentifySettings.model_fields
-    for k in ("cutoff_hz", "decimate_hz", "min_speed_rad_s", "friction", "filter_order", "torque_lag_s"):
+    for k in MODEL_SETTINGS:
         given = values.get(k, fields[k].default)
         if given == fields[k].default and getattr(art.settings, k) is not None:
             values[k] = getattr(art.settings, k)
