@@ -220,3 +220,21 @@ def test_the_held_sign_is_continuous_and_lets_go_at_rest():
     # a plan without rests or reversals: the smooth sign exactly
     qd_one_way = np.outer(np.sin(np.linspace(0, np.pi, 501)), [0.03, -0.2])
     np.testing.assert_array_equal(held_sign(qd_one_way, DT), np.tanh(qd_one_way / EPS))
+
+
+def test_a_pause_without_reversal_keeps_the_held_sign_continuous():
+    """A joint that touches rest for one sample and goes on the same way (an excitation's period
+    boundary, q̇ = −sin² shape twice) and then stops into a rest: held through the pause at the running
+    maximum, no step. The first version held the stretch before the pause and restarted the next from
+    the smooth sign's 0: a step of Fc in one drive cycle (RX130L J1 35 N·m, 3.1 × its torque-rate limit
+    in run's check of `test_end_to_end_on_the_simulated_cell`)."""
+    from rxcomm.execution.plan import FLIP_S, held_sign
+
+    t = np.arange(int(1.3 / DT) + 1) * DT
+    qd = (-0.05 * np.sin(2 * np.pi * t) ** 2 * (t <= 1.0))[:, None]  # 0 only at 0, 0.5 s and from 1 s
+    assert np.sum((np.abs(qd[:, 0]) < 1e-12) & (t < 1.0)) == 2
+    held, smooth = held_sign(qd, DT)[:, 0], np.tanh(qd[:, 0] / EPS)
+    assert np.all(np.abs(np.diff(held)) <= np.abs(np.diff(smooth)) + 3 * DT / FLIP_S + 1e-12)
+    mid = np.flatnonzero(np.isclose(t, 0.5))[0]
+    assert np.isclose(held[mid], -np.tanh(0.05 / EPS), rtol=1e-3) and abs(smooth[mid]) < 1e-12  # held
+    assert held[-1] == 0.0  # let go in the final rest

@@ -120,11 +120,12 @@ def coulomb_weight(qd: np.ndarray, eps_rad_s: float = COULOMB_EPS_NLP_RAD_S) -> 
 
 # The feed-forward's Coulomb sign through stops and reversals (`held_sign`, architecture §6.1). A joint
 # that came to rest lets go of the sign it held through its stop over RELEASE_S (a smoothstep: at most
-# 1.5·Fc/RELEASE_S, M900 J1 330 N·m/s against its 5000 N·m/s torque-rate limit); a rest shorter than
-# that is a pause (held on the same way) or a reversal. A reversal on which the smooth sign takes longer
-# than FLIP_S to swing (half its peak one way to half the other) is flipped over FLIP_S centred on it
-# (at most 3·Fc/FLIP_S: M900 J1 1.6 kN·m/s); a faster one keeps the smooth sign, so a plan with neither
-# rests nor slow reversals (the planners' CP and PtP plans) gets exactly the planners' friction model.
+# 1.5·Fc/RELEASE_S, M900 J1 330 N·m/s against its 5000 N·m/s torque-rate limit); a shorter rest is a
+# pause (the stretches of one direction either side are one stretch) or a reversal. A reversal on
+# which the smooth sign takes longer than FLIP_S to swing (half its peak one way to half the other) is
+# flipped over FLIP_S centred on it (at most 3·Fc/FLIP_S: M900 J1 1.6 kN·m/s); a faster one keeps the
+# smooth sign, so a plan with neither rests nor slow reversals (the planners' CP and PtP plans) gets
+# exactly the planners' friction model.
 RELEASE_S = 0.05
 FLIP_S = 0.02
 MOVING_RAD_S = 1e-9  # |q̇| above this is motion; the planners' rests are exact zeros
@@ -138,7 +139,9 @@ def held_sign(
 ) -> np.ndarray:
     """The Coulomb sign [n, k] the feed-forward uses along a plan sampled every ``sample_s``: the
     smooth sign tanh(q̇/ε), except per axis on a stretch of one sign of ``qd`` [n, k] that ends in a
-    rest ≥ RELEASE_S, a pause or a slow reversal: from its peak |tanh| on held to its end; into the
+    rest ≥ RELEASE_S or a slow reversal (two stretches of one sign with a pause < RELEASE_S between
+    them count as one; its |tanh| is held at its running maximum through the pause, never dipping to
+    0 there): from its peak |tanh| on held to its end; into the
     rest, let go over RELEASE_S while the joint rests; through a slow reversal, flipped over FLIP_S
     from the old stretch's peak to the new one's (held from the reversal on). A joint sliding to rest
     has its full friction until it stops, and one passing through rest has it the other way as soon as
@@ -161,7 +164,13 @@ def held_sign(
     for j in range(qd.shape[1]):
         sg = np.sign(qd[:, j]) * (np.abs(qd[:, j]) > MOVING_RAD_S)
         cuts = np.r_[0, np.flatnonzero(sg[1:] != sg[:-1]) + 1, n]
-        runs = [(int(a), int(b), sg[a]) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if sg[a] != 0]
+        runs: list[tuple[int, int, float]] = []
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+            if sg[a] == 0:
+                continue
+            if runs and runs[-1][2] == sg[a] and a - runs[-1][1] < n_release:  # a pause: one stretch
+                a = runs.pop()[0]
+            runs.append((int(a), int(b), sg[a]))
         mag = [np.abs(c[a:b, j]) for a, b, _ in runs]
         gaps = [(runs[i + 1][0] if i + 1 < len(runs) else n) - b for i, (_, b, _) in enumerate(runs)]
         slow = [
@@ -174,16 +183,14 @@ def held_sign(
         level, flips = c[:, j].copy(), []
         for i, (a, b, s) in enumerate(runs):
             m, k = mag[i].copy(), int(np.argmax(mag[i]))
-            pause = i + 1 < len(runs) and runs[i + 1][2] == s and gaps[i] < n_release
-            if slow[i] or pause or gaps[i] >= n_release:
+            if slow[i] or gaps[i] >= n_release:
+                m[:k] = np.maximum.accumulate(m[:k])  # through a pause within the stretch
                 m[k:] = m[k]  # held from its peak to the stretch's end
             if i > 0 and slow[i - 1]:
                 m[:k] = m[k]  # the new direction's friction from the reversal on
             level[a:b] = s * m
             if gaps[i] >= n_release:
                 level[b : b + n_release] = s * m[k] * release
-            elif pause:
-                level[b : b + gaps[i]] = s * m[k]
             if slow[i]:
                 mid = b + gaps[i] // 2
                 flips.append((max(a, mid - half_flip), min(runs[i + 1][1], mid + half_flip)))
