@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.stats
 from typer.testing import CliRunner
 
 import rxcomm
@@ -753,12 +754,16 @@ def test_end_to_end_on_the_simulated_cell(tmp_path, rx130l, truth_rx, bset_rx):
     art = read_yaml_artefact(out, Dynamics)
     nrmse = np.array(art.summary.validation_nrmse)
     assert np.all(nrmse[:3] <= 0.05) and np.all(nrmse[3:] <= 0.10), nrmse
-    # Base parameters: every one within 3σ of the truth's, and the σ honest (z scores of unit rms; σ
-    # that ignored the torque/position skew of the trace or the stick phases gave 5σ on J2 friction).
+    # Base parameters: every one within the family-wise 1 % bound of the truth's (Šidák over the 61
+    # z scores: 3.77σ; "each within 3σ" fails 15 % of honest fits of 61 parameters, and joint_4.Iyz_R
+    # sits at 2.95σ with the smooth-sign feed-forward, 3.01σ with the held one), and the σ honest
+    # (z scores of unit rms; σ that ignored the torque/position skew of the trace or the stick phases
+    # gave 5σ on J2 friction).
     truth_b = bset_rx.project(truth_parameters(rx130l, truth_rx))
     est = np.array([b.value for b in art.base_parameters])
     std = np.array([b.relative_std for b in art.base_parameters]) * np.abs(est)
     z = (est - truth_b) / std
     worst = int(np.argmax(np.abs(z)))
-    assert np.abs(z[worst]) <= 3.0, (art.base_parameters[worst].name, z[worst])
+    bound = scipy.stats.norm.isf((1.0 - 0.99 ** (1.0 / len(z))) / 2.0)
+    assert np.abs(z[worst]) <= bound, (art.base_parameters[worst].name, z[worst], bound)
     assert 0.5 <= np.sqrt(np.mean(z**2)) <= 1.5, np.sqrt(np.mean(z**2))
