@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from rxcomm.cell.truth import load_truth
 from rxcomm.execution.approach import move_trajectory
@@ -238,3 +239,38 @@ def test_a_pause_without_reversal_keeps_the_held_sign_continuous():
     mid = np.flatnonzero(np.isclose(t, 0.5))[0]
     assert np.isclose(held[mid], -np.tanh(0.05 / EPS), rtol=1e-3) and abs(smooth[mid]) < 1e-12  # held
     assert held[-1] == 0.0  # let go in the final rest
+
+
+def test_a_joint_whose_held_sign_breaks_its_torque_rate_limit_keeps_the_smooth_sign():
+    """The planners time a stop with the smooth sign; held to rest and let go over RELEASE_S, the sign
+    can take a joint's torque rate above its limit where the plan kept it (RX130L J2 at the end of the
+    ISO line at 0.1 m/s, rated load: 1.105 ×, and `run` refused `make acceptance`'s plan). J2 slides
+    0.02 rad in 1 s to rest with its torque-rate limit at 700 N·m/s: the smooth sign's torque rate is
+    about 150 N·m/s, the held sign's release 1.5·Fc/RELEASE_S = 900. The plan is run with J2 on the
+    smooth sign, named; J1 (held, within its limit) keeps the held sign."""
+    from rxcomm.execution.plan import prepare_plan
+    from rxcomm.io.trajectory import Trajectory
+
+    robot = load_robot(SAMPLES / "rx130l")
+    joints = [
+        j.model_copy(update={"torque_rate_max_nm_per_s": 700.0}) if i == 1 else j
+        for i, j in enumerate(robot.drives.joints)
+    ]
+    robot = replace(robot, drives=robot.drives.model_copy(update={"joints": joints}))
+    params, dt = prior_parameters(robot), robot.drives.cycle_s
+    t = np.arange(int(round(1.3 / dt)) + 1) * dt
+    q, qd, qdd = (np.zeros((len(t), 6)) for _ in range(3))
+    for j, dq in ((0, 0.02), (1, 0.02)):
+        a, b, c = _bump(t, 0.0, 1.0, dq)
+        q[:, j], qd[:, j], qdd[:, j] = a, b, c
+    q += np.array([0.0, -0.3, 1.8, 0.0, 0.8, 0.0])
+    held, smooth = model_torque(robot, params, q, qd, qdd, dt), model_torque(robot, params, q, qd, qdd)
+    rate = np.abs(np.gradient(held, t, axis=0)).max(axis=0) / robot.tau_rate_max
+    assert rate[1] > 1.2 and np.abs(np.gradient(smooth[:, 1], t)).max() < 0.3 * 700.0
+    plan = prepare_plan(robot, Trajectory(t, q, qd, qdd), params, dt)
+    assert [name for name, _ in plan.smooth_sign_joints] == ["joint_2"]
+    assert plan.smooth_sign_joints[0][1] == pytest.approx(rate[1])
+    np.testing.assert_array_equal(plan.tau_ff[:, 1], smooth[:, 1])
+    np.testing.assert_array_equal(plan.tau_ff[:, 0], held[:, 0])
+    assert np.abs(held[:, 0] - smooth[:, 0]).max() > 10.0  # J1 really is on the held sign
+    assert plan.report.max_ratio <= 1.0

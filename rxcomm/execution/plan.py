@@ -17,7 +17,7 @@ from scipy.interpolate import CubicHermiteSpline
 from rxcomm.errors import InputError, SafetyStop
 from rxcomm.io.trajectory import Trajectory
 from rxcomm.model.dynamics import COULOMB_EPS_NLP_RAD_S, DynamicParameters, RobotDynamics
-from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE, LimitReport, check_limits
+from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE, LimitReport, TorqueRateLimit, check_limits
 from rxcomm.model.robot import Robot
 
 REST_VELOCITY_RAD_S = 1e-3  # a plan must start and end at rest (|q̇| below this per joint)
@@ -33,6 +33,9 @@ class StreamPlan:
     qdd: np.ndarray
     tau_ff: np.ndarray
     report: LimitReport | None = None  # the dense check it passed (drive-cycle grid)
+    # joints whose feed-forward keeps the smooth Coulomb sign: the held one would break their torque-rate
+    # limit where the plan (made with the smooth sign) keeps it; with the ratio the held sign reached
+    smooth_sign_joints: tuple[tuple[str, float], ...] = ()
 
     @property
     def n(self) -> int:
@@ -54,7 +57,13 @@ class StreamPlan:
         if idx[-1] != self.n - 1:
             idx = np.append(idx, self.n - 1)  # overshoot the end by < R cycles: the plan holds there
         return StreamPlan(
-            self.sample_s * ratio, self.q[idx], self.qd[idx], self.qdd[idx], self.tau_ff[idx], self.report
+            self.sample_s * ratio,
+            self.q[idx],
+            self.qd[idx],
+            self.qdd[idx],
+            self.tau_ff[idx],
+            self.report,
+            self.smooth_sign_joints,
         )
 
 
@@ -184,8 +193,7 @@ def held_sign(
         for i, (a, b, s) in enumerate(runs):
             m, k = mag[i].copy(), int(np.argmax(mag[i]))
             if slow[i] or gaps[i] >= n_release:
-                m[:k] = np.maximum.accumulate(m[:k])  # through a pause within the stretch
-                m[k:] = m[k]  # held from its peak to the stretch's end
+                m = np.maximum.accumulate(m)  # through a pause within it, held from its peak to its end
             if i > 0 and slow[i - 1]:
                 m[:k] = m[k]  # the new direction's friction from the reversal on
             level[a:b] = s * m
@@ -289,8 +297,8 @@ def prepare_plan(
     """
     check_plan_shape(robot, traj, what)
     q, qd, qdd = resample(traj, cycle_s)
-    tau = model_torque(robot, params, q, qd, qdd, cycle_s)
     t = np.arange(q.shape[0]) * cycle_s
+    tau, smooth_sign = _held_within_torque_rate(robot, params, t, q, qd, qdd, 1.0 + limit_tolerance)
     report = check_limits(robot, t, q, qd, qdd, tau)
     if report.max_ratio > 1.0 + limit_tolerance:
         limit, joint, t_s, ratio = report.worst()
@@ -301,7 +309,27 @@ def prepare_plan(
             f"{what} outside the robot's limits: {limit} of {joint} at t = {t_s:.4f} s{where} is "
             f"{ratio:.3f} × its limit (checked every {cycle_s * 1e3:g} ms)"
         )
-    return StreamPlan(cycle_s, q, qd, qdd, tau if feedforward else np.zeros_like(tau), report)
+    return StreamPlan(cycle_s, q, qd, qdd, tau if feedforward else np.zeros_like(tau), report, smooth_sign)
+
+
+def _held_within_torque_rate(
+    robot: Robot, params: DynamicParameters, t: np.ndarray, q, qd, qdd, max_ratio: float
+) -> tuple[np.ndarray, tuple[tuple[str, float], ...]]:
+    """The model torque with the held Coulomb sign, except on a joint where the held sign alone takes
+    the torque rate above ``max_ratio`` of its limit and the smooth sign does not reach that ratio: the
+    planners time a stop with the smooth sign, whose fading friction offsets the end of the
+    deceleration; held to rest, the friction no longer does (RX130L J2 at the end of the ISO line at
+    0.1 m/s, rated load: 1.105 × its limit). That joint keeps the smooth sign, named in the result."""
+    tau = model_torque(robot, params, q, qd, qdd, t[1] - t[0])
+    rate = TorqueRateLimit(robot.tau_rate_max)
+    held = rate.ratios(t, q, qd, qdd, tau).max(axis=0)
+    if not np.any(held > max_ratio):
+        return tau, ()
+    smooth_tau = model_torque(robot, params, q, qd, qdd)
+    smooth = rate.ratios(t, q, qd, qdd, smooth_tau).max(axis=0)
+    back = (held > max_ratio) & (smooth < held)
+    tau[:, back] = smooth_tau[:, back]
+    return tau, tuple((robot.joint_names[j], float(held[j])) for j in np.flatnonzero(back))
 
 
 def distance_to_start(robot: Robot, q_now: np.ndarray, q_start: np.ndarray) -> dict[str, float]:

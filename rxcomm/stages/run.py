@@ -339,6 +339,11 @@ def _trajectory(
         what=f"plan {job.plan.name}",
         sample_label=plan.label,
     )
+    for joint, ratio in prepared.smooth_sign_joints if settings.feedforward else ():
+        console.err.print(
+            f"note: {joint}'s feed-forward keeps the smooth Coulomb sign: held through its stops it would "
+            f"reach {ratio:.3f} × its torque-rate limit (architecture §6.1)"
+        )
     with deferred_termination(), job.connect() as (client, server):
         embedded = server is not None
         sink = RunLogWriter(
