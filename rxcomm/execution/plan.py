@@ -316,7 +316,7 @@ def _held_within_torque_rate(
     robot: Robot, params: DynamicParameters, t: np.ndarray, q, qd, qdd, max_ratio: float
 ) -> tuple[np.ndarray, tuple[tuple[str, float], ...]]:
     """The model torque with the held Coulomb sign, except on a joint where the held sign alone takes
-    the torque rate above ``max_ratio`` of its limit and the smooth sign does not reach that ratio: the
+    the torque rate above ``max_ratio`` of its limit and the smooth sign's ratio there is lower: the
     planners time a stop with the smooth sign, whose fading friction offsets the end of the
     deceleration; held to rest, the friction no longer does (RX130L J2 at the end of the ISO line at
     0.1 m/s, rated load: 1.105 × its limit). That joint keeps the smooth sign, named in the result."""
