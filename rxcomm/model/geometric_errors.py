@@ -412,7 +412,10 @@ def identifiable_parameters(
     # orthogonal to the kept ones exceeds the gap-centred threshold (geometric mean of the gap).
     lo = ratios[rank] if rank < len(ratios) else 0.0
     thresh = np.sqrt(max(ratios[rank - 1], 1e-300) * max(lo, 1e-300)) if rank > 0 else 1.0
-    thresh = max(thresh, tol)
+    # A floor at √tol: a column whose part outside the kept span is below it is dependent to round-off
+    # (the UR5e's parallel J2–J4 give one at 3e-8 of its norm, under the gap's centre 2e-8 × 1.2);
+    # keeping it would leave a truly independent direction out and the set singular.
+    thresh = max(thresh, float(np.sqrt(tol)))
     kept: list[int] = []
     basis = np.zeros((a_unit.shape[0], 0))
     for i in preference_order(robot):
