@@ -140,6 +140,13 @@ class Robot:
         m = self.model
         return self.reach_m + sum(float(np.linalg.norm(m.jointPlacements[j].translation)) for j in (1, 2))
 
+    @property
+    def shoulder_height_m(self) -> float:
+        """Height of the shoulder (joint 2's origin) above the base origin at q = 0 (m)."""
+        data = self.create_data()
+        pin.forwardKinematics(self.model, data, np.zeros(self.n))
+        return float(data.oMi[self.shoulder_joint_id].translation[2])
+
     def create_data(self) -> pin.Data:
         return self.model.createData()
 
@@ -150,7 +157,7 @@ class Robot:
             self,
             model=model,
             tcp_frame_id=model.getFrameId(TCP_FRAME),
-            flange_frame_id=model.getFrameId(self.drives.tcp.parent_frame),
+            flange_frame_id=link_frame_id(model, self.drives.tcp.parent_frame),
         )
 
 
@@ -163,6 +170,14 @@ def robot_files(robot_dir: str | Path) -> dict[str, Path]:
     if drives_path.parent.is_dir():
         files |= {f"robot URDF {p.name}": p for p in sorted(drives_path.parent.glob("*.urdf"))}
     return files
+
+
+def link_frame_id(model: pin.Model, name: str) -> int:
+    """The frame of link `name`: a URDF may give a joint the name of a link (an MJCF's joints and
+    bodies have their own namespaces), and Pinocchio then refuses the bare name as ambiguous."""
+    if model.existFrame(name, pin.FrameType.BODY):
+        return model.getFrameId(name, pin.FrameType.BODY)
+    return model.getFrameId(name)
 
 
 def load_robot(robot_dir: str | Path, urdf: str | Path | None = None) -> Robot:
@@ -190,7 +205,7 @@ def load_robot(robot_dir: str | Path, urdf: str | Path | None = None) -> Robot:
         raise InputError(
             f"frame {tcp.parent_frame!r} is not in the URDF", file=drives_path, field="tcp.parent_frame"
         )
-    parent_frame = model.getFrameId(tcp.parent_frame)
+    parent_frame = link_frame_id(model, tcp.parent_frame)
     f = model.frames[parent_frame]
     placement = f.placement * pin.SE3(pin.rpy.rpyToMatrix(np.array(tcp.rpy_rad)), np.array(tcp.xyz_m))
     tcp_id = model.addFrame(

@@ -50,7 +50,7 @@ from rxcomm.model.robot import Robot
 from rxcomm.planning.commanded import Command, OnLink, commanded_trajectory
 from rxcomm.planning.cp_grid import toppra_grid
 from rxcomm.planning.path_dynamics import PathDynamics
-from rxcomm.planning.path_ik import JointPath, solve_path_ik
+from rxcomm.planning.path_ik import SIGMA_MIN_MARGIN, JointPath, solve_path_ik
 from rxcomm.planning.path_nlp import NlpResult, coulomb_levels
 from rxcomm.planning.path_profile import PathProfile
 from rxcomm.planning.paths import CartesianPath
@@ -87,7 +87,9 @@ class CpSettings(BaseModel):
     tcp_speed_max_m_s: float | None = Field(None, gt=0)
     tcp_acceleration_max_m_s2: float | None = Field(None, gt=0)
     coulomb_eps_rad_s: float = Field(0.02, gt=0, description="Coulomb sign smoothing of the output torque")
-    sigma_min_margin: float = Field(0.005, gt=0, description="smallest TCP-Jacobian singular value allowed")
+    sigma_min_margin: float = Field(
+        SIGMA_MIN_MARGIN, gt=0, description="smallest TCP-Jacobian singular value allowed"
+    )
     target_ratio: float = Field(
         1.0 + SAMPLED_LIMIT_TOLERANCE,
         ge=1.0,

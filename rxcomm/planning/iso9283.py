@@ -8,17 +8,19 @@ inclined test plane as path specs; `pose_cycle_trajectory` is the pose test's pl
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from rxcomm.errors import InputError
+from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import Trajectory
 from rxcomm.model.kinematics import BranchSelector, solve_branch_ik
 from rxcomm.model.robot import Robot
-from rxcomm.planning.paths import rpy_matrix, unit_vector
+from rxcomm.planning.path_ik import SIGMA_MIN_MARGIN, solve_path_ik
+from rxcomm.planning.paths import build_path, rpy_matrix, unit_vector
 from rxcomm.schemas.cell import Box
 from rxcomm.schemas.path import Branch, Orientation, PathLimits, PathSpec
 
@@ -91,7 +93,7 @@ def iso9283_cube(
     data = robot.create_data()
     reach = robot.reach_m
     radii = np.linspace(0.35, 0.75, 7) * reach if radii_m is None else np.asarray(radii_m)
-    shoulder = robot_shoulder_height(robot)
+    shoulder = robot.shoulder_height_m
     heights = shoulder + np.linspace(-0.5, 0.3, 7) * reach if heights_m is None else np.asarray(heights_m)
     lattice = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], float)
 
@@ -118,6 +120,20 @@ def iso9283_cube(
                 return False
         return True
 
+    def paths_side(centre: np.ndarray, side: float, floor: float) -> float | None:
+        """The largest side ≤ `side` (and > `floor`) whose test paths the path IK follows on the
+        branch clear of singularities: the 27 lattice points can all be clear while a path between
+        them crosses one (a UR-type arm's wrist, whose J6 lines up with J2–J4)."""
+        while side > max(floor, 0.05):
+            cube = Iso9283Cube(centre, side, tuple(float(a) for a in rpy_rad), *_cube_geometry(centre, side))
+            if all(
+                _path_clear(robot, spec, 2 * SIGMA_MIN_MARGIN)
+                for spec in iso9283_paths(cube, branch).values()
+            ):
+                return side
+            side *= 0.85
+        return None
+
     best: tuple[float, np.ndarray] | None = None
     for r in radii:
         for z in heights:
@@ -139,7 +155,9 @@ def iso9283_cube(
                 if hi - lo < 5e-3:
                     break
             if best is None or lo > best[0]:
-                best = (lo, centre)
+                side = paths_side(centre, lo, 0.0 if best is None else best[0])
+                if side is not None:
+                    best = (side, centre)
     if best is None or best[0] < 0.05:
         raise InputError(
             f"no test cube found with rpy {list(np.round(rpy_rad, 4))} on branch {branch.model_dump()}: "
@@ -151,10 +169,41 @@ def iso9283_cube(
     return Iso9283Cube(best[1], side, tuple(float(a) for a in rpy_rad), corners, pts)
 
 
-def robot_shoulder_height(robot: Robot) -> float:
-    data = robot.create_data()
-    pin.forwardKinematics(robot.model, data, np.zeros(robot.n))
-    return float(data.oMi[robot.shoulder_joint_id].translation[2])
+def iso9283_cube_any_branch(
+    robot: Robot, rpy_rad: Sequence[float] = (np.pi, 0.0, 0.0), workspace: Box | None = None
+) -> tuple[Iso9283Cube, Branch]:
+    """`iso9283_cube` on the default branch (front, elbow up, wrist positive) or, where that reaches no
+    cube, the largest over the other seven: an arm whose wrist is built the other way round (the
+    wrist-positive label is geometric) has its test cube only there."""
+    try:
+        return iso9283_cube(robot, rpy_rad, Branch(), workspace), Branch()
+    except InputError as first:
+        found = []
+        for shoulder, elbow, wrist in itertools.product(
+            ("front", "back"), ("up", "down"), ("positive", "negative")
+        ):
+            branch = Branch(shoulder=shoulder, elbow=elbow, wrist=wrist)
+            if branch == Branch():
+                continue
+            try:
+                found.append((iso9283_cube(robot, rpy_rad, branch, workspace), branch))
+            except InputError:
+                continue
+        if not found:
+            raise InputError(
+                f"no test cube found with rpy {list(np.round(rpy_rad, 4))} on any IK branch: the TCP "
+                "cannot reach the search region with this orientation",
+                field="rpy_rad",
+            ) from first
+        return max(found, key=lambda cb: cb[0].side_m)
+
+
+def _path_clear(robot: Robot, spec: PathSpec, sigma_min_margin: float) -> bool:
+    try:
+        solve_path_ik(robot, build_path(spec), spec.branch, sigma_min_margin=sigma_min_margin)
+    except (InfeasibleError, InputError):
+        return False
+    return True
 
 
 def iso9283_paths(

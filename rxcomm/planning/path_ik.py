@@ -30,6 +30,9 @@ from rxcomm.model.robot import Robot
 from rxcomm.planning.paths import CartesianPath
 from rxcomm.schemas.path import Branch
 
+# The TCP Jacobian's smallest singular value a path may come down to (CpSettings' default too).
+SIGMA_MIN_MARGIN = 0.005
+
 
 @dataclass(frozen=True, eq=False)
 class JointPath:
@@ -118,7 +121,7 @@ def solve_path_ik(
     *,
     max_step_m: float = 0.005,
     max_step_rad: float = 0.02,
-    sigma_min_margin: float = 0.005,
+    sigma_min_margin: float = SIGMA_MIN_MARGIN,
 ) -> JointPath:
     """IK along `path` on one continuous branch; see the module docstring. Raises InfeasibleError."""
     selector = BranchSelector(robot, None if q_near is not None else branch)
