@@ -103,15 +103,17 @@ def model_source(robot_dir: Path, urdf: Path) -> Path:
 
 
 def _load_spec(source: Path) -> mujoco.MjSpec:
-    """MuJoCo's spec of `source`, static links kept, its actuators dropped (the drives act here),
+    """MuJoCo's spec of `source`, static links kept, its actuators, keyframes and sensors dropped,
     every body's placement the compiled one as a quaternion (an MJCF's Euler angles, axis-angles or
     degrees resolved by MuJoCo's compiler)."""
     try:
         spec = mujoco.MjSpec.from_file(str(source))
         spec.compiler.fusestatic = False
         spec.compiler.discardvisual = True
-        for actuator in list(spec.actuators):
-            spec.delete(actuator)
+        # The drives act here: the model's own actuators go, and with them what refers to them
+        # (keyframes hold a ctrl per actuator, sensors may read one); the cell sets its own state.
+        for element in [*spec.actuators, *spec.keys, *spec.sensors]:
+            spec.delete(element)
         compiled = spec.compile()
     except ValueError as e:
         raise InputError(f"MuJoCo cannot load it: {e}", file=source) from e
