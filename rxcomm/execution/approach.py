@@ -3,6 +3,8 @@
 A ruckig profile (time-optimal under per-joint velocity, acceleration and jerk limits, joints
 synchronised) at a fraction of the robot's velocity and acceleration limits, sampled at the drive
 cycle. The result is an ordinary trajectory: it goes through the same dense limit check as any plan.
+`paced_move` slows that move until the model's torque fits: the fractions alone know nothing of gravity
+or friction.
 """
 
 from __future__ import annotations
@@ -10,7 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from rxcomm.errors import InputError
+from rxcomm.execution.plan import model_torque
 from rxcomm.io.trajectory import Trajectory
+from rxcomm.model.dynamics import DynamicParameters
 from rxcomm.model.robot import Robot
 from rxcomm.planning.warm_start import ruckig_profile
 
@@ -44,3 +48,29 @@ def move_trajectory(
     q, qd, qdd = profile.at(t)
     q[n - 1 :], qd[n - 1 :], qdd[n - 1 :] = q_to, 0.0, 0.0  # exactly at the goal, at rest
     return Trajectory(t, q, qd, qdd)
+
+
+def paced_move(
+    robot: Robot,
+    params: DynamicParameters,
+    q_from: np.ndarray,
+    q_to: np.ndarray,
+    sample_s: float,
+    speed_fraction: float = 0.2,
+    hold_s: float = 0.0,
+    max_torque_ratio: float = 0.9,
+) -> Trajectory:
+    """`move_trajectory`, its fraction lowered by 0.7× a step (at most 12) until the model's torque
+    stays within `max_torque_ratio` of every peak. A joint whose viscous friction at 20 % of its speed
+    limit already exceeds the peak (an imported model whose `damping` stabilises a simulation: the
+    UR5e's 200 N·m·s/rad on a 150 N·m joint) moves slower instead of being refused; a pose whose
+    holding torque alone is too high is still refused by the dense check (`prepare_plan`)."""
+    tau_max = np.asarray(robot.tau_max)
+    fraction = speed_fraction
+    for _ in range(12):
+        move = move_trajectory(robot, q_from, q_to, sample_s, fraction, hold_s)
+        tau = model_torque(robot, params, move.q, move.qd, move.qdd)
+        if np.max(np.abs(tau) / tau_max) <= max_torque_ratio:
+            break
+        fraction *= 0.7
+    return move
