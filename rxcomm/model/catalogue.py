@@ -96,7 +96,8 @@ class CatalogueLimits:
         """The artefact's statement of the limits and how they were computed (SI units)."""
 
         def pose(by: str, q: np.ndarray) -> list[float] | None:
-            return None if by == "drive" else [float(x) for x in q]
+            # none where no pose binds: the drive's own limit, or the following error (a servo bound)
+            return None if by == "drive" or not np.all(np.isfinite(q)) else [float(x) for x in q]
 
         return {
             "method": "worst case over sampled poses of the prior model with the rated payload: "

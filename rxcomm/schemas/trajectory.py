@@ -30,7 +30,9 @@ class CatalogueJoint(Strict):
     acceleration_binding: str | None = Field(None, description="torque, following error or drive")
     following_error_peak_rad: float | None = None
     velocity_worst_pose_rad: list[float] | None = Field(None, description="None: bound by the drive")
-    acceleration_worst_pose_rad: list[float] | None = Field(None, description="None: bound by the drive")
+    acceleration_worst_pose_rad: list[float] | None = Field(
+        None, description="None: bound by the drive or by the following error"
+    )
 
 
 class CatalogueLimits(Strict):
