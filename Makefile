@@ -215,6 +215,12 @@ $(B)/run-factory-ptp.mcap: $(B)/factory-ptp.mcap $(SIM_FILES) $(call params,run-
 $(ROBOT)/paths/%.yaml:
 	@echo "error: $@: no such path file (a robot's ISO 9283 paths: rxcomm iso9283-paths --robot $(ROBOT) -o $(ROBOT)/paths; any other path: a rxcomm/Path YAML, rxcomm/schemas/path.py)" >&2; exit 2
 
+# The same for the cell, the simulated cell's truth and the acceptance thresholds.
+$(CELL):
+	@echo "error: $@: no such cell file (rxcomm import-robot writes an assumed one beside a model it imports; its schema: rxcomm/schemas/cell.py, the samples' cell.yaml)" >&2; exit 2
+$(TRUTH):
+	@echo "error: $@: no such truth file (the simulated cell's hidden truth: rxcomm truth --robot $(ROBOT) --seed 1 -o $@)" >&2; exit 2
+
 # ---- the rated load (issue 29): ISO 9283 tests at 100 % and 10 % of the rated load ---------------------------------
 # LOAD: the % of the rated load (drives.yaml rated_payload) the ISO 9283 tests below carry in both states
 # (empty: none, `make commission`); LOADS_EXTRA: further loads at which the pose test and the ISO line at
@@ -512,6 +518,8 @@ CURVE_RUNS := $(foreach x,$(ENERGY_CURVE),$(B)/run-cp-curve-$(x).mcap $(B)/run-p
 # The verdict: the reference task (the CP path, then the PtP move between its end states) and the
 # ISO 9283 criteria in both states against the thresholds beside the cell. Reads the runs' NAME.yaml.
 ACCEPTANCE ?= $(ROBOT)/acceptance.yaml
+$(ACCEPTANCE):
+	@echo "error: $@: no such acceptance file (rxcomm import-robot writes an assumed one; its schema: rxcomm/schemas/acceptance.py)" >&2; exit 2
 TASK_LOGS  := --factory-log $(B)/run-factory-cp.mcap --factory-log $(B)/run-factory-ptp.mcap \
 	--commissioned-log $(B)/run-ff.mcap --commissioned-log $(B)/run-ptp.mcap \
 	--commissioned-equal-time-log $(B)/run-cp-at-factory-time.mcap \

@@ -35,6 +35,7 @@ ASSUMED = {
     "gear_ratio": 100.0,
     "torque_constant_nm_per_a": 0.5,
     "velocity_limit_rad_s": 3.0,
+    "viscous_share": 0.5,  # … lowered where viscous friction alone would need this × peak torque
     "acceleration_max_rad_per_s2": 10.0,
     "torque_rate_per_s": 20.0,  # torque rate limit = this × peak torque, N·m/s
     "continuous_fraction": 0.5,  # continuous torque = this × peak torque
@@ -257,8 +258,18 @@ def import_model(path: str | Path) -> ImportedRobot:
         else:
             lo, hi = -a["range_rad"], a["range_rad"]
             assumed.append(f"{jn}: unlimited hinge, limits ±{a['range_rad']:.4g} rad")
-        limits[j] = (lo, hi, a["velocity_limit_rad_s"], peaks[k])
         dof = model.jnt_dofadr[j]
+        velocity = a["velocity_limit_rad_s"]
+        damping = float(model.dof_damping[dof])
+        if damping * velocity > a["viscous_share"] * peaks[k]:
+            # a `damping` that stabilises a simulation (the UR5e's 200 N·m·s/rad on 150 N·m) stops the
+            # joint at peak/damping: no speed above it can be commanded, nor held without feed-forward
+            velocity = a["viscous_share"] * peaks[k] / damping
+            assumed.append(
+                f"{jn}: velocity limit {velocity:.4g} rad/s, where its damping ({damping:g} N·m·s/rad) "
+                f"needs {a['viscous_share']:g} × its peak torque"
+            )
+        limits[j] = (lo, hi, velocity, peaks[k])
         n = a["gear_ratio"]
         joints.append(
             {
@@ -277,7 +288,7 @@ def import_model(path: str | Path) -> ImportedRobot:
     assumed += [
         f"gear_ratio = {a['gear_ratio']:g} on every joint (rotor inertia = armature / N²)",
         f"torque_constant_nm_per_a = {a['torque_constant_nm_per_a']:g}",
-        f"velocity limit {a['velocity_limit_rad_s']:g} rad/s, acceleration limit "
+        f"velocity limit {a['velocity_limit_rad_s']:g} rad/s (lower where listed), acceleration limit "
         f"{a['acceleration_max_rad_per_s2']:g} rad/s², torque rate {a['torque_rate_per_s']:g} × peak /s",
         f"continuous torque = {a['continuous_fraction']:g} × peak; drive cycle {a['cycle_s'] * 1e6:.0f} µs",
     ]
