@@ -707,6 +707,25 @@ def test_physical_option_gives_consistent_links(
 
 
 @pytest.mark.slow
+def test_an_inconsistent_estimate_within_the_noise_is_written_consistent(
+    rx130l, truth_rx, bset_rx, optimal_traj
+):
+    """By default, where the unconstrained estimate has a link no body can be (noisy torques) and the
+    nearest consistent one lies within √n_base σ of it, the consistent one is written: downstream
+    stages refuse an inconsistent model, and the data cannot tell the two apart. --no-physical keeps
+    the unconstrained one."""
+    truth = truth_parameters(rx130l, truth_rx)
+    t, q, qd, qdd = sampled(rx130l, optimal_traj, periods=1)
+    _, tau_m = measured(rx130l, truth, t, q, qd, qdd, 12 * np.asarray(truth_rx.noise.torque_noise_nm), seed=5)
+    log = JointLog(t, q, tau_m)
+    plain = identify(rx130l, log, IdentifySettings(physical=False, folds=0), bset=bset_rx)
+    assert np.any(link_min_eigenvalues(plain.params) <= 0) and not plain.physical
+    auto = identify(rx130l, log, IdentifySettings(folds=0), bset=bset_rx)
+    assert auto.physical and np.all(link_min_eigenvalues(auto.params) > 0)
+    assert auto.physical_fit.mahalanobis <= math.sqrt(bset_rx.n_base)
+
+
+@pytest.mark.slow
 def test_end_to_end_on_the_simulated_cell(tmp_path, rx130l, truth_rx, bset_rx):
     """excite → run (embedded simulated cell: drive loops, stiction, quantised traces) → identify,
     validated on another trajectory run on the cell; truth read only to score."""

@@ -277,7 +277,11 @@ def identify(
     closest = parameters_from_base(robot, bset, est.p_b, prior)
     phys = physical_fit(robot, bset, est, prior)
     timings["physical"] = time.perf_counter() - tick
-    if settings.physical:
+    physical = settings.physical
+    if physical is None:  # auto: no body has that mass distribution, and the data cannot tell
+        inconsistent = bool(np.any(link_min_eigenvalues(closest) <= 0) or drive_violations(closest))
+        physical = inconsistent and phys.success and phys.mahalanobis <= np.sqrt(len(est.p_b))
+    if physical:
         params, p_b = phys.params, phys.p_b
     else:
         params, p_b = closest, est.p_b
@@ -289,7 +293,7 @@ def identify(
         estimate=est,
         p_b=p_b,
         params=params,
-        physical=settings.physical,
+        physical=physical,
         method=settings.method,
         physical_fit=phys,
         link_min_eig_kgm2=link_min_eigenvalues(closest),

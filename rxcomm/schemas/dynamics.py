@@ -114,7 +114,11 @@ class IdentifySettings(Strict):
         "for 2e-5 rad encoder noise at 10 Hz), below any motion (a stop passes it in a few ms)",
     )
     method: Literal["wls", "ols"] = Field("wls", description="weighted (per-joint noise) or ordinary LS")
-    physical: bool = Field(False, description="write the physically consistent estimate")
+    physical: bool | None = Field(
+        None,
+        description="write the physically consistent estimate: always (True), never (False), or (None) "
+        "where the unconstrained one is inconsistent and the consistent one within √n_base σ of it",
+    )
     holdout_fraction: float = Field(
         0.2, gt=0, lt=0.9, description="part of the log held out for validation without --validate"
     )

@@ -151,9 +151,13 @@ def command(
         typer.Option(help="Friction model: joint, motor or both (default: drives.yaml's friction)."),
     ] = None,
     physical: Annotated[
-        bool,
-        typer.Option(help="Write the physically consistent estimate (positive-definite pseudo-inertias)."),
-    ] = False,
+        bool | None,
+        typer.Option(
+            "--physical/--no-physical",
+            help="Write the physically consistent estimate (positive-definite pseudo-inertias). Default: "
+            "where the unconstrained one is inconsistent and the consistent one lies within √n_base σ.",
+        ),
+    ] = None,
     method: Annotated[Method, typer.Option(help="Weighted (per-joint noise) or ordinary least squares.")] = (
         Method.wls
     ),
@@ -298,8 +302,12 @@ def console_rows(result: Identification, summary: dict[str, object]) -> dict[str
         dist = summary["consistency_distance_sigma"]
         shown["inconsistent_links"] = (
             f"{summary['inconsistent_links']}: pseudo-inertia not positive definite (no body has that mass "
-            f"distribution); the nearest consistent estimate is {dist:.3g} σ away (≲ √n_base: within "
-            "the noise; --physical writes it)"
+            f"distribution); the nearest consistent estimate is {dist:.3g} σ away"
+            + (
+                " (written: within the noise, ≤ √n_base σ)"
+                if result.physical
+                else " (≲ √n_base: within the noise; --physical writes it)"
+            )
         )
     for k in ("consistency_distance_sigma", "method", "seconds"):
         shown[k] = summary[k]
