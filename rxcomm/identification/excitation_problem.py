@@ -353,6 +353,28 @@ class ExcitationProblem:
 
         return (lambda x: evaluate(x)["g"]), (lambda x: evaluate(x)["j"])
 
+    def _speed_constraints(self):
+        """(g, ∂g/∂x): g_j = mean q̇_j² / v_j² − 1 ≥ 0 over a period, v_j = min(min_rms_speed, ¼ of the
+        joint's velocity limit). Exact on the objective grid (a trigonometric polynomial's mean square
+        from ≥ 2N + 1 uniform samples); quadratic in the coefficients."""
+        _, bv, _ = self._basis(self.t_obj)
+        v_min = np.minimum(self.settings.min_rms_speed_rad_s, 0.25 * self.v_half)
+        scale = 1.0 / np.maximum(v_min, 1e-12) ** 2
+        k = len(self.t_obj)
+
+        def fun(x: np.ndarray) -> np.ndarray:
+            qd = bv @ self.full(x).T  # [k, n]
+            return np.mean(qd**2, axis=0) * scale - 1.0
+
+        def jac(x: np.ndarray) -> np.ndarray:
+            qd = bv @ self.full(x).T
+            d_full = (2.0 / k) * (bv.T @ qd).T * scale[:, None]  # [n, m]: row j is ∂g_j/∂x_j
+            rows = np.zeros((self.n, self.n, self.m))
+            rows[np.arange(self.n), np.arange(self.n)] = d_full
+            return rows[:, self.free_mask]
+
+        return fun, jac
+
     def bounds(self) -> list[tuple[float, float]]:
         lo = np.empty((self.n, self.m))
         hi = np.empty((self.n, self.m))
@@ -372,6 +394,7 @@ class ExcitationProblem:
         conditioning, cond 40–50 instead of 7–9, on a third of the RX130L starts.)"""
         s = self.settings
         fun, jac = self._peak_constraints()
+        speed_fun, speed_jac = self._speed_constraints()
         x, iters = np.asarray(x0, dtype=float), 0
         # The best iterate within the constraints (the start is one): returned if SLSQP ends outside.
         best = {"f": self.objective(x)[0] if self.max_ratio(x) <= 1.0 else math.inf, "x": x}
@@ -389,7 +412,10 @@ class ExcitationProblem:
                 jac=True,
                 method="SLSQP",
                 bounds=self.bounds(),
-                constraints=[{"type": "ineq", "fun": fun, "jac": jac}],
+                constraints=[
+                    {"type": "ineq", "fun": fun, "jac": jac},
+                    {"type": "ineq", "fun": speed_fun, "jac": speed_jac},
+                ],
                 options={"maxiter": s.max_iterations, "ftol": s.tolerance},
                 callback=keep_best,
             )

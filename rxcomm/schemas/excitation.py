@@ -62,6 +62,12 @@ class ExcitationSettings(Strict):
         description="of the torque-rate limit kept for the smooth dynamics where Coulomb friction reverses",
     )
     region_margin_m: float = Field(0.0, ge=0, description="kept inside each allowed-region box")
+    min_rms_speed_rad_s: float = Field(
+        0.15,
+        ge=0,
+        description="every joint's RMS speed at least this (at most ¼ of its velocity limit): cond(W) on "
+        "unit columns cannot see a joint that barely moves, and identify rejects its slow rows",
+    )
     coulomb_eps_rad_s: float = Field(
         0.05,
         gt=0,
