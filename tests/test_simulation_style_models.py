@@ -114,7 +114,7 @@ def test_moves_between_poses_are_paced_by_the_models_torque(arm, tmp_path):
     slower for it."""
     import shutil
 
-    from rxcomm.execution.approach import move_trajectory, paced_move
+    from rxcomm.execution.approach import move_trajectory
     from rxcomm.execution.plan import model_torque
 
     fast = tmp_path / "arm"
@@ -126,7 +126,7 @@ def test_moves_between_poses_are_paced_by_the_models_torque(arm, tmp_path):
     q0, q1 = np.zeros(6), np.array([2.0, -1.0, 1.0, 0.5, 0.5, 0.5])
     tau_max = np.asarray(robot.tau_max)
     plain = move_trajectory(robot, q0, q1, robot.drives.cycle_s, 0.5)
-    paced = paced_move(robot, params, q0, q1, robot.drives.cycle_s, 0.5)
+    paced = move_trajectory(robot, q0, q1, robot.drives.cycle_s, 0.5, paced_by=params)
     ratio = lambda m: np.max(np.abs(model_torque(robot, params, m.q, m.qd, m.qdd)) / tau_max)  # noqa: E731
     assert ratio(plain) > 1.0 and ratio(paced) <= 0.9
     assert paced.t[-1] > plain.t[-1]

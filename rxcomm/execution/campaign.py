@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import Field
 
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
-from rxcomm.execution.approach import paced_move
+from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.guards import raise_if_terminated
 from rxcomm.execution.plan import StreamPlan, prepare_plan
 from rxcomm.execution.records import RunResult, timing_figures
@@ -101,7 +101,9 @@ def plan_moves(
     plans = []
     q_from = np.asarray(q_start, dtype=float)
     for i, q_to in enumerate(poses):
-        move = paced_move(robot, params, q_from, q_to, cycle_s, settings.speed_fraction, settings.settle_s)
+        move = move_trajectory(
+            robot, q_from, q_to, cycle_s, settings.speed_fraction, settings.settle_s, paced_by=params
+        )
         plans.append(
             prepare_plan(
                 robot,

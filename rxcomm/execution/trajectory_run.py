@@ -14,7 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from rxcomm.errors import GatewayError, LocatedError, RxcommError, SafetyStop
-from rxcomm.execution.approach import paced_move
+from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.log import RunLogWriter
 from rxcomm.execution.plan import StreamPlan, distance_to_start, prepare_plan
 from rxcomm.execution.records import RecordSink, RunResult
@@ -82,7 +82,9 @@ def run_trajectory(
                 f"the robot is not at the plan's start (distance per joint, rad: {far}; tolerance "
                 f"{settings.start_tolerance_rad:g}); use --approach to move there first"
             )
-        move = paced_move(robot, params, q_now, plan.q[0], ses.cycle_s, settings.approach_speed_fraction)
+        move = move_trajectory(
+            robot, q_now, plan.q[0], ses.cycle_s, settings.approach_speed_fraction, paced_by=params
+        )
         approach = prepare_plan(
             robot,
             move,
