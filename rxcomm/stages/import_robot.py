@@ -3,14 +3,13 @@
 Writes DIR/NAME.urdf (kinematics and inertias from MuJoCo's compiled model), DIR/drives.yaml (friction
 priors, rotor inertias, peak torques and limits from the model; everything else a stated default
 marked *assumed*) and keeps the model file beside them (DIR/NAME.mujoco.xml or .urdf) as its source.
-So that `make commission ROBOT=DIR` runs at once, it also writes what a model cannot hold, each a
-stated default the header says so of: DIR/cell.yaml (`rxcomm.model.cell_layout`: floor, tracker,
-workspace scaled by reach), DIR/paths/ (the ISO 9283 test paths in that cell, `iso9283-paths`) and
-DIR/acceptance.yaml (`rxcomm.acceptance.defaults`: ratios to the factory state); any of these DIR
-already has is kept, never overwritten. The directory is loaded back as a robot before anything is
-moved into DIR. Exit 2: not a serial 6R
-arm (the joint or body that breaks it named), a model MuJoCo cannot read, an output that cannot be
-written.
+So that `make commission ROBOT=DIR` runs at once, it also writes what a model cannot hold, each file
+headed ASSUMED: DIR/cell.yaml (`rxcomm.model.cell_layout`: floor, tracker, workspace scaled by reach),
+DIR/paths/ (the ISO 9283 test paths in that cell, `iso9283-paths`) and DIR/acceptance.yaml
+(`rxcomm.acceptance.defaults`: ratios to the factory state); any of these DIR already has is kept,
+never overwritten. The directory is loaded back as a robot before anything is moved into DIR. Exit 2:
+not a serial 6R arm (the joint or body that breaks it named), a model MuJoCo cannot read, an output
+that cannot be written.
 """
 
 from __future__ import annotations
