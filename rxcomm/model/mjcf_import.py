@@ -34,6 +34,7 @@ ROOT_LINK = "mujoco_world"
 ASSUMED = {
     "gear_ratio": 100.0,
     "torque_constant_nm_per_a": 0.5,
+    "winding_resistance_ohm": 1.0,  # the energy objective's copper losses (the samples: 0.9–1.4 Ω)
     "velocity_limit_rad_s": 3.0,
     "viscous_share": 0.5,  # … lowered where viscous friction alone would need this × peak torque
     "acceleration_max_rad_per_s2": 10.0,
@@ -277,6 +278,7 @@ def import_model(path: str | Path) -> ImportedRobot:
                 "gear_ratio": n,
                 "rotor_inertia_kgm2": float(model.dof_armature[dof]) / n**2,
                 "torque_constant_nm_per_a": a["torque_constant_nm_per_a"],
+                "winding_resistance_ohm": a["winding_resistance_ohm"],
                 "peak_torque_nm": float(peaks[k]),
                 "continuous_torque_nm": float(a["continuous_fraction"] * peaks[k]),
                 "torque_rate_max_nm_per_s": float(a["torque_rate_per_s"] * peaks[k]),
@@ -287,7 +289,8 @@ def import_model(path: str | Path) -> ImportedRobot:
         )
     assumed += [
         f"gear_ratio = {a['gear_ratio']:g} on every joint (rotor inertia = armature / N²)",
-        f"torque_constant_nm_per_a = {a['torque_constant_nm_per_a']:g}",
+        f"torque_constant_nm_per_a = {a['torque_constant_nm_per_a']:g}, "
+        f"winding_resistance_ohm = {a['winding_resistance_ohm']:g}",
         f"velocity limit {a['velocity_limit_rad_s']:g} rad/s (lower where listed), acceleration limit "
         f"{a['acceleration_max_rad_per_s2']:g} rad/s², torque rate {a['torque_rate_per_s']:g} × peak /s",
         f"continuous torque = {a['continuous_fraction']:g} × peak; drive cycle {a['cycle_s'] * 1e6:.0f} µs",
