@@ -280,7 +280,8 @@ def identify(
     physical = settings.physical
     if physical is None:  # auto: no body has that mass distribution, and the data cannot tell
         inconsistent = bool(np.any(link_min_eigenvalues(closest) <= 0) or drive_violations(closest))
-        physical = inconsistent and phys.success and phys.mahalanobis <= np.sqrt(len(est.p_b))
+        # (consistent by construction, converged or not: log-Cholesky links, non-negative drives)
+        physical = inconsistent and phys.mahalanobis <= np.sqrt(len(est.p_b))
     if physical:
         params, p_b = phys.params, phys.p_b
     else:
