@@ -444,3 +444,16 @@ def test_tcp_box_keeps_the_tcp_inside(m900):
     assert tcp_box_ratio(m900, free.trajectory.q, box) > 1.05  # (|x − centre| / half-size)
     assert boxed.tcp_box_ratio <= 1.01 and boxed.max_limit_ratio <= 1.01
     assert boxed.duration_s >= free.duration_s * 0.999  # a constraint more cannot make it faster
+
+
+def test_every_summary_key_plan_ptp_can_write_is_a_typed_field():
+    """The re-solves' widened margins (`margin_<limit>`) and the per-limit ratios are written into the
+    summary by name; one not in TrajectorySummary stopped plan-ptp on an imported UR5e
+    ("margin_velocity: extra inputs are not permitted") after the whole solve."""
+    from rxcomm.planning.ptp_ocp import LIMIT_NAMES
+    from rxcomm.schemas.trajectory import TrajectorySummary
+
+    names = set(TrajectorySummary.model_fields["summary"].annotation.model_fields)
+    missing = [f"margin_{k}" for k in LIMIT_NAMES if f"margin_{k}" not in names]
+    missing += [f"max_{k}_ratio" for k in LIMIT_NAMES if f"max_{k}_ratio" not in names]
+    assert not missing, missing

@@ -179,6 +179,13 @@ class TrajectoryFigures(Strict):
     max_tcp_speed_ratio: float | None = None
     max_tcp_acceleration_ratio: float | None = None
     max_tcp_box_ratio: float | None = None
+    # plan-ptp: a limit's margin where its re-solves widened it beyond the option's (None: not widened)
+    margin_position: float | None = None
+    margin_velocity: float | None = None
+    margin_acceleration: float | None = None
+    margin_torque: float | None = None
+    margin_torque_rate: float | None = None
+    margin_tcp_box: float | None = None
     dwell_s: float | None = None
     order: str | None = None
     limits_checked: str | None = None
