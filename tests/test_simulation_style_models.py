@@ -81,15 +81,17 @@ def test_velocity_limits_follow_a_simulation_damping(arm):
 
 def test_iso_paths_are_clear_of_the_wrist_singularity(arm):
     """The 27 points of the test cube can all be clear of singularities while a path between them
-    crosses one; every written path is followed by the planners' path IK at twice their margin."""
-    from rxcomm.planning.path_ik import SIGMA_MIN_MARGIN, solve_path_ik
+    crosses one; every written path is followed by the planners' path IK as clear as the points are
+    (σ_min ≥ 0.02, four times the planners' margin: at theirs a path ended 2° from the wrist
+    singularity, where the calibration turned J4 and J6 by 0.09 rad and `accept` refused the task)."""
+    from rxcomm.planning.path_ik import solve_path_ik
     from rxcomm.planning.paths import load_path
 
     robot = load_robot(arm)
     for f in sorted((arm / "paths").iterdir()):
         spec, path = load_path(f, robot)
         jp = solve_path_ik(robot, path, spec.branch)
-        assert jp.sigma_min.min() >= 2 * SIGMA_MIN_MARGIN, f.name
+        assert jp.sigma_min.min() >= 0.02, f.name
 
 
 def test_time_optimal_path_with_dominant_viscous_friction(arm, tmp_path):

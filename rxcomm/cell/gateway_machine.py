@@ -38,7 +38,7 @@ class CoreLimits:
     buffer_capacity: int = 4096
     trace_capacity: int = 8192
     watchdog_ms: int = 200
-    settle_max_cycles: int = 2500
+    settle_max_cycles: int = 12500  # 5 s: a damped arm held by its integrators settles in 1.3–2.8 s
     standstill_rad_s: float = 1e-6
 
 

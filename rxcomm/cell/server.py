@@ -62,7 +62,7 @@ class ServerConfig(Strict):
     buffer_capacity_cycles: int = Field(4096, ge=6, le=R.U16_MAX)
     trace_capacity_records: int = Field(8192, ge=6, le=0x8000)
     watchdog_ms: int = Field(200, ge=0, le=R.WATCHDOG_MS_MAX, description="power-on default")
-    settle_max_cycles: int = Field(2500, ge=0, description="virtual time: settling bound after a stop")
+    settle_max_cycles: int = Field(12500, ge=0, description="virtual time: settling bound after a stop")
     max_lag_cycles: int = Field(50, ge=1, description="realtime: resync beyond this lateness")
     start_timeout_s: float = Field(5.0, gt=0)
 

@@ -19,7 +19,7 @@ from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import Trajectory
 from rxcomm.model.kinematics import BranchSelector, solve_branch_ik
 from rxcomm.model.robot import Robot
-from rxcomm.planning.path_ik import SIGMA_MIN_MARGIN, solve_path_ik
+from rxcomm.planning.path_ik import solve_path_ik
 from rxcomm.planning.paths import build_path, rpy_matrix, unit_vector
 from rxcomm.schemas.cell import Box
 from rxcomm.schemas.path import Branch, Orientation, PathLimits, PathSpec
@@ -122,13 +122,14 @@ def iso9283_cube(
 
     def paths_side(centre: np.ndarray, side: float, floor: float) -> float | None:
         """The largest side ≤ `side` (and > `floor`) whose test paths the path IK follows on the
-        branch clear of singularities: the 27 lattice points can all be clear while a path between
-        them crosses one (a UR-type arm's wrist, whose J6 lines up with J2–J4)."""
+        branch as clear of singularities as the lattice points: they can all be clear while a path
+        between them crosses one (a UR-type arm's wrist, whose J6 lines up with J2–J4). At the
+        planners' own margin a path could still end 2° from the wrist singularity, where a
+        calibration turns J4 and J6 by 0.09 rad for the same TCP pose."""
         while side > max(floor, 0.05):
             cube = Iso9283Cube(centre, side, tuple(float(a) for a in rpy_rad), *_cube_geometry(centre, side))
             if all(
-                _path_clear(robot, spec, 2 * SIGMA_MIN_MARGIN)
-                for spec in iso9283_paths(cube, branch).values()
+                _path_clear(robot, spec, sigma_min_margin) for spec in iso9283_paths(cube, branch).values()
             ):
                 return side
             side *= 0.85
