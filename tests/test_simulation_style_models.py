@@ -81,9 +81,9 @@ def test_velocity_limits_follow_a_simulation_damping(arm):
 
 def test_iso_paths_are_clear_of_the_wrist_singularity(arm):
     """The 27 points of the test cube can all be clear of singularities while a path between them
-    crosses one; every written path is followed by the planners' path IK as clear as the points are
-    (σ_min ≥ 0.02, four times the planners' margin: at theirs a path ended 2° from the wrist
-    singularity, where the calibration turned J4 and J6 by 0.09 rad and `accept` refused the task)."""
+    crosses one; every written path is followed by the planners' path IK with σ_min ≥ 0.05, 10× the
+    planners' margin (at 0.024 the line ended 2° from the wrist singularity, where the calibration
+    turned J4 and J6 by 0.09 rad for the same TCP pose and `accept` refused the task as another)."""
     from rxcomm.planning.path_ik import solve_path_ik
     from rxcomm.planning.paths import load_path
 
@@ -91,7 +91,7 @@ def test_iso_paths_are_clear_of_the_wrist_singularity(arm):
     for f in sorted((arm / "paths").iterdir()):
         spec, path = load_path(f, robot)
         jp = solve_path_ik(robot, path, spec.branch)
-        assert jp.sigma_min.min() >= 0.02, f.name
+        assert jp.sigma_min.min() >= 0.05, f.name
 
 
 def test_time_optimal_path_with_dominant_viscous_friction(arm, tmp_path):

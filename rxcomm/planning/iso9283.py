@@ -78,13 +78,15 @@ def iso9283_cube(
     workspace: Box | None = None,
     *,
     sigma_min_margin: float = 0.02,
+    path_sigma_min: float = 0.05,
     radii_m: Sequence[float] | None = None,
     heights_m: Sequence[float] | None = None,
 ) -> Iso9283Cube:
     """The largest test cube (edges parallel to the base axes, centred on the base x axis) whose 27
     lattice points (corners, edge midpoints, face centres, centre) the TCP reaches with orientation
     `rpy_rad` on the IK `branch`, with the TCP Jacobian's smallest singular value ≥ `sigma_min_margin`
-    and inside `workspace` when given. Grid over centre radius and height, bisection on the side.
+    and inside `workspace` when given, and whose test paths keep ≥ `path_sigma_min` (`paths_side`).
+    Grid over centre radius and height, bisection on the side.
     """
 
     branch = branch or Branch()
@@ -122,15 +124,14 @@ def iso9283_cube(
 
     def paths_side(centre: np.ndarray, side: float, floor: float) -> float | None:
         """The largest side ≤ `side` (and > `floor`) whose test paths the path IK follows on the
-        branch as clear of singularities as the lattice points: they can all be clear while a path
-        between them crosses one (a UR-type arm's wrist, whose J6 lines up with J2–J4). At the
-        planners' own margin a path could still end 2° from the wrist singularity, where a
-        calibration turns J4 and J6 by 0.09 rad for the same TCP pose."""
+        branch with σ_min ≥ `path_sigma_min`: the lattice points can all be clear while a path
+        between them crosses a singularity (a UR-type arm's wrist, whose J6 lines up with J2–J4).
+        That margin is 10× the planners': at σ_min 0.024 a line ended 2° from the wrist
+        singularity, where a calibration turned J4 and J6 by 0.09 rad for the same TCP pose (the
+        samples' paths keep ≥ 0.127)."""
         while side > max(floor, 0.05):
             cube = Iso9283Cube(centre, side, tuple(float(a) for a in rpy_rad), *_cube_geometry(centre, side))
-            if all(
-                _path_clear(robot, spec, sigma_min_margin) for spec in iso9283_paths(cube, branch).values()
-            ):
+            if all(_path_clear(robot, spec, path_sigma_min) for spec in iso9283_paths(cube, branch).values()):
                 return side
             side *= 0.85
         return None
@@ -213,7 +214,7 @@ def iso9283_paths(
     limits: PathLimits | None = None,
     large_circle_diameter_ratio: float = 0.8,
     small_circle_diameter_ratio: float = 0.1,
-    corner_blend_m: float = 0.05,
+    corner_blend_m: float | None = None,
 ) -> dict[str, PathSpec]:
     """The ISO 9283 test-plane paths of a cube as path specs, by file stem:
     `iso9283-line` (P2→P4), `iso9283-rectangle` (P2-P3-P4-P5-P2, corners blended), `iso9283-circle-large`
@@ -221,6 +222,9 @@ def iso9283_paths(
     branch = branch or Branch()
     limits = limits or PathLimits()
     p = {k: [round(float(x), 6) for x in v] for k, v in cube.points_m.items()}
+    if corner_blend_m is None:  # 5 cm, or a quarter of the shortest edge on a small cube
+        edge = min(np.linalg.norm(np.subtract(p[a], p[b])) for a, b in (("P2", "P3"), ("P3", "P4")))
+        corner_blend_m = round(min(0.05, 0.25 * float(edge)), 4)
     c = cube.plane_corners_m
     normal = unit_vector(np.cross(c[1] - c[0], c[3] - c[0]))
     along = unit_vector(c[1] - c[0])
