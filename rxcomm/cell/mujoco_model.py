@@ -51,6 +51,7 @@ import pinocchio as pin
 from rxcomm.cell.truth import SimTruth
 from rxcomm.errors import InputError
 from rxcomm.model.geometric_errors import ErrorModel, placement_to_se3
+from rxcomm.model.mjcf_import import compile_without_absent_meshes
 
 COMPLIANCE_DAMPING_RATIO = 0.05  # assumed: the truth gives no transmission damping
 FRICTION_SOLREF_CYCLES = 2.0  # friction constraint time constant, in integration steps (MuJoCo's minimum)
@@ -114,9 +115,10 @@ def _load_spec(source: Path) -> mujoco.MjSpec:
         # (keyframes hold a ctrl per actuator, sensors may read one); the cell sets its own state.
         for element in [*spec.actuators, *spec.keys, *spec.sensors]:
             spec.delete(element)
-        compiled = spec.compile()
     except ValueError as e:
         raise InputError(f"MuJoCo cannot load it: {e}", file=source) from e
+    # as import-robot read it: a model kept without its mesh files loses those geoms (no contacts here)
+    compiled, _ = compile_without_absent_meshes(spec, source)
     for i, body in enumerate(spec.bodies):  # the spec's body order is the compiled model's
         if i > 0:
             body.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT

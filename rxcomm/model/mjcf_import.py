@@ -64,8 +64,17 @@ def compile_model(path: Path) -> tuple[mujoco.MjModel, list[str]]:
         spec = mujoco.MjSpec.from_file(str(path))
     except ValueError as e:
         raise InputError(f"MuJoCo cannot read it: {e}", file=path) from e
+    model, dropped = compile_without_absent_meshes(spec, path)
+    return model, [
+        "mesh files absent: their geoms dropped; inertias from the bodies' <inertial>"
+    ] if dropped else []
+
+
+def compile_without_absent_meshes(spec: mujoco.MjSpec, path: Path) -> tuple[mujoco.MjModel, bool]:
+    """`spec` compiled; where a mesh file is absent (a model shipped without its assets), with every
+    mesh geom and mesh dropped (the second value True). InputError (`path` named) otherwise."""
     try:
-        return spec.compile(), []
+        return spec.compile(), False
     except ValueError as e:
         if "mesh" not in str(e).lower() and "file" not in str(e).lower():
             raise InputError(f"MuJoCo cannot compile it: {e}", file=path) from e
@@ -74,10 +83,9 @@ def compile_model(path: Path) -> tuple[mujoco.MjModel, list[str]]:
     for mesh in list(spec.meshes):
         spec.delete(mesh)
     try:
-        model = spec.compile()
+        return spec.compile(), True
     except ValueError as e:
         raise InputError(f"MuJoCo cannot compile it without its meshes: {e}", file=path) from e
-    return model, ["mesh files absent: their geoms dropped; inertias from the bodies' <inertial>"]
 
 
 def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, i: int, prefix: str) -> str:
