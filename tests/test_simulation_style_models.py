@@ -42,7 +42,8 @@ def test_import_writes_what_make_commission_reads(arm):
     cell = read_yaml_model(arm / "cell.yaml", Cell)
     assert cell.tracker.range_max_m > np.linalg.norm(cell.tracker.tracker_to_base.xyz_m) + robot.reach_m
     rows = read_yaml_model(arm / "acceptance.yaml", AcceptanceThresholds).criteria
-    assert {r.criterion for r in rows} >= {"AP_p", "AT_p", "cycle_time"} and all(r.max_ratio for r in rows)
+    assert {r.criterion for r in rows} >= {"AP_p", "AT_p", "RP_l", "cycle_time"}
+    assert all(r.max_ratio for r in rows if r.criterion != "RP_l")
     for name in ("cell.yaml", "acceptance.yaml"):
         assert (arm / name).read_text().startswith("# ASSUMED by `rxcomm import-robot`")
     assert sorted(p.name for p in (arm / "paths").iterdir()) == [

@@ -80,8 +80,8 @@ def run(model: Path, output: Path) -> dict[str, object]:
         out.print(f"  kept {escape(str(output / name))} (already there)")
     if cell.notes:
         out.print(
-            "  [bold]assumed cell[/] (cell.yaml; the ISO 9283 paths in it; acceptance.yaml: ratios to "
-            "the factory):"
+            "  [bold]assumed cell[/] (cell.yaml; the ISO 9283 paths in it; acceptance.yaml: mostly ratios "
+            "to the factory):"
         )
         for note in cell.notes:
             out.print(f"    - {note}")
@@ -152,6 +152,6 @@ CELL_HEADER = (
     "# reach. Replace with the real cell: floor, tracker placement and noise, workspace, allowed region.\n"
 )
 ACCEPTANCE_HEADER = (
-    "# ASSUMED by `rxcomm import-robot` (rxcomm/acceptance/defaults.py): every criterion a ratio to the\n"
-    "# factory state measured the same way. Replace with the customer's thresholds.\n"
+    "# ASSUMED by `rxcomm import-robot` (rxcomm/acceptance/defaults.py): ratios to the factory state\n"
+    "# measured the same way, repeatability within the tracker's noise. Replace with the customer's.\n"
 )
