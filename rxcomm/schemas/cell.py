@@ -49,6 +49,12 @@ class Workspace(Strict):
         0.05, ge=0, description="minimum height of TCP/wrist/elbow above the floor"
     )
 
+    def box_above_floor(self) -> Box:
+        """`box` with its bottom raised to the floor plus the clearance."""
+        lo = list(self.box.min_m)
+        lo[2] = max(lo[2], self.floor_z_m + self.floor_clearance_m)
+        return Box(min_m=(lo[0], lo[1], lo[2]), max_m=self.box.max_m)
+
 
 class SelfCollision(Strict):
     """A simple self-collision check with two capsules (segments with a radius) of the arm.

@@ -11,66 +11,37 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
 import typer
 from rich.markup import escape
 
 from rxcomm import console
 from rxcomm.io.files import atomic_write_text
-from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
+from rxcomm.io.yaml_io import read_yaml_model
 from rxcomm.options import CellFile, RobotDir, parse_numbers
-from rxcomm.schemas.cell import Box, Cell
+from rxcomm.schemas.cell import Cell
 from rxcomm.stages.declarations import DECLARATIONS
 
 if TYPE_CHECKING:
     from rxcomm.model.robot import Robot
 
 
-def iso9283_path_files(
-    robot: Robot, cell: Path | None, rpy_deg: str
-) -> tuple[dict[str, object], dict[str, str]]:
-    """The robot's ISO 9283 test cube (its facts) and its test-plane path files (name → YAML text)."""
-    from rxcomm.planning.iso9283 import iso9283_cube_any_branch, iso9283_paths
-
-    rpy = np.radians(parse_numbers(rpy_deg, 3, "tcp-rpy-deg", "degrees"))
-    box = None
-    if cell is not None:
-        ws = read_yaml_model(cell, Cell).workspace
-        lo = list(ws.box.min_m)
-        lo[2] = max(lo[2], ws.floor_z_m + ws.floor_clearance_m)
-        box = Box(min_m=tuple(lo), max_m=ws.box.max_m)
-    with console.phase("iso9283-paths: searching the largest reachable ISO 9283 cube"):
-        cube, branch = iso9283_cube_any_branch(robot, tuple(rpy), workspace=box)
-    texts = {}
-    for name, spec in iso9283_paths(cube, branch).items():
-        header = f"# ISO 9283 test path for {robot.name}, written by `rxcomm iso9283-paths`.\n"
-        data = spec.model_dump(mode="json", exclude_none=True)
-        if data["geometry"].get("points_m") is None:
-            data["geometry"].pop("full", None)  # only meaningful for the three-point form
-        if not data["limits"]:
-            data.pop("limits")
-        texts[f"{name}.yaml"] = header + dump_yaml(data)
-    facts = {
-        "cube_centre_m": cube.centre_m.tolist(),
-        "cube_side_m": cube.side_m,
-        "ik_branch": ", ".join(f"{k} {v}" for k, v in branch.model_dump().items()),
-        **{f"{k}_m": v.tolist() for k, v in cube.points_m.items()},
-    }
-    return facts, texts
-
-
 def write_iso9283(robot: Robot, out_dir: Path, cell: Path | None, rpy_deg: str) -> dict[str, object]:
     """Find the robot's ISO 9283 test cube and write its test-plane paths to `out_dir`."""
-    facts, texts = iso9283_path_files(robot, cell, rpy_deg)
+    from rxcomm.planning.iso9283_files import iso9283_path_files
+
+    rpy = parse_numbers(rpy_deg, 3, "tcp-rpy-deg", "degrees")
+    box = read_yaml_model(cell, Cell).workspace.box_above_floor() if cell is not None else None
+    with console.phase("iso9283-paths: searching the largest reachable ISO 9283 cube"):
+        files = iso9283_path_files(robot, rpy, box)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, text in texts.items():
+    for name, text in files.texts.items():
         atomic_write_text(out_dir / name, text)
         written.append(str(out_dir / name))
-    console.summary_table(f"ISO 9283 test cube of {robot.name}", facts)
+    console.summary_table(f"ISO 9283 test cube of {robot.name}", files.facts)
     for f in written:
         console.out.print(f"  wrote {escape(f)}")
-    return facts | {"files": written}
+    return files.facts | {"files": written}
 
 
 @console.stage_command
