@@ -58,9 +58,20 @@ def pytest_configure(config):
         setattr(socket.socket, name, _guarded(original, f"opens a socket ({name})", "socket"))
 
 
+_NO_COMPILE = os.environ.get("RXCOMM_NO_COMPILE")
+
+
 def _allow(item) -> None:
+    """Also: a test that may not start a process gets CasADi's virtual machine (rxcomm.casadi_build runs
+    no C compiler: `RXCOMM_NO_COMPILE`), whatever the on-disk cache holds; set here, before any of its
+    fixtures, so that a module-scoped one is held to it too (on a fresh machine's empty cache it would
+    otherwise start the compiler)."""
     global _allowed
     _allowed = set().union(*(ALLOWS.get(m.name, set()) for m in item.iter_markers()))
+    if "process" in _allowed and _NO_COMPILE is None:
+        os.environ.pop("RXCOMM_NO_COMPILE", None)
+    else:
+        os.environ["RXCOMM_NO_COMPILE"] = _NO_COMPILE or "1"
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -80,14 +91,6 @@ def pytest_runtest_teardown(item):
     global _allowed
     _allowed = set(EVERYTHING)  # stopping what a marked test's fixture started
     yield
-
-
-@pytest.fixture(autouse=True)
-def _no_compiler_without_processes(request, monkeypatch):
-    """A test that may not start a process gets CasADi's virtual machine (rxcomm.casadi_build runs no
-    C compiler: `RXCOMM_NO_COMPILE`), whatever the on-disk cache holds."""
-    if "process" not in set().union(*(ALLOWS.get(m.name, set()) for m in request.node.iter_markers())):
-        monkeypatch.setenv("RXCOMM_NO_COMPILE", "1")
 
 
 @pytest.fixture(scope="session")
