@@ -519,10 +519,16 @@ def test_run_warns_of_a_dynamics_other_than_the_plans_and_report_notes_a_replace
     save_trajectory_mcap(plan, traj, TrajectorySummary.envelope({"dynamics": dyn}, {}, summary))
     assert other_model_warning(plan, dyn) is None
     assert stale_artefacts(tmp_path) == []
+    planned_with = dyn.read_bytes()
     other = _dynamics_file(tmp_path / "dynamics.yaml", rx130l, _j1_inertia_minus(rx130l, 0.5))  # replaced
     warning = other_model_warning(plan, other)
     assert warning is not None and "planned with another dynamics model" in warning
     assert stale_artefacts(tmp_path) == ["cp.yaml was made from an older dynamics.yaml"]
+    # an input named by its role, whose file is another one of the build (make commission PLANT=mujoco:
+    # identify's `calibration` is calibration-prior.yaml beside calibration.yaml), is not replaced
+    (tmp_path / "dynamics-prior.yaml").write_bytes(planned_with)
+    assert stale_artefacts(tmp_path) == []
+    (tmp_path / "dynamics-prior.yaml").unlink()
     from rxcomm.stages.report import build_report
 
     report, _ = build_report(tmp_path)

@@ -232,8 +232,10 @@ def iso_sets(build: Path) -> list[TestSet]:
 
 def stale_artefacts(build: Path) -> list[str]:
     """Artefacts of ``build`` made from a file of ``build`` that has been replaced since: an input
-    named NAME in the envelope whose NAME.yaml here has another sha256, and a summary whose MCAP is
-    not the one it was written for."""
+    named NAME in the envelope whose NAME.yaml here has another sha256 (and no other YAML here has
+    the recorded one: the envelope names an input by its role, and `make commission PLANT=mujoco`
+    gives identify calibration-prior.yaml as its `calibration`), and a summary whose MCAP is not the
+    one it was written for."""
     from rxcomm.schemas.plain import sha256_file
 
     hashes: dict[str, str] = {}
@@ -243,8 +245,9 @@ def stale_artefacts(build: Path) -> list[str]:
             hashes[path.name] = sha256_file(path)
         return hashes[path.name]
 
+    yamls = sorted(build.glob("*.yaml"))
     out = []
-    for path in sorted(build.glob("*.yaml")):
+    for path in yamls:
         try:
             doc = load_yaml(path)
         except InputError:
@@ -253,7 +256,9 @@ def stale_artefacts(build: Path) -> list[str]:
             continue
         for name, made in (doc.get("inputs") or {}).items():
             source = build / f"{name}.yaml"
-            if isinstance(made, str) and source.is_file() and source != path and sha(source) != made:
+            if not (isinstance(made, str) and source.is_file() and source != path and sha(source) != made):
+                continue
+            if not any(sha(other) == made for other in yamls if other != path):
                 out.append(f"{path.name} was made from an older {source.name}")
         mcap = doc.get("mcap_file")
         if isinstance(mcap, str) and (build / mcap).is_file() and sha(build / mcap) != doc.get("mcap_sha256"):
