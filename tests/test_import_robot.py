@@ -89,7 +89,17 @@ def test_drives_from_the_model_and_assumed_marked(imported):
             "'a4' is a ball",
         ),
         (('<joint name="a1" axis="0 0 1" range="-2.9 2.9" actuatorfrcrange="-300 300"/>', ""), "5 hinges"),
-        (('<body name="tool_plate"', GRIPPER + '<body name="tool_plate"'), "7 hinges"),
+        (
+            ('<body name="tool_plate"', GRIPPER + '<body name="tool_plate"'),
+            "['g'] hang off the arm's sixth link",
+        ),
+        (
+            (
+                '<body name="tool_plate"',
+                GRIPPER.replace("<joint", '<joint type="slide"') + '<body name="tool_plate"',
+            ),
+            "'g' is a slide joint: a serial 6R arm has hinges only: ['g'] hang off the arm's sixth link",
+        ),
         (
             ('<body name="wrist_1"', SIDE.format(joint='name="s" axis="1 0 0"') + '<body name="wrist_1"'),
             "7 hinges",
@@ -170,3 +180,21 @@ def test_the_kept_mjcf_is_the_mujoco_plants_source(imported):
         mujoco.mj_inverse(m, d)
         tau = d.qfrc_inverse[nominal.motor_dof] + np.array(truth.params.offset_nm)
         assert np.abs(tau - tau_rx[i]).max() <= 1e-6 * np.abs(tau_rx).max()
+
+
+def test_a_joint_spring_is_named_with_the_torque_the_model_cannot_explain(tmp_path):
+    """MuJoCo's joint `stiffness` (simulation models often put one in a default class): rxcomm's model
+    has no joint spring, the MuJoCo plant keeps it; the import says so with its size over the range."""
+    a3 = '<joint name="a3" axis="0 0 1" range="-2.5 2.5"/>'
+    text = ARM.read_text()
+    assert a3 in text
+    sprung = tmp_path / "sprung.xml"
+    sprung.write_text(text.replace(a3, a3.replace("/>", ' stiffness="40" springref="0.5"/>')))
+    r = CliRunner(env={"COLUMNS": "300"}).invoke(
+        app, ["import-robot", str(sprung), "-o", str(tmp_path / "out")]
+    )
+    assert r.exit_code == 0, r.output
+    assert (
+        "a3: a spring of 40 N·m/rad to 0.5 rad" in r.output and "up to 120 N·m it cannot explain" in r.output
+    )
+    assert "a2: a spring" not in r.output

@@ -13,8 +13,10 @@ whatever MJCF spelling was used, the numbers are MuJoCo's own:
   × its gear) → peak torque, `range` → position limits.
 
 What a MuJoCo model cannot know is written with the stated default of `ASSUMED` and listed in
-`ImportedRobot.assumed` (the stage prints it). Anything but a serial chain of six hinges is refused,
-naming the joint or body that breaks it (exit 2).
+`ImportedRobot.assumed` (the stage prints it). What rxcomm's model cannot hold is said in
+`ImportedRobot.notes`: a joint `stiffness` (a spring the MuJoCo plant keeps). Anything but a serial
+chain of six hinges is refused, naming the joint or body that breaks it (exit 2); joints below the
+sixth link (a gripper's) are named as such, to be deleted so the bodies import as a rigid tool.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ ASSUMED = {
     "acceleration_max_rad_per_s2": 10.0,
     "torque_rate_per_s": 20.0,  # torque rate limit = this × peak torque, N·m/s
     "continuous_fraction": 0.5,  # continuous torque = this × peak torque
-    "peak_over_gravity": 2.5,  # peak torque = this × the largest holding torque over random poses
+    "peak_over_gravity": 2.5,  # peak torque = this × the largest holding torque (gravity, springs)
     "peak_min_nm": 5.0,
     "range_rad": float(np.pi),  # an unlimited hinge: ±this
     "cycle_s": 0.0004,
@@ -96,15 +98,23 @@ def serial_hinges(model: mujoco.MjModel, path: Path) -> list[int]:
     """The six hinge ids in chain order, or InputError naming the joint or body that breaks the chain."""
     jname = lambda j: _name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint")  # noqa: E731
     bname = lambda b: _name(model, mujoco.mjtObj.mjOBJ_BODY, b, "body")  # noqa: E731
+    tool = [j for j in range(model.njnt) if _hinges_above(model, j) >= N_JOINTS]
+    hint = (
+        f": {[jname(j) for j in tool]} hang off the arm's sixth link (a gripper or a tool?); delete "
+        "those joints (their bodies stay on as a rigid tool) and import again"
+        if tool
+        else ""
+    )
     for j in range(model.njnt):
         if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
             kind = mujoco.mjtJoint(model.jnt_type[j]).name.removeprefix("mjJNT_").lower()
             raise InputError(
-                f"joint {jname(j)!r} is a {kind} joint: a serial 6R arm has hinges only", file=path
+                f"joint {jname(j)!r} is a {kind} joint: a serial 6R arm has hinges only{hint}", file=path
             )
     if model.njnt != N_JOINTS:
         raise InputError(
-            f"{model.njnt} hinges ({[jname(j) for j in range(model.njnt)]}): a 6R arm has 6", file=path
+            f"{model.njnt} hinges ({[jname(j) for j in range(model.njnt)]}): a 6R arm has 6{hint}",
+            file=path,
         )
     bodies = [int(model.jnt_bodyid[j]) for j in range(N_JOINTS)]
     for b in set(bodies):
@@ -123,6 +133,16 @@ def serial_hinges(model: mujoco.MjModel, path: Path) -> list[int]:
                 file=path,
             )
     return order
+
+
+def _hinges_above(model: mujoco.MjModel, j: int) -> int:
+    """How many hinges sit on the bodies above joint j's body (its ancestors, world excluded)."""
+    n, b = 0, int(model.body_parentid[model.jnt_bodyid[j]])
+    while b != 0:
+        adr, num = int(model.body_jntadr[b]), int(model.body_jntnum[b])
+        n += sum(model.jnt_type[k] == mujoco.mjtJoint.mjJNT_HINGE for k in range(adr, adr + num))
+        b = int(model.body_parentid[b])
+    return n
 
 
 def _depth(model: mujoco.MjModel, b: int) -> int:
@@ -222,7 +242,7 @@ def _peak_torques(model: mujoco.MjModel, order: list[int], assumed: list[str]) -
             data.qpos[model.jnt_qposadr[j]] = rng.uniform(lo, hi)
         data.qvel[:] = 0.0
         mujoco.mj_forward(model, data)
-        held = np.maximum(held, np.abs(data.qfrc_bias))
+        held = np.maximum(held, np.abs(data.qfrc_bias - data.qfrc_passive))  # gravity and any spring
     peaks = np.zeros(len(order))
     for k, j in enumerate(order):
         if model.jnt_actfrclimited[j]:
@@ -279,6 +299,13 @@ def import_model(path: str | Path) -> ImportedRobot:
                 f"needs {a['viscous_share']:g} × its peak torque"
             )
         limits[j] = (lo, hi, velocity, peaks[k])
+        if stiffness := float(model.jnt_stiffness[j]):
+            rest = float(model.qpos_spring[model.jnt_qposadr[j]])
+            notes.append(
+                f"{jn}: a spring of {stiffness:g} N·m/rad to {rest:g} rad (MuJoCo `stiffness`), kept by the "
+                f"MuJoCo plant; rxcomm's model has no joint spring: up to "
+                f"{stiffness * max(abs(lo - rest), abs(hi - rest)):.3g} N·m it cannot explain"
+            )
         n = a["gear_ratio"]
         joints.append(
             {
