@@ -198,3 +198,53 @@ def test_a_joint_spring_is_named_with_the_torque_the_model_cannot_explain(tmp_pa
         "a3: a spring of 40 N·m/rad to 0.5 rad" in r.output and "up to 120 N·m it cannot explain" in r.output
     )
     assert "a2: a spring" not in r.output
+
+
+RX_URDF = Path(__file__).parent.parent / "samples" / "rx130l" / "rx130l.urdf"
+
+
+def _kinematics_only(text: str) -> str:
+    """A URDF as ROS-Industrial writes them: `effort="0"` (not known), velocity limits kept."""
+    import re
+
+    return re.sub(r'effort="[^"]*"', 'effort="0"', text)
+
+
+def test_a_urdf_gives_its_velocity_limits_and_a_vertical_axis_gets_a_peak_for_its_inertia(tmp_path):
+    """MuJoCo keeps a URDF's effort (as actuatorfrcrange) but not its velocity: import-robot reads the
+    velocity limits from the URDF itself. With no effort, a joint that holds no gravity (J1, vertical)
+    is assumed a peak torque that gives its inertia the assumed 10 rad/s² (was 2.5 × 0: the 5 N·m
+    floor, under which the RX130L's J1 (≥ 4 kg·m² about its axis) could barely move)."""
+    src = tmp_path / "rx130l.urdf"
+    src.write_text(_kinematics_only(RX_URDF.read_text()))
+    r = CliRunner(env={"COLUMNS": "300"}).invoke(app, ["import-robot", str(src), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    assert "velocity limits from the URDF" in r.output
+    robot, sample = load_robot(tmp_path / "out"), load_robot(RX_URDF.parent)
+    assert np.allclose(robot.v_max, sample.v_max)  # 3.49 / 3.49 / 4.45 … rad/s, as written
+    q = random_states(robot, 50, 3)[0]
+    dyn = RobotDynamics(robot, prior_parameters(robot), None)
+    m11 = [
+        dyn.inverse_dynamics(qi[None], np.zeros((1, 6)), np.eye(6)[:1])[0, 0]
+        - dyn.inverse_dynamics(qi[None], np.zeros((1, 6)), np.zeros((1, 6)))[0, 0]
+        for qi in q
+    ]
+    assert robot.tau_max[0] >= 10.0 * min(m11) > 5.0
+
+
+def test_a_link_without_mass_is_refused_naming_it(tmp_path):
+    """A kinematics-only URDF (no <inertial>): exit 2 naming the link and what to add, not MuJoCo's
+    'mass and inertia of moving bodies must be larger than mjMINVAL'."""
+    import re
+
+    text = RX_URDF.read_text()
+    start = text.index('<link name="link_2">')
+    block = text[start : text.index("</link>", start)]
+    bare = tmp_path / "bare.urdf"
+    bare.write_text(text.replace(block, re.sub(r"<inertial>.*?</inertial>", "", block, flags=re.S)))
+    r = CliRunner(env={"COLUMNS": "300"}).invoke(
+        app, ["import-robot", str(bare), "-o", str(tmp_path / "out")]
+    )
+    assert r.exit_code == 2, r.output
+    assert "link_2: a moving link without mass and inertia" in r.output and "add an <inertial>" in r.output
+    assert not (tmp_path / "out" / "drives.yaml").exists()

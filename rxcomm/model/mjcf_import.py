@@ -21,6 +21,7 @@ sixth link (a gripper's) are named as such, to be deleted so the bodies import a
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,7 +43,9 @@ ASSUMED = {
     "acceleration_max_rad_per_s2": 10.0,
     "torque_rate_per_s": 20.0,  # torque rate limit = this × peak torque, N·m/s
     "continuous_fraction": 0.5,  # continuous torque = this × peak torque
-    "peak_over_gravity": 2.5,  # peak torque = this × the largest holding torque (gravity, springs)
+    "peak_over_gravity": 2.5,  # peak torque ≥ this × the largest holding torque (gravity, springs)
+    # … and ≥ the holding torque plus the assumed acceleration on the joint's inertia (a vertical axis
+    # holds nothing: 2.5 × 0 left an industrial arm's J1 at the 5 N·m floor)
     "peak_min_nm": 5.0,
     "range_rad": float(np.pi),  # an unlimited hinge: ±this
     "cycle_s": 0.0004,
@@ -79,7 +82,7 @@ def compile_without_absent_meshes(spec: mujoco.MjSpec, path: Path) -> tuple[mujo
         return spec.compile(), False
     except ValueError as e:
         if "mesh" not in str(e).lower() and "file" not in str(e).lower():
-            raise InputError(f"MuJoCo cannot compile it: {e}", file=path) from e
+            raise _compile_error(e, path, "MuJoCo cannot compile it") from e
     for geom in [g for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH]:
         spec.delete(geom)
     for mesh in list(spec.meshes):
@@ -87,7 +90,23 @@ def compile_without_absent_meshes(spec: mujoco.MjSpec, path: Path) -> tuple[mujo
     try:
         return spec.compile(), True
     except ValueError as e:
-        raise InputError(f"MuJoCo cannot compile it without its meshes: {e}", file=path) from e
+        raise _compile_error(e, path, "MuJoCo cannot compile it without its meshes") from e
+
+
+def _compile_error(e: ValueError, path: Path, what: str) -> InputError:
+    """MuJoCo's compile error as an InputError; a massless moving link (a kinematics-only URDF, as
+    ROS-Industrial's are) said in the commissioning's terms, the link named."""
+    text = str(e)
+    link = re.search(r"Element name '([^']*)'", text)
+    if "mass and inertia of moving bodies" in text and link:
+        return InputError(
+            "a moving link without mass and inertia (no <inertial>, and no mesh to infer one "
+            "from): the prior dynamics every plan is limited by need them; add an <inertial> to each "
+            "moving link (the maker's data or a CAD estimate; kinematics-only URDFs carry none)",
+            file=path,
+            field=link.group(1),
+        )
+    return InputError(f"{what}: {text}", file=path)
 
 
 def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, i: int, prefix: str) -> str:
@@ -228,6 +247,22 @@ def _urdf(model: mujoco.MjModel, name: str, limits: list[tuple[float, float, flo
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
 
 
+def _urdf_velocity_limits(path: Path) -> dict[str, float]:
+    """Joint name → `<limit velocity>` (rad/s) of a URDF, those > 0; {} for an MJCF (it has none)."""
+    if path.suffix.lower() != ".urdf":
+        return {}
+    limits = {}
+    for joint in ET.parse(path).getroot().iter("joint"):
+        limit = joint.find("limit")
+        try:
+            velocity = float(limit.get("velocity", "0")) if limit is not None else 0.0
+        except ValueError:
+            continue
+        if velocity > 0 and joint.get("name"):
+            limits[joint.get("name")] = velocity
+    return limits
+
+
 _TENSOR = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2), "izz": (2, 2)}
 
 
@@ -236,13 +271,22 @@ def _peak_torques(model: mujoco.MjModel, order: list[int], assumed: list[str]) -
     data = mujoco.MjData(model)
     rng = np.random.default_rng(0)
     held = np.zeros(model.nv)
-    for _ in range(200):  # the largest holding torque over random poses within the limits
+    moving = np.zeros(model.nv)  # holding torque + inertia (armature in) × the assumed acceleration
+    unit, column, diagonal = np.zeros(model.nv), np.zeros(model.nv), np.zeros(model.nv)
+    for _ in range(200):  # over random poses within the limits
         for j in range(model.njnt):
             lo, hi = model.jnt_range[j] if model.jnt_limited[j] else (-np.pi, np.pi)
             data.qpos[model.jnt_qposadr[j]] = rng.uniform(lo, hi)
         data.qvel[:] = 0.0
         mujoco.mj_forward(model, data)
-        held = np.maximum(held, np.abs(data.qfrc_bias - data.qfrc_passive))  # gravity and any spring
+        hold = np.abs(data.qfrc_bias - data.qfrc_passive)  # gravity and any spring
+        for i in range(model.nv):  # M's columns (mj_mulM: the one signature MuJoCo 3 and 4 share)
+            unit[:] = 0.0
+            unit[i] = 1.0
+            mujoco.mj_mulM(model, data, column, unit)
+            diagonal[i] = column[i]
+        held = np.maximum(held, hold)
+        moving = np.maximum(moving, hold + diagonal * ASSUMED["acceleration_max_rad_per_s2"])
     peaks = np.zeros(len(order))
     for k, j in enumerate(order):
         if model.jnt_actfrclimited[j]:
@@ -259,11 +303,12 @@ def _peak_torques(model: mujoco.MjModel, order: list[int], assumed: list[str]) -
             a = acts[0]
             peaks[k] = float(np.max(np.abs(model.actuator_forcerange[a])) * abs(model.actuator_gear[a, 0]))
             continue
-        g = held[model.jnt_dofadr[j]]
-        peaks[k] = max(ASSUMED["peak_over_gravity"] * g, ASSUMED["peak_min_nm"])
+        dof = model.jnt_dofadr[j]
+        peaks[k] = max(ASSUMED["peak_over_gravity"] * held[dof], moving[dof], ASSUMED["peak_min_nm"])
         assumed.append(
-            f"{_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, 'joint')}.peak_torque_nm = {peaks[k]:.4g} "
-            f"({ASSUMED['peak_over_gravity']} × its largest holding torque, ≥ {ASSUMED['peak_min_nm']})"
+            f"{_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, 'joint')}.peak_torque_nm = {peaks[k]:.4g} (the "
+            f"larger of {ASSUMED['peak_over_gravity']} × its largest holding torque and holding plus "
+            f"{ASSUMED['acceleration_max_rad_per_s2']:g} rad/s² on its inertia, ≥ {ASSUMED['peak_min_nm']})"
         )
     return peaks
 
@@ -278,6 +323,7 @@ def import_model(path: str | Path) -> ImportedRobot:
     assumed: list[str] = []
     a = ASSUMED
     peaks = _peak_torques(model, order, assumed)
+    urdf_velocity = _urdf_velocity_limits(path)  # MuJoCo keeps a URDF's effort, not its velocity
     limits: dict[int, tuple[float, float, float, float]] = {}
     joints = []
     for k, j in enumerate(order):
@@ -288,7 +334,7 @@ def import_model(path: str | Path) -> ImportedRobot:
             lo, hi = -a["range_rad"], a["range_rad"]
             assumed.append(f"{jn}: unlimited hinge, limits ±{a['range_rad']:.4g} rad")
         dof = model.jnt_dofadr[j]
-        velocity = a["velocity_limit_rad_s"]
+        velocity = urdf_velocity.get(jn) or a["velocity_limit_rad_s"]
         damping = float(model.dof_damping[dof])
         if damping * velocity > a["viscous_share"] * peaks[k]:
             # a `damping` that stabilises a simulation (the UR5e's 200 N·m·s/rad on 150 N·m) stops the
@@ -326,8 +372,14 @@ def import_model(path: str | Path) -> ImportedRobot:
         f"gear_ratio = {a['gear_ratio']:g} on every joint (rotor inertia = armature / N²)",
         f"torque_constant_nm_per_a = {a['torque_constant_nm_per_a']:g}, "
         f"winding_resistance_ohm = {a['winding_resistance_ohm']:g}",
-        f"velocity limit {a['velocity_limit_rad_s']:g} rad/s (lower where listed), acceleration limit "
-        f"{a['acceleration_max_rad_per_s2']:g} rad/s², torque rate {a['torque_rate_per_s']:g} × peak /s",
+        (
+            "velocity limits from the URDF (lower where listed), "
+            if all(urdf_velocity.get(_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint")) for j in order)
+            else f"velocity limit {a['velocity_limit_rad_s']:g} rad/s where the model gives none "
+            "(lower where listed), "
+        )
+        + f"acceleration limit {a['acceleration_max_rad_per_s2']:g} rad/s², torque rate "
+        f"{a['torque_rate_per_s']:g} × peak /s",
         f"continuous torque = {a['continuous_fraction']:g} × peak; drive cycle {a['cycle_s'] * 1e6:.0f} µs",
     ]
     last = _name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.jnt_bodyid[order[-1]]), "body")
