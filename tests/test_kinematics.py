@@ -9,6 +9,7 @@ import yaml
 from rxcomm.errors import InfeasibleError, SolveStatus
 from rxcomm.model.geometric_errors import ErrorModel, random_poses
 from rxcomm.model.kinematics import (
+    BranchSelector,
     cardan_xyz,
     cardan_xyz_matrix,
     ik_along,
@@ -18,6 +19,7 @@ from rxcomm.model.kinematics import (
     tcp_sigma_min,
     wrist_singularity,
 )
+from rxcomm.model.robot import load_robot
 
 from .conftest import SAMPLES
 
@@ -121,3 +123,30 @@ def test_singularity_measures(rx130l):
     # Elbow stretched (q3 = 0): J2, J3, J5 in a plane, another singularity.
     q_el = np.array([0.1, 0.3, 0.0, 0.4, 0.8, 0.2])
     assert tcp_sigma_min(rx130l, q_el) < 1e-9
+
+
+def test_shoulder_label_holds_when_link_1_is_turned_about_its_axis(tmp_path, m900):
+    """The same arm with link 1's frame turned 90° about joint 1 (and joint 2 placed back where it
+    was), as MuJoCo Menagerie's piper is modelled: the shoulder's front/back is read along the way
+    the arm reaches at q = 0, not along link 1's x, which now lies across the arm's plane (the wrist
+    centre was never ahead of it nor behind: its label was round-off, and a calibration flipped it)."""
+    import shutil
+
+    turned = tmp_path / "m900"
+    shutil.copytree(SAMPLES / "m900", turned)
+    urdf = turned / "m900.urdf"
+    text = urdf.read_text()
+    j1 = '<origin xyz="0 0 0.35" rpy="0 0 0"/>'
+    j2 = '<origin xyz="0.075 0 0" rpy="0 0 0"/>'
+    assert text.count(j1) == 1 and text.count(j2) == 1
+    quarter = 1.5707963267948966
+    text = text.replace(j1, f'<origin xyz="0 0 0.35" rpy="0 0 {quarter}"/>')
+    urdf.write_text(text.replace(j2, f'<origin xyz="0 -0.075 0" rpy="0 0 {-quarter}"/>'))
+    other = load_robot(turned)
+    assert np.allclose(other.forward_in_joint1, [0, -1, 0], atol=1e-9)
+    assert np.allclose(m900.forward_in_joint1, [1, 0, 0])
+    data, other_data = m900.create_data(), other.create_data()
+    a, b = BranchSelector(m900, None), BranchSelector(other, None)
+    for q in random_poses(m900, 40, np.random.default_rng(4)):
+        assert np.allclose(tcp_placement(m900, q).homogeneous, tcp_placement(other, q).homogeneous)
+        assert a.labels(data, q) == b.labels(other_data, q)

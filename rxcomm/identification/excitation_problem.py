@@ -396,9 +396,8 @@ class ExcitationProblem:
         fun, jac = self._peak_constraints()
         speed_fun, speed_jac = self._speed_constraints()
         x, iters = np.asarray(x0, dtype=float), 0
-        # The best iterate within the constraints (the start, if it is within them: after `tighten`
-        # grew, the previous optimum is not, and returning it would undo the tightening): returned
-        # if SLSQP ends outside.
+        # The best iterate within the constraints (the start if within them: after `tighten` grew, the
+        # optimum it tightens is not, and returning it undid the tightening): if SLSQP ends outside.
         best = {"f": self.objective(x)[0] if fun(x).min() >= 0.0 else math.inf, "x": x}
 
         def keep_best(xk: np.ndarray) -> None:

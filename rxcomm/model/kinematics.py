@@ -253,13 +253,14 @@ class BranchSelector:
     def __init__(self, robot: Robot, branch: Branch | None):
         self.robot = robot
         self.branch = branch or Branch(shoulder=None, elbow=None, wrist=None)
+        self._forward = robot.forward_in_joint1
 
     def labels(self, data: pin.Data, q: np.ndarray) -> dict[str, str]:
         """Shoulder/elbow/wrist labels of q (forward kinematics is run here)."""
         pin.forwardKinematics(self.robot.model, data, q)
         r = self.robot
         j1, s, e, w = (data.oMi[i] for i in (1, r.shoulder_joint_id, r.elbow_joint_id, r.wrist_joint_id))
-        front = (w.translation - j1.translation) @ j1.rotation[:, 0] >= 0
+        front = (w.translation - j1.translation) @ (j1.rotation @ self._forward) >= 0
         u = w.translation - s.translation
         u = u / max(np.linalg.norm(u), 1e-12)
         de = e.translation - s.translation

@@ -147,6 +147,27 @@ class Robot:
         pin.forwardKinematics(self.model, data, np.zeros(self.n))
         return float(data.oMi[self.shoulder_joint_id].translation[2])
 
+    @property
+    def forward_in_joint1(self) -> np.ndarray:
+        """The unit direction, in joint 1's frame and across its axis, that the shoulder's front/back
+        is read along: joint 1's x axis, unless it lies more than 60° off the direction the arm
+        reaches at q = 0, and then that direction. A link frame turned about the axis (MuJoCo
+        Menagerie's piper: x across the arm's plane) leaves the wrist centre never ahead of x nor
+        behind it, and the label to round-off; an arm upright at q = 0 (the RX130L) reaches nowhere
+        there and keeps x."""
+        data = self.create_data()
+        pin.forwardKinematics(self.model, data, np.zeros(self.n))
+        j1 = data.oMi[1]
+        axis = np.asarray(data.joints[1].S).reshape(6, -1)[3:, 0]
+        across = lambda v: v - (v @ axis) * axis  # noqa: E731
+        x = across(np.array([1.0, 0.0, 0.0]))
+        reach = across(j1.rotation.T @ (data.oMi[self.wrist_joint_id].translation - j1.translation))
+        if np.linalg.norm(reach) >= 0.01 * self.reach_m and abs(x @ reach) < 0.5 * np.linalg.norm(
+            x
+        ) * np.linalg.norm(reach):
+            return _readonly(reach / np.linalg.norm(reach))
+        return _readonly(x / np.linalg.norm(x))
+
     def create_data(self) -> pin.Data:
         return self.model.createData()
 
