@@ -108,3 +108,28 @@ def test_every_energy_weight_gives_a_plan_run_accepts(tmp_path, rough_m900, whic
     checked = run_check(robot, res.trajectory)
     assert checked.report.max_ratio <= 1.0 + SAMPLED_LIMIT_TOLERANCE
     assert res.max_limit_ratio == pytest.approx(checked.report.max_ratio, rel=1e-6)
+
+
+def test_a_torque_rate_bound_that_did_not_bind_is_lowered_again(m900):
+    """`tighten_torque_rate` scales the NLP's torque-rate rows around a sample above the limit by the
+    excess. Where that bound did not bind (the excess lies between the nodes: an imported arm's start
+    from rest with the Coulomb ramp on top, MuJoCo Menagerie's piper at 1.0067 × its J1 limit), the
+    next pass found the same excess and set the same bound, and four re-solves ended where they
+    began: the bound compounds over passes."""
+    from rxcomm.io.trajectory import Trajectory
+    from rxcomm.planning.ptp import tighten_torque_rate
+    from rxcomm.planning.ptp_problem import PtpLimits
+
+    n, nodes, margin = 101, 20, 0.05
+    t = np.linspace(0.0, 1.0, n)
+    still = np.zeros((n, 6))
+    traj = Trajectory(t, still + 0.3, still, still, still + 1.0)  # no friction ramp: not a reversal
+    dynamics, limits = PtpDynamics.from_parameters(m900), PtpLimits.from_robot(m900)
+    rate = np.zeros((n, 6))
+    rate[3, 0] = 1.0 + 10 * SAMPLED_LIMIT_TOLERANCE
+    caps, scale = np.full((nodes + 1, 6), np.inf), np.ones((nodes + 1, 6))
+    shrink = 1.0 - 10 * SAMPLED_LIMIT_TOLERANCE - margin
+    for passes in (1, 2):
+        tighten_torque_rate(traj, dynamics, limits, rate, caps, scale, margin)
+        assert scale[0, 0] == pytest.approx(shrink**passes)
+    assert np.all(np.isinf(caps)) and np.all(scale[:, 1:] == 1.0)

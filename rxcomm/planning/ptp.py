@@ -143,7 +143,7 @@ def tighten_torque_rate(
     the caps: the joint is not what sets the time there). At the other samples above the tolerance (a
     torque at its rate limit plus a little friction, e.g. where a joint starts) the NLP's torque-rate
     rows of that joint at the same nodes are scaled down by the excess (`rate_scale` [N+1, dof], in
-    place), as plan-cp tightens its limits locally.
+    place, compounding over passes), as plan-cp tightens its limits locally.
     """
     t, N = traj.t, caps.shape[0] - 1
     friction = dynamics.output_coulomb_torque(traj.qd)
@@ -158,7 +158,9 @@ def tighten_torque_rate(
         k = min(int(t[i] / h), N - 1)
         near = slice(max(k - 1, 0), min(k + 3, N + 1))
         if c[i, j] <= rest[i, j] or rest[i, j] >= 1.0 - margin:  # not a reversal's step
-            rate_scale[near, j] = np.minimum(rate_scale[near, j], 1.0 - (rate[i, j] - 1.0) - margin)
+            # from the rows' bound as it stands: a bound that did not bind (the excess between nodes,
+            # a start's friction ramp) is lowered again on the next pass instead of set to the same
+            rate_scale[near, j] = rate_scale[near, j] * (1.0 - (rate[i, j] - 1.0) - margin)
             continue
         s = float(np.clip((1.0 - margin - rest[i, j]) / c[i, j], 0.2, 0.98))
         # a joint capped in an earlier pass whose reversal moved out of its caps is not what sets
