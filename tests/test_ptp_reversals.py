@@ -126,7 +126,7 @@ def test_a_torque_rate_bound_that_did_not_bind_is_lowered_again(m900):
     traj = Trajectory(t, still + 0.3, still, still, still + 1.0)  # no friction ramp: not a reversal
     dynamics, limits = PtpDynamics.from_parameters(m900), PtpLimits.from_robot(m900)
     rate = np.zeros((n, 6))
-    rate[3, 0] = 1.0 + 10 * SAMPLED_LIMIT_TOLERANCE
+    rate[3:6, 0] = 1.0 + 10 * SAMPLED_LIMIT_TOLERANCE  # three samples over, one excess per pass
     caps, scale = np.full((nodes + 1, 6), np.inf), np.ones((nodes + 1, 6))
     shrink = 1.0 - 10 * SAMPLED_LIMIT_TOLERANCE - margin
     for passes in (1, 2):

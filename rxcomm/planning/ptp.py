@@ -154,19 +154,21 @@ def tighten_torque_rate(
     qdd = np.abs(traj.qdd)
     qdd_near = np.maximum(qdd, np.maximum(np.roll(qdd, 1, axis=0), np.roll(qdd, -1, axis=0)))
     capped_before = np.isfinite(caps).any(axis=0)
+    factor = np.ones_like(rate_scale)  # this pass's scaling of the torque-rate rows (the worst sample's)
     for i, j in zip(*np.nonzero(rate > 1.0 + SAMPLED_LIMIT_TOLERANCE), strict=True):
         k = min(int(t[i] / h), N - 1)
         near = slice(max(k - 1, 0), min(k + 3, N + 1))
         if c[i, j] <= rest[i, j] or rest[i, j] >= 1.0 - margin:  # not a reversal's step
-            # from the rows' bound as it stands: a bound that did not bind (the excess between nodes,
-            # a start's friction ramp) is lowered again on the next pass instead of set to the same
-            rate_scale[near, j] = rate_scale[near, j] * (1.0 - (rate[i, j] - 1.0) - margin)
+            factor[near, j] = np.minimum(factor[near, j], 1.0 - (rate[i, j] - 1.0) - margin)
             continue
         s = float(np.clip((1.0 - margin - rest[i, j]) / c[i, j], 0.2, 0.98))
         # a joint capped in an earlier pass whose reversal moved out of its caps is not what sets
         # the time there: cap it on the whole motion
         nodes = slice(1, N) if capped_before[j] else slice(max(k - 1, 1), min(k + 3, N))
         caps[nodes, j] = np.minimum(caps[nodes, j], s * qdd_near[i, j])
+    # from the rows' bound as it stands: one that did not bind (the excess between the nodes, a start's
+    # friction ramp) is lowered again on the next pass instead of set to the same value
+    rate_scale *= factor
 
 
 def tcp_box_ratio(robot: Robot, q: np.ndarray, box: tuple[Vec3, Vec3]) -> float:
