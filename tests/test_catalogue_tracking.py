@@ -15,7 +15,13 @@ import yaml
 
 from rxcomm.model.catalogue import JERK_RAMP_S, catalogue_limits
 from rxcomm.model.robot import load_robot
-from rxcomm.model.servo import TRACKING_FRACTION, nominal_axis_inertia, peak_following_error, tracking_bound
+from rxcomm.model.servo import (
+    TRACKING_FRACTION,
+    nominal_axis_inertia,
+    peak_following_error,
+    tracking_bound,
+    velocity_gain,
+)
 from rxcomm.schemas.drives import ServoLoops
 
 from .conftest import SAMPLES
@@ -59,9 +65,23 @@ def test_tracking_bound_cuts_only_what_exceeds_the_window_fraction():
     cyc, loops = robot.drives.cycle_s, robot.drives.servo
     over = peak_following_error(
         loops, nominal_axis_inertia(robot), j, cyc, b.a_max * 1.01, np.asarray(robot.v_max) * 0.3,
-        JERK_RAMP_S, fr, zero, zero,
+        JERK_RAMP_S, fr, zero, zero, viscous_nominal_nm_s=np.asarray(robot.viscous_prior, float),
     )  # fmt: skip
     assert np.all(over[b.binds] > allowed)
+
+
+def test_a_damping_dominated_axis_is_tuned_on_its_damping():
+    """An MJCF wrist as simulation models write it (MuJoCo Menagerie's M1013 joint_6): 0.006 kg·m², no
+    armature, a stabilising damping of 20 N·m·s/rad. Tuned on the inertia alone (K_p = J·ω_v = 0.36) the
+    loop builds the viscous torque from the error and trips the 35 mrad window on a 0.1 rad/s move; tuned
+    so that the P loop on 1/(J·s + b) crosses over at ω_v it follows within a few mrad."""
+    loops = ServoLoops()
+    w, j, b, z = loops.velocity_bandwidth_rad_s, np.array([0.006]), np.array([20.0]), np.zeros(1)
+    assert velocity_gain(w, j, z) == pytest.approx(j * w)  # no friction: J·ω_v, as before
+    assert abs(velocity_gain(w, j, b)[0] / (1j * w * j[0] + b[0])) == pytest.approx(1.0)
+    args = (loops, j, j, 4e-4, np.array([0.5]), np.array([0.1]), JERK_RAMP_S, z, b, z)
+    assert peak_following_error(*args)[0] > loops.following_error_limit_rad
+    assert peak_following_error(*args, viscous_nominal_nm_s=b)[0] < 0.1 * loops.following_error_limit_rad
 
 
 def test_the_samples_catalogues_are_bound_by_torque_and_say_so():

@@ -20,8 +20,11 @@ Without a torque feed-forward the loops must build every torque (inertia, fricti
 errors: that is the lag of the paper's Fig. 2 "standard" case.
 
 Tuning (like a drive commissioned on the nominal robot, not on the truth): velocity loop bandwidth
-ω_v for every axis, K_p = J_i·ω_v with J_i the axis inertia of the PRIOR model (mean diagonal of the
-mass matrix incl. reflected rotor inertia over seeded random poses), integral corner ω_v/β
+ω_v for every axis, K_p = √((J_i·ω_v)² + b_i²) with J_i the axis inertia of the PRIOR model (mean
+diagonal of the mass matrix incl. reflected rotor inertia over seeded random poses) and b_i its prior
+viscous friction (drives.yaml): the P loop on 1/(J_i·s + b_i) crosses over at ω_v, J_i·ω_v where b_i is
+small against it (the samples' J1–J3 within 0.1 %; a simulation model's stabilising damping on a light
+wrist is not, rxcomm.model.servo.velocity_gain), integral corner ω_v/β
 (T_i = β/ω_v), position gain K_v = ω_v/γ. Anti-windup: the integrator stops while the output is
 saturated in the error's direction and is clamped to ±τ_peak. The position demand is clamped to the
 joint's software limits (the URDF's), as CiA 402 drives do (0x607D): a master pushing beyond them sees
@@ -49,7 +52,7 @@ import numpy as np
 from pydantic import Field
 
 from rxcomm.model.robot import Robot
-from rxcomm.model.servo import nominal_axis_inertia
+from rxcomm.model.servo import nominal_axis_inertia, velocity_gain
 from rxcomm.schemas.drives import ServoLoops
 from rxcomm.schemas.strict import Strict
 
@@ -86,6 +89,7 @@ class DriveGains:
     """Per-axis gains and limits (arrays of shape (n,)), joint side, SI."""
 
     cycle_s: float
+    velocity_bandwidth_rad_s: float  # ω_v the velocity loops are tuned for (velocity_gain)
     nominal_inertia_kgm2: np.ndarray
     kv_per_s: np.ndarray  # position P
     kp_nm_s_per_rad: np.ndarray  # velocity P
@@ -110,9 +114,10 @@ def drive_gains(robot: Robot, tuning: DriveTuning | None = None) -> DriveGains:
     n = robot.n
     return DriveGains(
         cycle_s=robot.drives.cycle_s,
+        velocity_bandwidth_rad_s=w,
         nominal_inertia_kgm2=j,
         kv_per_s=np.full(n, w / t.position_gain_ratio),
-        kp_nm_s_per_rad=j * w,
+        kp_nm_s_per_rad=velocity_gain(w, j, np.asarray(robot.viscous_prior, float)),
         ti_s=np.full(n, t.integral_time_ratio / w),
         velocity_filter_s=t.velocity_filter_s,
         peak_torque_nm=np.array(robot.tau_max, dtype=float),

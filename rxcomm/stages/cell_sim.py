@@ -167,7 +167,7 @@ def _facts(server: CellServer, cell: SimulatedCell) -> dict[str, object]:
         "peak_torque_nm": g.peak_torque_nm.tolist(),
         "following_error_limit_rad": g.following_error_limit_rad.tolist(),
         "quick_stop_decel_rad_s2": g.quick_stop_decel_rad_s2.tolist(),
-        "velocity_loop_bandwidth_rad_s": float(g.kp_nm_s_per_rad[0] / g.nominal_inertia_kgm2[0]),
+        "velocity_loop_bandwidth_rad_s": g.velocity_bandwidth_rad_s,
         "position_gain_per_s": g.kv_per_s.tolist(),
     }
 
