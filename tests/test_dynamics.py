@@ -28,6 +28,7 @@ from rxcomm.model.dynamics import (
     random_states,
     truth_parameters,
 )
+from rxcomm.model.robot import load_robot
 from rxcomm.model.spring import spring_length, spring_torque
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.truth import CellTruth
@@ -226,6 +227,25 @@ def test_base_parameters_rx130l(rx130l, bset_rx):
                 )
     i = b.names.index("joint_2.mcz_R")
     assert b.labels[i].startswith("joint_2.mcz + 0.625·joint_3.m") and "− 0.00611621·spring.k" in b.labels[i]
+
+
+def test_a_frame_tilted_by_rounding_keeps_the_base_set(rx130l, bset_rx, tmp_path):
+    """Joint 2's frame tilted by 0.2 mrad (a model's 1.571 for π/2, as MuJoCo Menagerie's M1013 has it)
+    makes its rotor inertia separable from link 2's inertia about its axis at |R_ii| ≈ 2.6e-4 only: no
+    excitation conditions that, so it stays regrouped and the base set keeps its size."""
+    import shutil
+
+    robot_dir = tmp_path / "rx130l"
+    shutil.copytree(SAMPLES / "rx130l", robot_dir)
+    urdf = robot_dir / "rx130l.urdf"
+    exact = '<child link="link_2"/>\n    <origin xyz="0 0 0" rpy="0 0 0"/>'
+    assert exact in urdf.read_text()
+    urdf.write_text(urdf.read_text().replace(exact, exact.replace('rpy="0 0 0"', 'rpy="0.0002 0 0"')))
+    tilted = base_parameters(load_robot(robot_dir))
+    assert tilted.n_base == bset_rx.n_base and "joint_2.rotor_inertia" not in tilted.names
+    assert tilted.r_min_kept > 1e-2
+    loose = base_parameters(load_robot(robot_dir), rank_tolerance=1e-8)  # the 2.6e-4 direction kept
+    assert loose.n_base == bset_rx.n_base + 1 and loose.r_min_kept < 1e-3
 
 
 def test_base_parameters_reproduce_torques(robot):
