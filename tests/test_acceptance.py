@@ -6,7 +6,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rxcomm.acceptance.verdict import acceptance_rows, overall, task_value
+from rxcomm.acceptance.verdict import Measured, acceptance_rows, overall, task_value, verdict_row
 from rxcomm.cli import app
 from rxcomm.io.yaml_io import load_yaml, read_yaml_model
 from rxcomm.schemas.acceptance import AcceptanceThresholds, Threshold
@@ -274,3 +274,15 @@ def test_a_factory_that_cannot_reach_the_command_speed_is_said_so():
 def _run(figures: dict) -> RunLogSummary:
     """A run log summary holding only the figures a test sets."""
     return RunLogSummary.model_construct(**figures)
+
+
+def test_a_ratio_missing_for_its_commissioned_value_does_not_blame_the_factory():
+    """cycle_time_at_factory_energy on the UR5e (MuJoCo Menagerie): every commissioned point needs more
+    energy than the factory, so no commissioned value; the factory's 7.401 s is not "0"."""
+    t = Threshold(criterion="cycle_time_at_factory_energy", unit="s", max_ratio=1.0)
+    row = verdict_row(t, Measured(7.401, "run-factory-cp.yaml"), Measured(None, "every point needs more"))
+    assert row.verdict == "not measured" and row.note == "commissioned: every point needs more"
+    zero = verdict_row(t, Measured(0.0), Measured(1.0, "c"))
+    assert zero.verdict == "not measured" and zero.note == "factory value is 0"
+    both = verdict_row(t, Measured(None, "no log"), Measured(None, "no log"))
+    assert both.note == "both states: no log"

@@ -106,8 +106,10 @@ def verdict_row(t: Threshold, factory: Measured, commissioned: Measured) -> Verd
     missing = []
     if c is None:
         missing.append(f"commissioned: {commissioned.note}")
-    if t.max_ratio is not None and ratio is None:
-        missing.append(f"factory: {factory.note}" if f is None else "factory value is 0")
+    if t.max_ratio is not None and f is None:
+        missing.append(f"factory: {factory.note}")
+    elif t.max_ratio is not None and f == 0:
+        missing.append("factory value is 0")
     if len(missing) == 2 and f is None and factory.note == commissioned.note:
         missing = [f"both states: {factory.note}"]
     if missing:
