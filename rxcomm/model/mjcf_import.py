@@ -374,7 +374,7 @@ def import_model(path: str | Path) -> ImportedRobot:
         f"winding_resistance_ohm = {a['winding_resistance_ohm']:g}",
         (
             "velocity limits from the URDF (lower where listed), "
-            if all(urdf_velocity.get(_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint")) for j in order)
+            if all(joint["name"] in urdf_velocity for joint in joints)
             else f"velocity limit {a['velocity_limit_rad_s']:g} rad/s where the model gives none "
             "(lower where listed), "
         )

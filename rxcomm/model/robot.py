@@ -7,6 +7,7 @@ raises `InputError` naming the file and the field at fault.
 
 from __future__ import annotations
 
+import functools
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -147,7 +148,7 @@ class Robot:
         pin.forwardKinematics(self.model, data, np.zeros(self.n))
         return float(data.oMi[self.shoulder_joint_id].translation[2])
 
-    @property
+    @functools.cached_property
     def forward_in_joint1(self) -> np.ndarray:
         """The unit direction, in joint 1's frame and across its axis, that the shoulder's front/back
         is read along: joint 1's x axis, unless it lies more than 60° off the direction the arm
