@@ -37,7 +37,7 @@ VELOCITY_FILTER_S = 0.5e-3  # the velocity estimate's first-order filter (as the
 
 def nominal_axis_inertia(robot: Robot, samples: int = 64, seed: int = 0) -> np.ndarray:
     """Mean diagonal of the prior mass matrix (links + reflected rotors) over random poses, kg·m²: the
-    inertia the drives are tuned on (K_p = J_nom·ω_v)."""
+    inertia the drives are tuned on (with the prior viscous friction: `velocity_gain`)."""
     rng = np.random.default_rng(seed)
     q = rng.uniform(robot.q_min, robot.q_max, (samples, robot.n))
     m = RobotDynamics(robot, prior_parameters(robot)).mass_matrix(q)
