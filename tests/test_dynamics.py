@@ -280,7 +280,8 @@ def test_parameters_from_base_and_artefact_round_trip(rx130l, bset_rx, tmp_path)
     assert art.spring.stiffness_n_per_m == rx130l.drives.spring.stiffness_n_per_m  # k: the prior
     assert [f.coulomb_nm for f in art.friction] == pytest.approx(list(true.coulomb_nm))
     path = write_yaml_artefact(tmp_path / "dynamics.yaml", art)
-    loaded = load_dynamics(path, rx130l)
+    loaded, on = load_dynamics(path, rx130l)
+    assert on is rx130l  # fitted on the nominal kinematics: evaluated on them
     assert np.abs(inverse_dynamics(rx130l, loaded, q, qd, qdd) - tau_true).max() <= 1e-9
     # Rebuilt from stored combinations: the same set.
     again = BaseParameterSet.from_combinations(
@@ -293,7 +294,7 @@ def test_parameters_from_base_and_artefact_round_trip(rx130l, bset_rx, tmp_path)
     # A full estimate takes precedence.
     art_full = Dynamics(**{**art.model_dump(), **dynamics_artefact_fields(rx130l, bset_rx, p_b, full=true)})
     full_path = write_yaml_artefact(tmp_path / "full.yaml", art_full)
-    np.testing.assert_allclose(load_dynamics(full_path, rx130l).vector(), true.vector())
+    np.testing.assert_allclose(load_dynamics(full_path, rx130l).params.vector(), true.vector())
 
 
 def test_load_dynamics_refuses_another_robot(rx130l, m900, bset_rx, tmp_path):

@@ -32,7 +32,7 @@ from rxcomm.identification.processing import preprocess, regressor
 from rxcomm.identification.settings import IdentifySettings
 from rxcomm.identification.validation import holdout_mask, validate
 from rxcomm.io.mcap_io import McapWriter
-from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
+from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model, write_yaml_artefact
 from rxcomm.model.base_parameters import base_parameters, load_dynamics
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters, truth_parameters
 from rxcomm.model.robot import load_robot
@@ -379,12 +379,23 @@ def test_identify_stage_with_holdout(tmp_path, rx130l, truth_rx, random_traj):
     assert art.summary.friction == "both"
     assert len(art.summary.validation_nrmse) == 6 and max(art.summary.validation_nrmse) < 0.05
     # what plan-cp, plan-ptp and run load reproduces the identified torques
-    params = load_dynamics(out, rx130l)
+    params = load_dynamics(out, rx130l).params
     tau_pred = RobotDynamics(rx130l, params).inverse_dynamics(q[::500], qd[::500], qdd[::500])
     tau_true = RobotDynamics(rx130l, truth).inverse_dynamics(q[::500], qd[::500], qdd[::500])
     moving = np.abs(qd[::500]) > 0.05
     span = tau_true.max(axis=0) - tau_true.min(axis=0)
     assert np.all(np.abs(tau_pred - tau_true)[moving] / np.broadcast_to(span, tau_true.shape)[moving] < 0.05)
+    # fitted on the nominal kinematics: none recorded; with --calibration its errors, for run and plans
+    assert art.kinematics_errors is None and art.summary.kinematics == "nominal"
+    from .artefacts import synthetic_calibration
+
+    cal = write_yaml_artefact(tmp_path / "cal.yaml", synthetic_calibration(rx130l, {"joint_2.tx": 1e-4}))
+    args = ["identify", "--robot", str(SAMPLES / "rx130l"), "--log", str(log), "--calibration", str(cal)]
+    res = CliRunner().invoke(app, [*args, "-o", str(tmp_path / "on-cal.yaml")])
+    assert res.exit_code == 0, res.output
+    art = read_yaml_artefact(tmp_path / "on-cal.yaml", Dynamics)
+    assert art.summary.kinematics == "calibrated" and art.kinematics_errors["joint_2.tx"] == 1e-4
+    assert sum(v != 0 for v in art.kinematics_errors.values()) == 1
 
 
 def test_identify_stage_refuses_a_bad_log(tmp_path):

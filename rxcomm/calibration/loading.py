@@ -51,13 +51,15 @@ def read_calibration(path: str | Path, robot: Robot) -> Calibration:
     return art
 
 
-def load_calibrated_robot(robot: Robot, path: str | Path) -> Robot:
-    """`robot` with a calibration artefact's geometric errors applied: its kinematics and IK honour
-    the calibration (planners take it with `--calibration`). The planners' torque model stays on the
-    robot given here: identified parameters are a model on the kinematics they were identified with,
-    and `run` computes its feed-forward and checks the torque limits there; on the calibrated
-    kinematics the M900's ISO line planned at 0.997 × J1's torque rate was 1.005 × in run's check."""
+def calibration_errors(robot: Robot, path: str | Path) -> ErrorModel:
+    """A calibration artefact's geometric errors on `robot` (nominal); exit 2 unless it is this robot's."""
     art = read_calibration(path, robot)
     check_same_robot(robot, art.inputs, path)
-    errors = ErrorModel.from_mapping(robot, {p.name: p.value for p in art.parameters}, file=str(path))
-    return errors.apply(robot)
+    return ErrorModel.from_mapping(robot, {p.name: p.value for p in art.parameters}, file=str(path))
+
+
+def load_calibrated_robot(robot: Robot, path: str | Path) -> Robot:
+    """`robot` with a calibration artefact's geometric errors applied: its kinematics and IK honour
+    the calibration (planners take it with `--calibration`). A torque model is evaluated on the
+    kinematics it was fitted on instead (`model.base_parameters.load_dynamics`), whatever this is."""
+    return calibration_errors(robot, path).apply(robot)

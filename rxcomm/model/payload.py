@@ -113,16 +113,19 @@ def load_payload(path: str | Path, robot: Robot) -> FlangeInertia:
 
 def model_parameters(
     robot: Robot, dynamics: str | Path | None, payload: str | Path | None
-) -> DynamicParameters | None:
+) -> tuple[DynamicParameters | None, Robot]:
     """The planners' and run's torque model: the identified `dynamics.yaml` (the prior without) with an
-    identified `payload.yaml` on the last link; None when neither is given (the caller's prior)."""
+    identified `payload.yaml` on the last link (None when neither is given: the caller's prior), and
+    the robot to evaluate it on: the nominal `robot` with the kinematics the model was fitted on."""
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.dynamics import prior_parameters
 
     if dynamics is None and payload is None:
-        return None
-    params = prior_parameters(robot) if dynamics is None else load_dynamics(dynamics, robot)
-    return params if payload is None else with_payload(robot, params, load_payload(payload, robot))
+        return None, robot
+    params, fitted = (prior_parameters(robot), robot) if dynamics is None else load_dynamics(dynamics, robot)
+    if payload is not None:
+        params = with_payload(fitted, params, load_payload(payload, fitted))
+    return params, fitted
 
 
 def model_inputs(dynamics: str | Path | None, payload: str | Path | None) -> dict[str, Path]:

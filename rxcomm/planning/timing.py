@@ -59,8 +59,10 @@ class PlanDynamics:
         from rxcomm.model.base_parameters import load_dynamics
         from rxcomm.model.dynamics import prior_parameters
 
-        params = prior_parameters(robot) if dynamics_path is None else load_dynamics(dynamics_path, robot)
-        return cls.from_parameters(robot, params, eps)
+        if dynamics_path is None:
+            return cls.from_parameters(robot, prior_parameters(robot), eps)
+        params, fitted = load_dynamics(dynamics_path, robot)  # on the kinematics of the fit
+        return cls.from_parameters(fitted, params, eps)
 
 
 def path_coefficients(dyn: PlanDynamics, jp: JointPath, grid: np.ndarray) -> PathDynamics:

@@ -235,6 +235,12 @@ class Dynamics(Artefact[IdentifySettings, DynamicsSummary], kind="rxcomm/Dynamic
     full_parameters_method: str | None = Field(None, description="how `full_parameters` was obtained")
     friction: list[JointFriction]
     spring: SpringEstimate | None = None
+    kinematics_errors: dict[str, float] | None = Field(
+        None,
+        description="the geometric error parameters (rxcomm.model.geometric_errors names; m and rad) of the "
+        "kinematics the parameters were fitted on (identify --calibration), on which every stage evaluates "
+        "the model's torques; None: the nominal kinematics",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> Dynamics:

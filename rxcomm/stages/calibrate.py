@@ -245,7 +245,7 @@ def command(
     )
     params = None
     if dynamics is not None:
-        params = load_dynamics(dynamics, robot)
+        params = load_dynamics(dynamics, robot).params  # the fit's torques: on the kinematics it estimates
         inputs["dynamics"] = Path(dynamics)
     with console.phase(f"calibrate: fitting {robot.name} to {ms.n} poses"):
         res = calibrate(robot, ms, settings, tracker_to_base=t2b, dynamics=params)

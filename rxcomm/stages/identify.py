@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from rxcomm.identification.fit import Identification
     from rxcomm.identification.settings import IdentifySettings
     from rxcomm.identification.validation import Validation
+    from rxcomm.model.geometric_errors import ErrorModel
     from rxcomm.model.robot import Robot
 
 
@@ -232,11 +233,17 @@ def _check_mode(
 
 def fit_kinematics(robot: Robot, calibration: Path | None) -> Robot:
     """The robot whose kinematics the fit uses: `robot`, or `robot` with a calibration's errors."""
-    if calibration is None:
-        return robot
-    from rxcomm.calibration.loading import load_calibrated_robot
+    errors = kinematics_errors(robot, calibration)
+    return robot if errors is None else errors.apply(robot)
 
-    return load_calibrated_robot(robot, calibration)
+
+def kinematics_errors(robot: Robot, calibration: Path | None) -> ErrorModel | None:
+    """A calibration's geometric errors on `robot` (None without one): what the fit's kinematics add."""
+    if calibration is None:
+        return None
+    from rxcomm.calibration.loading import calibration_errors
+
+    return calibration_errors(robot, calibration)
 
 
 def _settings(settings: IdentifySettings | dict | None) -> IdentifySettings:
@@ -348,7 +355,7 @@ def score_run(
     from rxcomm.identification.fit import score
     from rxcomm.identification.logs import load_joint_log
     from rxcomm.identification.settings import MODEL_SETTINGS, IdentifySettings
-    from rxcomm.model.base_parameters import dynamics_from_artefact
+    from rxcomm.model.base_parameters import dynamics_from_artefact, fitted_kinematics
     from rxcomm.model.robot import load_robot
 
     DECLARATIONS["score"].check(
@@ -359,8 +366,14 @@ def score_run(
         log=log,
         calibration=calibration,
     )
-    robot = fit_kinematics(load_robot(robot_dir), calibration)
     art = read_yaml_artefact(model, Dynamics)
+    nominal = load_robot(robot_dir)
+    # the model's own kinematics when it records them; --calibration for a model that does not
+    robot = (
+        fitted_kinematics(art, nominal, model)
+        if art.kinematics_errors
+        else fit_kinematics(nominal, calibration)
+    )
     values = settings.model_dump() if isinstance(settings, IdentifySettings) else dict(settings or {})
     # The model's own processing and friction model, unless given other than the defaults here.
     fields = IdentifySettings.model_fields
@@ -437,7 +450,8 @@ def run(
     nominal = load_robot(robot_dir)
     if opts.friction is not None and opts.friction != nominal.friction_mode:
         nominal = nominal.with_friction(opts.friction)  # --friction overrides drives.yaml's, artefact too
-    robot = fit_kinematics(nominal, calibration)
+    errors = kinematics_errors(nominal, calibration)
+    robot = nominal if errors is None else errors.apply(nominal)
     joint_log = load_joint_log(log, robot)
     val_log = None if validate is None else load_joint_log(validate, robot)
     for lg in (joint_log, val_log):
@@ -459,6 +473,7 @@ def run(
     if calibration is not None:
         inputs["calibration"] = Path(calibration)
     summary = {"kinematics": "nominal" if calibration is None else "calibrated", **result.summary()}
+    fields["kinematics_errors"] = None if errors is None else errors.as_dict()  # run and plans use them
     art = Dynamics(**Dynamics.envelope(inputs, opts, summary), **fields)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_yaml_artefact(output, art)

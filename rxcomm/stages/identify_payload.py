@@ -85,7 +85,7 @@ def run(
     opts = model_settings(read_yaml_artefact(dynamics, Dynamics))
     if opts.friction is not None and opts.friction != robot.friction_mode:
         robot = robot.with_friction(opts.friction)  # the model's own friction model
-    params = load_dynamics(dynamics, robot)
+    params, robot = load_dynamics(dynamics, robot)  # the payload rides on the model's own kinematics
     val_log = None if validate is None else load_joint_log(validate, robot)
     with console.phase("identify-payload: estimating"):
         result = identify_payload(robot, params, load_joint_log(log, robot), opts, val_log)

@@ -310,27 +310,28 @@ def _given_or(option: float | None, default: float | None) -> float | None:
 def _torque_model(
     nominal: Robot, calibration: Path | None, dynamics: Path | None, payload: Path | None, eps: float
 ):
-    """The planner's torque model (identified or prior, with the payload if given) on the nominal
-    robot, and the compliance map and compliances the plan is commanded through (`_compliance`)."""
+    """The planner's torque model (identified or prior, with the payload if given) on the kinematics
+    it was fitted on (the nominal robot's for the prior), and the compliance map and compliances the
+    plan is commanded through (`_compliance`)."""
     from rxcomm.model.dynamics import prior_parameters
     from rxcomm.model.payload import model_parameters
     from rxcomm.planning.timing import PlanDynamics
 
-    params = model_parameters(nominal, dynamics, payload)  # None: the prior
-    dyn = PlanDynamics.from_parameters(nominal, params or prior_parameters(nominal), eps)
-    return dyn, *_compliance(nominal, calibration, params if dynamics is not None else None)
+    params, fitted = model_parameters(nominal, dynamics, payload)  # None: the prior
+    dyn = PlanDynamics.from_parameters(fitted, params or prior_parameters(nominal), eps)
+    return dyn, *_compliance(fitted, calibration, params if dynamics is not None else None)
 
 
-def _compliance(nominal: Robot, calibration: Path | None, params: DynamicParameters | None):
+def _compliance(fitted: Robot, calibration: Path | None, params: DynamicParameters | None):
     """With a calibration that found joint compliance: the map link → encoder angles the plan
-    commands (the fit's torque model on the nominal robot: the identified `params`, with the payload's
-    weight when one is given) and the compliances; else (None, None)."""
+    commands (the torque model on its own kinematics `fitted`: the identified `params`, with the
+    payload's weight when one is given) and the compliances; else (None, None)."""
     from rxcomm.calibration.compensation import compliance_command
     from rxcomm.schemas.calibration import Calibration
 
     if calibration is None:
         return None, None
-    return compliance_command(nominal, read_yaml_artefact(calibration, Calibration), params)
+    return compliance_command(fitted, read_yaml_artefact(calibration, Calibration), params)
 
 
 def _timed_plan(robot, cpath, dyn, settings, catalogue, label: str, command=None) -> CpPlan:

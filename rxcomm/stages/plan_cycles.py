@@ -64,8 +64,8 @@ def command(
     rep = repeat_cycles(
         one, cycles, dwell_s, cycloidal_move(catalogue.v_max, catalogue.a_max, sample_s), sample_s
     )
-    params = model_parameters(robot, dynamics, payload)  # None: the prior
-    tau = PtpDynamics.from_parameters(robot, params).torque(rep.q, rep.qd, rep.qdd)
+    params, fitted = model_parameters(robot, dynamics, payload)  # None: the prior
+    tau = PtpDynamics.from_parameters(fitted, params).torque(rep.q, rep.qd, rep.qdd)
     traj = Trajectory(rep.t, rep.q, rep.qd, rep.qdd, tau)
     report = check_limits(robot, traj.t, traj.q, traj.qd, traj.qdd, tau)
     summary = motion_summary(traj.duration_s, time.perf_counter() - t_all, report, traj.q[0], traj.q[-1])

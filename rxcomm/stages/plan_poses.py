@@ -60,13 +60,20 @@ def command(
     nominal = load_robot(robot_dir)
     catalogue = catalogue_limits(nominal)  # the maker's, as the factory state's timing
     robot = nominal if calibration is None else load_calibrated_robot(nominal, calibration)
-    params = None if dynamics is None else load_dynamics(dynamics, robot)
-    encoder, compliance = _commanded(nominal, calibration, params)
+    params, fitted = (None, nominal) if dynamics is None else load_dynamics(dynamics, nominal)
+    encoder, compliance = _commanded(fitted, calibration, params)
     spec = read_yaml_model(rectangle, PathSpec)
     sample_s = PLAN_CYCLES * robot.drives.cycle_s
     t0 = time.perf_counter()
     traj, order, report = pose_cycle_plan(
-        robot, spec, catalogue, PtpDynamics.from_parameters(robot, params), cycles, dwell_s, sample_s, encoder
+        robot,
+        spec,
+        catalogue,
+        PtpDynamics.from_parameters(fitted, params, kinematics=robot),
+        cycles,
+        dwell_s,
+        sample_s,
+        encoder,
     )
     summary = motion_summary(traj.duration_s, time.perf_counter() - t0, report, traj.q[0], traj.q[-1])
     summary |= {
@@ -91,11 +98,11 @@ def command(
     return summary
 
 
-def _commanded(nominal, calibration: Path | None, params):
+def _commanded(fitted, calibration: Path | None, params):
     """With a calibration that found joint compliance: the encoder angles that hold each link at its
     IK pose (`calibration.compliance`), and the compliances used; else none."""
     from rxcomm.calibration.compensation import compliance_command
 
     if calibration is None:
         return None, None
-    return compliance_command(nominal, read_yaml_artefact(calibration, Calibration), params)
+    return compliance_command(fitted, read_yaml_artefact(calibration, Calibration), params)

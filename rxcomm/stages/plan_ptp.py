@@ -277,7 +277,7 @@ def _planning_model(
 ) -> tuple[Robot, PtpDynamics, dict[str, Path]]:
     """The robot (calibrated if given), its PtP model and the input files. The torques are the
     identified parameters' (the prior's without), with the identified payload on the last link when
-    given, on the nominal robot, identify's and run's (`load_calibrated_robot` says why); the TCP
+    given, on the kinematics they were fitted on, as `run` evaluates them (`load_dynamics`); the TCP
     kinematics are the calibrated robot's."""
     from rxcomm.calibration.loading import load_calibrated_robot
     from rxcomm.model.payload import model_inputs, model_parameters
@@ -289,9 +289,9 @@ def _planning_model(
     if calibration is not None:
         robot = load_calibrated_robot(robot, calibration)
         inputs["calibration"] = Path(calibration)
-    params = model_parameters(nominal, dynamics, payload)  # None: the prior
+    params, fitted = model_parameters(nominal, dynamics, payload)  # None: the prior
     inputs |= model_inputs(dynamics, payload)
-    return robot, PtpDynamics.from_parameters(nominal, params, kinematics=robot), inputs
+    return robot, PtpDynamics.from_parameters(fitted, params, kinematics=robot), inputs
 
 
 @dataclass(frozen=True)

@@ -52,14 +52,15 @@ if TYPE_CHECKING:
 # --- inputs ---------------------------------------------------------------------------------------
 def load_model(
     robot: Robot, dynamics: Path | None, plan: Path | None = None, payload: Path | None = None
-) -> tuple[DynamicParameters, str]:
-    """The model for τ_ff and the torque checks; `payload` (payload.yaml) added to its last link."""
+) -> tuple[DynamicParameters, str, Robot]:
+    """The model for τ_ff and the torque checks; `payload` (payload.yaml) added to its last link; and
+    the robot it is evaluated on: the nominal `robot` with the kinematics the model was fitted on."""
     from rxcomm.model.base_parameters import load_dynamics
     from rxcomm.model.dynamics import prior_parameters
     from rxcomm.model.payload import load_payload, with_payload
 
     if dynamics is not None:
-        params, name = load_dynamics(dynamics, robot), "identified"
+        (params, robot), name = load_dynamics(dynamics, robot), "identified"
         from rxcomm.execution.guards import other_model_warning
 
         if plan is not None and (warning := other_model_warning(plan, dynamics)):
@@ -67,8 +68,8 @@ def load_model(
     else:
         params, name = prior_parameters(robot), "prior"
     if payload is None:
-        return params, name
-    return with_payload(robot, params, load_payload(payload, robot)), name  # the log's inputs name it
+        return params, name, robot
+    return with_payload(robot, params, load_payload(payload, robot)), name, robot  # the log's inputs name it
 
 
 def _model_and_cell_files(
@@ -197,7 +198,7 @@ class _Job:
 
     plan: Path
     output: Path
-    robot: Robot
+    robot: Robot  # the kinematics the torque model was fitted on (`load_model`): same drives and limits
     params: DynamicParameters
     model_name: str
     inputs: dict[str, Path]
@@ -278,7 +279,7 @@ def execute(
         calibration=calibration,
     )
     robot = load_robot(robot_dir)
-    params, model_name = load_model(robot, dynamics, plan, payload)
+    params, model_name, fitted = load_model(robot, dynamics, plan, payload)
     inputs, view = _inputs(plan, robot, dynamics, calibration, payload)
     virtual = gateway is None and not realtime  # the embedded cell's clock waits for the master
     lease = {"watchdog_ms": VIRTUAL_CELL_WATCHDOG_MS} if virtual else {}
@@ -286,7 +287,7 @@ def execute(
     update, stop_bar = console.named_progress() if show_progress else (None, lambda: None)
     restore_sigterm = sigterm_as_interrupt()
     job = _Job(
-        plan, output, robot, params, model_name, inputs,
+        plan, output, fitted, params, model_name, inputs,
         lambda: connect(gateway, allow_remote, truth, robot_dir, realtime, plant, truth_payload), update,
         view,
     )  # fmt: skip
