@@ -237,9 +237,8 @@ class Dynamics(Artefact[IdentifySettings, DynamicsSummary], kind="rxcomm/Dynamic
     spring: SpringEstimate | None = None
     kinematics_errors: dict[str, float] | None = Field(
         None,
-        description="the geometric error parameters (rxcomm.model.geometric_errors names; m and rad) of the "
-        "kinematics the parameters were fitted on (identify --calibration), on which every stage evaluates "
-        "the model's torques; None: the nominal kinematics",
+        description="geometric errors (model.geometric_errors names; m, rad) of the kinematics of the fit "
+        "(identify --calibration), where stages evaluate its torques; None: the nominal kinematics",
     )
 
     @model_validator(mode="after")
