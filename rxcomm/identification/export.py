@@ -45,7 +45,10 @@ def write_parameters_csv(art: Dynamics, path: str | Path, source: str = "") -> P
     definition (the regrouping). 17 significant digits: a float64 reads back exactly."""
     lines = [
         f"# base dynamic parameters ± 1 sigma of {art.robot}{f' ({source})' if source else ''}; "
-        f"{art.summary.method or ''}; units SI, joint side unless noted",
+        f"{art.summary.method or ''}; units SI, joint side unless noted"
+        + (
+            "; on the calibrated link frames of the YAML's kinematics_errors" if art.kinematics_errors else ""
+        ),
         "name,value,std,relative_std,unit,definition",
     ]
     for b in art.base_parameters:
