@@ -7,8 +7,17 @@ calibrated kinematics instead.
 
 Geometric errors break the structural dependencies of the nominal regressor (an axis tilted by 1 mrad
 makes 4 more RX130L parameters "identifiable" at a condition number of 3600), so the base set keeps the
-nominal robot's columns and names and only its regrouping K is computed on the calibrated kinematics
-(`base_set_on`): the best 61-parameter model of the calibrated robot's torques.
+nominal robot's columns and names and its regrouping K is computed on the calibrated kinematics
+(`base_set_on`), with one exception (`tilt_columns`): a parameter WITHOUT effect on the nominal robot
+(a zero column there, `unidentifiable`) that has one on the calibrated kinematics, independent of the
+kept columns, is kept too. On a first axis tilted from gravity (base and J1 errors, a few mrad) that is
+link 1's first moment across the axis: g·θ·(mcx, mcy) turned by q1, a J1 torque no nominal column can
+express (the masses at the shoulder offset and link 2's first moment along its axis regroup into it).
+Regrouped by least squares over random states it averages out there, but not along an excitation
+that swings J1 over part of a turn: on the M900's MuJoCo logs (θ ≈ 4 mrad, 0.07 N·m rms of J1's torque
+unexplained) it put j1.offset 10σ off on a 1.5 rad swing, and j1.fc / j1.fv −7.2σ / +6.6σ on a 5.4 rad
+one (architecture §6.1). A nonzero column that depends on the kept ones (the RX130L's balancer k,
+regrouped with link 2's gravity) stays regrouped.
 
 `inertials_in_frames_of` scores such a fit: a calibration fixes the joint axis lines, not where each
 link frame sits on them, so the bodies' inertials must be expressed in the calibrated link frames
@@ -29,31 +38,56 @@ from rxcomm.model.robot import Robot
 # Regrouping coefficients whose torque is below this fraction of the dropped column's are rounding
 # noise of the least squares (the nominal set's own cleaning is 1e-10 on exact dependencies).
 _COEFF_CLEAN = 1e-9
+# A column below this fraction of the largest has no effect (as `rxcomm.model.base_parameters` decides).
+_ZERO_COLUMN = 1e-10
+
+
+def tilt_columns(w: np.ndarray, nominal: BaseParameterSet) -> np.ndarray:
+    """Full-parameter indices without effect on the nominal robot (`nominal.unidentifiable`) whose column
+    of the regressor `w` (another kinematics') has one, independent of the nominal set's kept columns and
+    of those taken before it: relative residual above the nominal set's rank tolerance, as its QR on unit
+    columns decides; taken in the nominal set's name order (link 1's first moments first)."""
+    norms = np.linalg.norm(w, axis=0)
+    taken: list[int] = []
+    for name in nominal.unidentifiable:
+        i = nominal.full_names.index(name)
+        if norms[i] <= _ZERO_COLUMN * norms.max():
+            continue
+        basis = w[:, np.concatenate([nominal.independent, taken]).astype(int)]
+        resid = w[:, i] - basis @ np.linalg.lstsq(basis, w[:, i], rcond=None)[0]
+        if np.linalg.norm(resid) > nominal.rank_tolerance * norms[i]:
+            taken.append(i)
+    return np.array(taken, dtype=int)
 
 
 def base_set_on(
     robot: Robot, nominal: BaseParameterSet, n_samples: int = 300, seed: int = 0
 ) -> BaseParameterSet:
     """`nominal`'s base parameters (same kept columns, same names) regrouped on `robot`'s kinematics:
-    K[:, dropped] = lstsq(W_kept, W_dropped) over random states of `robot`."""
+    K[:, dropped] = lstsq(W_kept, W_dropped) over random states of `robot`; plus the parameters these
+    kinematics give an effect the nominal robot's do not (`tilt_columns`, module docstring), named as
+    the nominal set names its own (`_R` when regrouped). On the nominal kinematics: the nominal set."""
     q, qd, qdd = random_states(robot, n_samples, seed)
     w = joint_torque_regressor(robot, q, qd, qdd)
     if w.shape[1] != len(nominal.full_names):
         raise ValueError("the base set is over other parameters than the robot has")
-    kept = nominal.independent
+    kept = np.sort(np.concatenate([nominal.independent, tilt_columns(w, nominal)]).astype(int))
     dropped = np.setdiff1d(np.arange(w.shape[1]), kept)
     kappa = np.linalg.lstsq(w[:, kept], w[:, dropped], rcond=None)[0]
     norms = np.linalg.norm(w, axis=0)
     contrib = np.abs(kappa) * norms[kept][:, None] / np.maximum(norms[dropped], 1e-300)[None, :]
     kappa[contrib < _COEFF_CLEAN] = 0.0
-    k = np.zeros_like(nominal.K)
+    k = np.zeros((len(kept), w.shape[1]))
     k[np.arange(len(kept)), kept] = 1.0
     k[:, dropped] = kappa
     names = nominal.full_names
     combos = [{names[j]: float(k[i, j]) for j in np.flatnonzero(k[i])} for i in range(len(kept))]
-    regrouped = BaseParameterSet.from_combinations(
-        names, list(nominal.names), [names[j] for j in kept], combos
-    )
+    nominal_name = dict(zip(nominal.independent.tolist(), nominal.names, strict=True))
+    base_names = [
+        nominal_name.get(j, names[j] + ("_R" if np.count_nonzero(k[i]) > 1 else ""))
+        for i, j in enumerate(kept.tolist())
+    ]
+    regrouped = BaseParameterSet.from_combinations(names, base_names, [names[j] for j in kept], combos)
     return replace(regrouped, n_samples=n_samples, seed=seed, rank_tolerance=nominal.rank_tolerance)
 
 
