@@ -124,7 +124,7 @@ def inverse_dynamics_expr(robot: Robot, q, qd, qdd, p, coulomb_eps_rad_s: float 
     j_m = ca.vertcat(*[p[10 * n + i] for i in range(n)])
     tau = tau + ca.mtimes(r.T, j_m * ca.mtimes(r, qdd))
     block = [ca.vertcat(*[p[10 * n + k * n + i] for i in range(n)]) for k in range(1, 4)]
-    tau = tau + block[0] * _coulomb(qd, coulomb_eps_rad_s) + block[1] * qd + block[2]
+    tau = tau + _joint_coulomb(robot, qd, p, coulomb_eps_rad_s) + block[1] * qd + block[2]
     spring = robot.drives.spring
     if spring is not None:
         k = robot.spring_joint_index
@@ -135,12 +135,34 @@ def inverse_dynamics_expr(robot: Robot, q, qd, qdd, p, coulomb_eps_rad_s: float 
         tau_s = ab_sin * p[14 * n] - ab_sin / length * p[14 * n + 1]
         tau = tau + ca.vertcat(*[tau_s if i == k else 0.0 for i in range(n)])
     if robot.has_motor_friction:  # Rᵀ·(Fc_m·sgn(R·q̇) + Fv_m·R·q̇)
-        m0 = 14 * n + (2 if spring is not None else 0)
-        fc_m = ca.vertcat(*[p[m0 + i] for i in range(n)])
-        fv_m = ca.vertcat(*[p[m0 + n + i] for i in range(n)])
+        fv_m = ca.vertcat(*[p[_motor_friction_offset(robot) + n + i] for i in range(n)])
         vm = ca.mtimes(r, qd)
-        scale = ca.DM(np.abs(np.diag(robot.joint_to_motor)))  # ε on the axis's joint scale
-        tau = tau + ca.mtimes(r.T, fc_m * _coulomb(vm / scale, coulomb_eps_rad_s) + fv_m * vm)
+        tau = tau + ca.mtimes(r.T, _motor_coulomb(robot, vm, p, coulomb_eps_rad_s) + fv_m * vm)
+    return tau
+
+
+def _motor_friction_offset(robot: Robot) -> int:
+    return 14 * robot.n + (2 if robot.drives.spring is not None else 0)
+
+
+def _joint_coulomb(robot: Robot, qd, p, eps):
+    return ca.vertcat(*[p[11 * robot.n + i] for i in range(robot.n)]) * _coulomb(qd, eps)
+
+
+def _motor_coulomb(robot: Robot, vm, p, eps):
+    """Fc_m·sgn(v_m) at the motor speeds v_m = R·q̇ (ε on the axis's joint scale)."""
+    fc_m = ca.vertcat(*[p[_motor_friction_offset(robot) + i] for i in range(robot.n)])
+    return fc_m * _coulomb(vm / ca.DM(np.abs(np.diag(robot.joint_to_motor))), eps)
+
+
+def coulomb_torque_expr(robot: Robot, qd, p, coulomb_eps_rad_s: float | None = None):
+    """The Coulomb-friction part of `inverse_dynamics_expr`: Fc·sgn(q̇), plus Rᵀ·Fc_m·sgn(R·q̇) with
+    motor friction; p the flat parameter vector (numeric or symbolic), sgn smoothed as there."""
+    p = p.conform(robot).vector() if isinstance(p, DynamicParameters) else p
+    tau = _joint_coulomb(robot, qd, p, coulomb_eps_rad_s)
+    if robot.has_motor_friction:
+        r = ca.DM(robot.joint_to_motor)
+        tau = tau + ca.mtimes(r.T, _motor_coulomb(robot, ca.mtimes(r, qd), p, coulomb_eps_rad_s))
     return tau
 
 
