@@ -39,6 +39,7 @@ import pinocchio as pin
 
 from rxcomm.errors import InfeasibleError, InputError
 from rxcomm.io.trajectory import Trajectory
+from rxcomm.model.energy import BusPowerModel
 from rxcomm.model.limits import SAMPLED_LIMIT_TOLERANCE, LimitReport
 from rxcomm.model.robot import Robot
 from rxcomm.planning.ptp_ocp import PtpOcp, cached_ocp
@@ -49,6 +50,7 @@ from rxcomm.planning.ptp_problem import (
     PtpOptions,
     PtpSolution,
     Vec3,
+    energy_quadrature,
 )
 from rxcomm.planning.warm_start import KinematicProfile, feasible_profile, ruckig_profile
 
@@ -98,6 +100,17 @@ def sample_solution(
     qd[-1] = qdd[-1] = 0.0
     tau = dynamics.output_torque(q, qd, qdd) if output else dynamics.torque(q, qd, qdd)
     return Trajectory(t, q, qd, qdd, tau)
+
+
+def quadrature_energy(sol: PtpSolution, dynamics: PtpDynamics, bus: BusPowerModel) -> float:
+    """The energy objective's own figure of a solution (J): `bus`'s smoothed power on the points and
+    weights of `energy_quadrature` (states by exact integration of the jerk, the output model's torque),
+    the value the NLP minimised; the plan is judged on `model.energy.electrical_energy` of its
+    drive-cycle samples."""
+    s, w = energy_quadrature(sol.n_intervals)
+    T = sol.duration_s
+    q, qd, qdd = integrate_jerk(sol.q[0], sol.qd[0], sol.qdd[0], sol.jerk, T / sol.n_intervals, s * T)
+    return float(T * w @ bus.power(qd, dynamics.output_torque(q, qd, qdd)))
 
 
 def sample_profile(profile: KinematicProfile, dynamics: PtpDynamics, cycle_s: float) -> Trajectory:

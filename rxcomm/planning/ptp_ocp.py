@@ -56,6 +56,7 @@ from rxcomm.planning.ptp_problem import (
     PtpLimits,
     PtpOptions,
     PtpSolution,
+    energy_quadrature,
     ipopt_options,
     run_ipopt,
 )
@@ -170,13 +171,13 @@ class PtpOcp:
         lam_g = ca.MX.sym("lam_g", ng)
         x_pad = ca.vertcat(x, 0)
         xi = ca.reshape(x_pad[np.where(var_index >= 0, var_index, self.nx).ravel().tolist()], m, N + 1)
-        wts = np.ones(N + 1)
-        wts[[0, -1]] = 0.5  # trapezoid weights of ∫τᵀτ dt
-        wts = ca.DM(wts).T
+        wts = ca.DM(self._window_weights())
+        # the time's weight; a fixed duration makes it a constant, left out so the objective is the energy
+        k1 = options.k1 if options.duration_s is None else 0.0
 
         rows, f_win = window.map(N + 1)(xi, wts)
         g = ca.vec(rows)[np.flatnonzero(row_valid.ravel()).tolist()]
-        f = options.k1 * self.t_ref * x[0] + ca.sum2(f_win)
+        f = k1 * self.t_ref * x[0] + ca.sum2(f_win)
 
         # the window's Jacobian, gradient and Lagrangian Hessian, compiled together (options.compile,
         # `_compiled`); g and f stay SX so CasADi can still differentiate them (IPOPT's final
@@ -213,7 +214,7 @@ class PtpOcp:
             ca.Sparsity.triplet(self.nx, cols.size, cols[ok].tolist(), np.flatnonzero(ok).tolist()), 1.0
         )
         grad = ca.mtimes(assemble, ca.vec(gw.map(N + 1)(xi, wts)))
-        grad = grad + ca.DM([options.k1 * self.t_ref] + [0.0] * (self.nx - 1))
+        grad = grad + ca.DM([k1 * self.t_ref] + [0.0] * (self.nx - 1))
         grad_f = ca.Function("grad_f", [x, p], [f, grad], ["x", "p"], ["f", "grad_f_x"])
 
         nlp_opts: dict = {"print_time": False, "jac_g": jac_g, "grad_f": grad_f}
@@ -228,11 +229,38 @@ class PtpOcp:
         self.build_seconds = time.perf_counter() - t_build
 
     # --- the window -----------------------------------------------------------------------------------
+    def _window_weights(self) -> np.ndarray:
+        """[3, N+1] per window: the trapezoid weight of node k (∫τᵀτ dt, in units of h) and the energy
+        quadrature's weights of node k and of the midpoint of interval k (fractions of T, 0 past the end)."""
+        N = self.N
+        trapezoid = np.ones(N + 1)
+        trapezoid[[0, -1]] = 0.5
+        _, w = energy_quadrature(N)
+        return np.vstack([trapezoid, w[0::2], np.append(w[1::2], 0.0)])
+
+    def _window_energy(self, T, state, u, tau, wt) -> ca.SX:
+        """Window k's share of ∫₀ᵀ P dt (`BusPowerModel`): Simpson on the nodes and the interval
+        midpoints (`energy_quadrature`), the midpoint's state by exact integration of u_k, and the torque
+        `run` is judged on (`output_shift`: Coulomb friction smoothed with ε = 0.02, not the NLP's 0.1)."""
+        dyn, bus, h = self.dynamics, self.options.bus, T / self.N
+        q, qd, qdd = state
+        qm = q + h / 2 * qd + h**2 / 8 * qdd + h**3 / 48 * u
+        qdm, qddm = qd + h / 2 * qdd + h**2 / 8 * u, qdd + h / 2 * u
+        tau_m = _sx_function(dyn.inv_dyn)(qm, qdm, qddm)
+        if dyn.output_shift is not None:
+            shift = _sx_function(dyn.output_shift)
+            tau, tau_m = tau + shift(qd), tau_m + shift(qdm)
+
+        def power(v, t):
+            return bus.power(v.T, t.T, mtimes=ca.mtimes, sqrt=ca.sqrt)
+
+        return T * (wt[1] * power(qd, tau) + wt[2] * power(qdm, tau_m))
+
     def _window_function(self):
         """SX function (xi, wt) → (rows, f_k), the row kinds and per-row validity predicates k → bool."""
         n, N, lim, opt, dyn = self.dof, self.N, self.limits, self.options, self.dynamics
         m = 1 + 11 * n
-        xi, wt = ca.SX.sym("xi", m), ca.SX.sym("wt")
+        xi, wt = ca.SX.sym("xi", m), ca.SX.sym("wt", 3)
         vr, ar, jr = (ca.DM(a) for a in (self.v_ref, self.a_ref, self.j_ref))
         tmax, rmax = ca.DM(lim.tau_max), ca.DM(lim.tau_rate_max)
         T = self.t_ref * xi[0]
@@ -270,9 +298,9 @@ class PtpOcp:
             lo, hi = (np.asarray(c, float) for c in opt.tcp_box_m)
             p_tcp = _sx_function(dyn.tcp_fk)(q)[0]
             add((p_tcp - ca.DM((lo + hi) / 2)) / ca.DM((hi - lo) / 2), "tcp_box", lambda k: 0 < k < N)
-        f_k = opt.k2_per_nm2 * h * wt * ca.sumsqr(tau)
-        if opt.objective == "energy":  # the bus power (BusPowerModel), trapezoid over the nodes
-            f_k += h * wt * opt.bus.power(qd.T, tau.T, mtimes=ca.mtimes, sqrt=ca.sqrt)
+        f_k = opt.k2_per_nm2 * h * wt[0] * ca.sumsqr(tau)
+        if opt.objective == "energy":  # the bus power (BusPowerModel) on nodes and midpoints
+            f_k += self._window_energy(T, (q, qd, qdd), u, tau, wt)
         fn = ca.Function("ptp_window", [xi, wt], [ca.vertcat(*rows), f_k], ["xi", "wt"], ["rows", "f"])
         return fn, kinds, valid
 

@@ -25,7 +25,7 @@ from rxcomm.model.limits import (
     VelocityLimit,
 )
 from rxcomm.model.robot import Robot
-from rxcomm.model.symbolic import forward_kinematics_function, inverse_dynamics_function
+from rxcomm.model.symbolic import coulomb_torque_expr, forward_kinematics_function, inverse_dynamics_function
 from rxcomm.planning.warm_start import KinematicProfile
 
 Vec3 = tuple[float, float, float]
@@ -131,6 +131,8 @@ class PtpDynamics:
     `output` (q, qd, qdd) → tau: the torque of the sampled plan, Coulomb friction smoothed as `run`
     computes its feed-forward and checks it (`COULOMB_EPS_NLP_RAD_S`); `output_coulomb` (qd) → tau its
     Coulomb part. Without them the sampled torque is `inv_dyn`'s.
+    `output_shift` (qd) → tau: `output` − `inv_dyn` (the two Coulomb smoothings' difference, joint and
+    motor friction), so the energy objective prices the torque the plan is judged on (`ptp_ocp`).
     """
 
     inv_dyn: ca.Function
@@ -138,6 +140,7 @@ class PtpDynamics:
     tcp_fk: ca.Function | None = None
     output: ca.Function | None = None
     output_coulomb: ca.Function | None = None
+    output_shift: ca.Function | None = None
 
     @classmethod
     def from_parameters(
@@ -160,12 +163,16 @@ class PtpDynamics:
                 "coulomb", [qd], [ca.DM(params.coulomb_nm) * ca.tanh(qd / eps)], ["qd"], ["tau"]
             )
 
+        shift = coulomb_torque_expr(robot, qd, params, COULOMB_EPS_NLP_RAD_S) - coulomb_torque_expr(
+            robot, qd, params, coulomb_eps_rad_s
+        )
         return cls(
             inverse_dynamics_function(robot, params, coulomb_eps_rad_s),
             coulomb(coulomb_eps_rad_s),
             forward_kinematics_function(kinematics or robot),
             inverse_dynamics_function(robot, params, COULOMB_EPS_NLP_RAD_S),
             coulomb(COULOMB_EPS_NLP_RAD_S),
+            ca.Function("output_shift", [qd], [shift], ["qd"], ["tau"]),
         )
 
     @property
@@ -174,7 +181,7 @@ class PtpDynamics:
 
     def key(self) -> str:
         h = hashlib.sha256()
-        for f in (self.inv_dyn, self.coulomb, self.tcp_fk):
+        for f in (self.inv_dyn, self.coulomb, self.tcp_fk, self.output_shift):
             h.update(b"-" if f is None else f.serialize().encode())
         return h.hexdigest()
 
@@ -198,6 +205,17 @@ class PtpDynamics:
 def _mapped(f: ca.Function, *args: np.ndarray) -> np.ndarray:
     """`f` at many samples: each argument [n, dof], the result [n, dof] (one mapped call)."""
     return np.asarray(f.map(args[0].shape[0])(*(a.T for a in args))).T.reshape(args[0].shape)
+
+
+def energy_quadrature(n_intervals: int) -> tuple[np.ndarray, np.ndarray]:
+    """The energy objective's quadrature on the normalised time s ∈ [0, 1]: composite Simpson on the
+    N + 1 nodes and the N interval midpoints, points s [2N + 1] and weights w [2N + 1] (1, 4, 2, 4, …, 4,
+    1 over 6N; ∫₀ᵀ P dt ≈ T·Σ w·P(s·T)). The nodes alone (the trapezoid) do not see the motion between
+    them, and the optimum used that (`ptp_ocp` module doc)."""
+    w = np.full(2 * n_intervals + 1, 2.0)
+    w[1::2] = 4.0
+    w[[0, -1]] = 1.0
+    return np.linspace(0.0, 1.0, 2 * n_intervals + 1), w / (6 * n_intervals)
 
 
 @dataclass(frozen=True, eq=False)

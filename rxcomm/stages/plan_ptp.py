@@ -319,7 +319,7 @@ class _Target:
 
 def _write_optimal(robot, dyn, q_start, q_goal, options, target: _Target, *, fallback: bool, plot: bool):
     """The OCP's optimum (or, if it fails and `fallback`, the kinematic profile before exit 3)."""
-    from rxcomm.planning.ptp import PtpNotConverged, plan_ptp
+    from rxcomm.planning.ptp import PtpNotConverged, plan_ptp, quadrature_energy
     from rxcomm.planning.ptp_problem import PtpLimits
 
     with console.phase(f"plan-ptp: solving the OCP (N = {options.n_intervals})"):
@@ -330,9 +330,8 @@ def _write_optimal(robot, dyn, q_start, q_goal, options, target: _Target, *, fal
                 _write_fallback(robot, dyn, q_start, q_goal, options, target, e)
             raise
     summary = summary_of(result, q_start, q_goal, options.margin)
-    sol, bus = result.solution, options.bus
-    nodes_t = np.linspace(0.0, sol.duration_s, sol.n_intervals + 1)  # the NLP's own quadrature
-    summary |= planned_energy(robot, result.trajectory, bus and bus.energy(nodes_t, sol.qd, sol.tau))
+    bus = options.bus  # the energy objective's own figure beside the drive-cycle samples' energy
+    summary |= planned_energy(robot, result.trajectory, bus and quadrature_energy(result.solution, dyn, bus))
     summary["seconds"] = time.perf_counter() - target.t_all
     target.save(result.trajectory, summary, robot.joint_names, robot)
     if plot:
