@@ -9,6 +9,8 @@ makes it much faster than the paper's forward-dynamics multiple shooting (`ptp_s
     minimise   ∫₀ᵀ (k1 + k2·τᵀτ) dt          (τᵀτ by the trapezoid rule over the nodes)
                or, `objective` energy, ∫₀ᵀ P dt at a fixed T: the bus power of
                `model.energy.BusPowerModel` (copper, mechanical, regeneration as drives.yaml says)
+               by Simpson on the nodes and interval midpoints, with the torque `run` is judged on
+               (`_window_energy`: a node trapezoid let the optimum swing q̇ between the nodes)
     subject to (q, q̇, q̈)_{k+1} = exact integration of the jerk u_k over h = T/N
                q(0) = q_start, q(T) = q_goal, q̇ = q̈ = 0 at both ends (rest to rest; q̈ = 0 keeps the
                torque continuous with the holding torque before and after the motion)
