@@ -16,8 +16,11 @@ express (the masses at the shoulder offset and link 2's first moment along its a
 Regrouped by least squares over random states it averages out there, but not along an excitation
 that swings J1 over part of a turn: on the M900's MuJoCo logs (θ ≈ 4 mrad, 0.07 N·m rms of J1's torque
 unexplained) it put j1.offset 10σ off on a 1.5 rad swing, and j1.fc / j1.fv −7.2σ / +6.6σ on a 5.4 rad
-one (architecture §6.1). A nonzero column that depends on the kept ones (the RX130L's balancer k,
-regrouped with link 2's gravity) stays regrouped.
+one (architecture §6.1). A nonzero column the nominal set regroups that these kinematics separate
+(`separated_columns`: the RX130L's balancer k, regrouped with link 2's gravity on the nominal axes,
+1.3e-3 apart on tilted ones) is kept only where the log determines it (`identify_on`: σ ≤ 1/3 of its
+value within `max_cond`): such a separation sits near the rank tolerance, so the data decide, not the
+tolerance, and a log that cannot resolve it is fitted with it regrouped instead of refused.
 
 `inertials_in_frames_of` scores such a fit: a calibration fixes the joint axis lines, not where each
 link frame sits on them, so the bodies' inertials must be expressed in the calibrated link frames
@@ -27,13 +30,20 @@ before they compare with the estimate (tests, `bench.plant_compare`).
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
 
+from rxcomm.errors import InputError
 from rxcomm.model.base_parameters import BaseParameterSet
 from rxcomm.model.dynamics import DynamicParameters, joint_torque_regressor, random_states
 from rxcomm.model.robot import Robot
+
+if TYPE_CHECKING:
+    from rxcomm.identification.fit import Identification
+    from rxcomm.identification.logs import JointLog
+    from rxcomm.identification.settings import IdentifySettings
 
 # Regrouping coefficients whose torque is below this fraction of the dropped column's are rounding
 # noise of the least squares (the nominal set's own cleaning is 1e-10 on exact dependencies).
@@ -60,18 +70,48 @@ def tilt_columns(w: np.ndarray, nominal: BaseParameterSet) -> np.ndarray:
     return np.array(taken, dtype=int)
 
 
-def base_set_on(
+def separated_columns(
     robot: Robot, nominal: BaseParameterSet, n_samples: int = 300, seed: int = 0
-) -> BaseParameterSet:
-    """`nominal`'s base parameters (same kept columns, same names) regrouped on `robot`'s kinematics:
-    K[:, dropped] = lstsq(W_kept, W_dropped) over random states of `robot`; plus the parameters these
-    kinematics give an effect the nominal robot's do not (`tilt_columns`, module docstring), named as
-    the nominal set names its own (`_R` when regrouped). On the nominal kinematics: the nominal set."""
+) -> tuple[str, ...]:
+    """Parameters the nominal set regroups (nonzero columns, dependent on its kept ones) that `robot`'s
+    kinematics separate: relative residual against the kept columns and `tilt_columns` above the
+    nominal set's rank tolerance, largest first (the RX130L's balancer k on tilted axes, 1.3e-3)."""
+    w = _regressor(robot, nominal, n_samples, seed)
+    norms = np.linalg.norm(w, axis=0)
+    basis = w[:, np.concatenate([nominal.independent, tilt_columns(w, nominal)]).astype(int)]
+    found: list[tuple[float, str]] = []
+    for i, name in enumerate(nominal.full_names):
+        if (
+            i in nominal.independent
+            or name in nominal.unidentifiable
+            or norms[i] <= _ZERO_COLUMN * norms.max()
+        ):
+            continue
+        resid = w[:, i] - basis @ np.linalg.lstsq(basis, w[:, i], rcond=None)[0]
+        if (rel := float(np.linalg.norm(resid) / norms[i])) > nominal.rank_tolerance:
+            found.append((rel, name))
+    return tuple(name for _, name in sorted(found, reverse=True))
+
+
+def _regressor(robot: Robot, nominal: BaseParameterSet, n_samples: int, seed: int) -> np.ndarray:
     q, qd, qdd = random_states(robot, n_samples, seed)
     w = joint_torque_regressor(robot, q, qd, qdd)
     if w.shape[1] != len(nominal.full_names):
         raise ValueError("the base set is over other parameters than the robot has")
-    kept = np.sort(np.concatenate([nominal.independent, tilt_columns(w, nominal)]).astype(int))
+    return w
+
+
+def base_set_on(
+    robot: Robot, nominal: BaseParameterSet, n_samples: int = 300, seed: int = 0, keep: tuple[str, ...] = ()
+) -> BaseParameterSet:
+    """`nominal`'s base parameters (same kept columns, same names) regrouped on `robot`'s kinematics:
+    K[:, dropped] = lstsq(W_kept, W_dropped) over random states of `robot`; plus the parameters these
+    kinematics give an effect the nominal robot's do not (`tilt_columns`, module docstring) and those
+    named in `keep` (`separated_columns` a log determines: `identify_on`), named as the nominal set
+    names its own (`_R` when regrouped). On the nominal kinematics: the nominal set."""
+    w = _regressor(robot, nominal, n_samples, seed)
+    extra = [nominal.full_names.index(k) for k in keep]
+    kept = np.unique(np.concatenate([nominal.independent, tilt_columns(w, nominal), extra]).astype(int))
     dropped = np.setdiff1d(np.arange(w.shape[1]), kept)
     kappa = np.linalg.lstsq(w[:, kept], w[:, dropped], rcond=None)[0]
     norms = np.linalg.norm(w, axis=0)
@@ -89,6 +129,33 @@ def base_set_on(
     ]
     regrouped = BaseParameterSet.from_combinations(names, base_names, [names[j] for j in kept], combos)
     return replace(regrouped, n_samples=n_samples, seed=seed, rank_tolerance=nominal.rank_tolerance)
+
+
+def identify_on(
+    robot: Robot,
+    nominal: BaseParameterSet,
+    log: JointLog,
+    settings: IdentifySettings,
+    validation_log: JointLog | None = None,
+) -> tuple[Identification, BaseParameterSet]:
+    """Identify on `robot`'s (calibrated) kinematics with `base_set_on`'s set, each of the
+    `separated_columns` kept as well where the log determines it: σ ≤ 1/3 of its value (3σ from zero)
+    within `max_cond`; else it stays regrouped as on the nominal robot (module docstring)."""
+    from rxcomm.identification.fit import identify
+
+    bset = base_set_on(robot, nominal)
+    result = identify(robot, log, settings, validation_log=validation_log, bset=bset)
+    kept: tuple[str, ...] = ()
+    for name in separated_columns(robot, nominal):
+        trial = base_set_on(robot, nominal, keep=(*kept, name))
+        try:
+            res = identify(robot, log, settings, validation_log=validation_log, bset=trial)
+        except (InputError, np.linalg.LinAlgError):  # the log cannot separate it (cond, singular)
+            continue
+        i = int(np.flatnonzero(trial.independent == nominal.full_names.index(name))[0])
+        if res.estimate.relative_std[i] <= 1.0 / 3.0:
+            kept, bset, result = (*kept, name), trial, res
+    return result, bset
 
 
 def inertials_in_frames_of(

@@ -428,7 +428,7 @@ def run(
     """The stage as a function (tests call it): returns the artefact written."""
     from rxcomm.identification.export import write_parameters_csv, write_torques_csv
     from rxcomm.identification.fit import identify
-    from rxcomm.identification.kinematics import base_set_on
+    from rxcomm.identification.kinematics import identify_on
     from rxcomm.identification.logs import load_joint_log
     from rxcomm.model.base_parameters import base_parameters
     from rxcomm.model.robot import load_robot
@@ -463,8 +463,10 @@ def run(
                 "identification runs with --interpolation-ratio 1"
             )
     with console.phase("identify: estimating"):
-        bset = None if calibration is None else base_set_on(robot, base_parameters(nominal))
-        result = identify(robot, joint_log, opts, validation_log=val_log, bset=bset)
+        if calibration is None:
+            result = identify(robot, joint_log, opts, validation_log=val_log)
+        else:
+            result = identify_on(robot, base_parameters(nominal), joint_log, opts, val_log)[0]
     std = np.sqrt(np.maximum(np.diag(result.estimate.cov), 0.0))
     fields = artefact_fields(robot, result, std)
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "log": Path(log)}
