@@ -212,15 +212,16 @@ def test_a_model_is_evaluated_on_the_kinematics_it_was_fitted_on(tmp_path):
     assert load_dynamics(plain, nominal).robot is nominal
 
 
-def _multisine_log(robot, params, noise_fraction: float, seconds: float = 12.0):
+def _multisine_log(robot, params, noise_fraction: float, seconds: float = 12.0, j1_swing: float = 1.0):
     """A joint log of `params` on `robot` along a sum of sines per joint (every joint swinging well
-    within its limits), torque with white noise of `noise_fraction` of each joint's peak torque."""
+    within its limits, J1 over `j1_swing` of its amplitude), torque with white noise of
+    `noise_fraction` of each joint's peak torque."""
     from rxcomm.identification.logs import JointLog
 
     t = np.arange(0.0, seconds, 4 * robot.drives.cycle_s)
     mid, span = (robot.q_min + robot.q_max) / 2, (robot.q_max - robot.q_min) / 2
     w = 0.6 + 0.13 * np.arange(robot.n)
-    amp = np.minimum(0.35 * span, 1.2)
+    amp = np.minimum(0.35 * span, 1.2) * np.r_[j1_swing, np.ones(robot.n - 1)]
     q = mid + amp * (0.6 * np.sin(np.outer(t, w)) + 0.4 * np.sin(np.outer(t, 2.3 * w) + 1.0))
     qd = amp * (0.6 * w * np.cos(np.outer(t, w)) + 0.4 * 2.3 * w * np.cos(np.outer(t, 2.3 * w) + 1.0))
     qdd = -amp * (
@@ -252,3 +253,25 @@ def test_a_column_the_tilted_axes_separate_is_kept_where_the_log_determines_it()
     res, bset = identify_on(true, nominal, _multisine_log(true, truth.params, 0.1), settings)
     assert "spring.k" not in [bset.full_names[j] for j in bset.independent]
     assert bset.names == base_set_on(true, nominal).names
+
+
+def test_a_first_moment_the_log_cannot_condition_is_regrouped_not_refused():
+    """Along a short J1 swing (0.3 rad) link 1's first moment across the tilted axis turns J1 by a
+    nearly constant torque, the column of its friction offset: the imported UR5e's MuJoCo excitation
+    was refused for it (cond 2.4e4 on shoulder_pan_joint.mcy_R / offset). `identify_on` then keeps
+    the tilt column the log conditions (mcx) and regroups the other; on a longer log it keeps both."""
+    from rxcomm.errors import InputError
+    from rxcomm.identification.kinematics import identify_on, tilted_names
+
+    truth = load_truth("samples/m900/truth.yaml")
+    nominal, true = base_parameters(truth.robot), _true_robot(truth)
+    assert tilted_names(true, nominal) == ("j1.mcx", "j1.mcy")
+    settings = IdentifySettings(cutoff_hz=10.0, holdout_fraction=0.2)
+    short = _multisine_log(true, truth.params, 1e-3, seconds=6.0, j1_swing=0.35)
+    with pytest.raises(InputError, match="j1.mcy_R"):
+        identify(true, short, settings, bset=base_set_on(true, nominal))
+    res, bset = identify_on(true, nominal, short, settings)
+    assert set(bset.names) - set(nominal.names) == {"j1.mcx_R"}
+    assert res.estimate.cond <= settings.max_cond
+    _, bset = identify_on(true, nominal, _multisine_log(true, truth.params, 1e-3, j1_swing=0.35), settings)
+    assert set(bset.names) - set(nominal.names) == {"j1.mcx_R", "j1.mcy_R"}

@@ -16,7 +16,8 @@ express (the masses at the shoulder offset and link 2's first moment along its a
 Regrouped by least squares over random states it averages out there, but not along an excitation
 that swings J1 over part of a turn: on the M900's MuJoCo logs (θ ≈ 4 mrad, 0.07 N·m rms of J1's torque
 unexplained) it put j1.offset 10σ off on a 1.5 rad swing, and j1.fc / j1.fv −7.2σ / +6.6σ on a 5.4 rad
-one (architecture §6.1). A nonzero column the nominal set regroups that these kinematics separate
+one (architecture §6.1). Kept unless the log cannot condition them: along a J1 swing of a few degrees
+the torque is nearly constant, J1's friction offset (`identify_on` then keeps those it can). A nonzero column the nominal set regroups that these kinematics separate
 (`separated_columns`: the RX130L's balancer k, regrouped with link 2's gravity on the nominal axes,
 1.3e-3 apart on tilted ones) is kept only where the log determines it (`identify_on`: σ ≤ 1/3 of its
 value within `max_cond`): such a separation sits near the rank tolerance, so the data decide, not the
@@ -101,17 +102,32 @@ def _regressor(robot: Robot, nominal: BaseParameterSet, n_samples: int, seed: in
     return w
 
 
+def tilted_names(
+    robot: Robot, nominal: BaseParameterSet, n_samples: int = 300, seed: int = 0
+) -> tuple[str, ...]:
+    """The names of `tilt_columns` on `robot`'s kinematics over its random states."""
+    w = _regressor(robot, nominal, n_samples, seed)
+    return tuple(nominal.full_names[i] for i in tilt_columns(w, nominal))
+
+
 def base_set_on(
-    robot: Robot, nominal: BaseParameterSet, n_samples: int = 300, seed: int = 0, keep: tuple[str, ...] = ()
+    robot: Robot,
+    nominal: BaseParameterSet,
+    n_samples: int = 300,
+    seed: int = 0,
+    keep: tuple[str, ...] = (),
+    tilt: tuple[str, ...] | None = None,
 ) -> BaseParameterSet:
     """`nominal`'s base parameters (same kept columns, same names) regrouped on `robot`'s kinematics:
     K[:, dropped] = lstsq(W_kept, W_dropped) over random states of `robot`; plus the parameters these
-    kinematics give an effect the nominal robot's do not (`tilt_columns`, module docstring) and those
-    named in `keep` (`separated_columns` a log determines: `identify_on`), named as the nominal set
-    names its own (`_R` when regrouped). On the nominal kinematics: the nominal set."""
+    kinematics give an effect the nominal robot's do not (`tilt_columns`, module docstring; only those
+    named in `tilt` when given) and those named in `keep` (`separated_columns` a log determines:
+    `identify_on`), named as the nominal set names its own (`_R` when regrouped). On the nominal
+    kinematics: the nominal set."""
     w = _regressor(robot, nominal, n_samples, seed)
+    tilted = [i for i in tilt_columns(w, nominal) if tilt is None or nominal.full_names[i] in tilt]
     extra = [nominal.full_names.index(k) for k in keep]
-    kept = np.unique(np.concatenate([nominal.independent, tilt_columns(w, nominal), extra]).astype(int))
+    kept = np.unique(np.concatenate([nominal.independent, tilted, extra]).astype(int))
     dropped = np.setdiff1d(np.arange(w.shape[1]), kept)
     kappa = np.linalg.lstsq(w[:, kept], w[:, dropped], rcond=None)[0]
     norms = np.linalg.norm(w, axis=0)
@@ -140,16 +156,39 @@ def identify_on(
 ) -> tuple[Identification, BaseParameterSet]:
     """Identify on `robot`'s (calibrated) kinematics with `base_set_on`'s set, each of the
     `separated_columns` kept as well where the log determines it: σ ≤ 1/3 of its value (3σ from zero)
-    within `max_cond`; else it stays regrouped as on the nominal robot (module docstring)."""
+    within `max_cond`; else it stays regrouped as on the nominal robot (module docstring).
+
+    The `tilt_columns` are kept unless the log cannot condition them within `max_cond`: along a J1
+    swing of a few degrees link 1's first moment across the axis turns J1 by a nearly constant torque,
+    the column of J1's friction offset (the imported UR5e's MuJoCo excitation: cond 2.4e4 on
+    mcy_R/offset). Then the fit starts from none and keeps each one the log conditions, in order; a
+    log that cannot be fitted with none of them is refused as before."""
     from rxcomm.identification.fit import identify
 
+    def fit(bset: BaseParameterSet) -> Identification:
+        return identify(robot, log, settings, validation_log=validation_log, bset=bset)
+
+    tilt = tilted_names(robot, nominal)
     bset = base_set_on(robot, nominal)
-    result = identify(robot, log, settings, validation_log=validation_log, bset=bset)
+    try:
+        result = fit(bset)
+    except (InputError, np.linalg.LinAlgError):
+        if not tilt:
+            raise
+        candidates, tilt = tilt, ()
+        bset = base_set_on(robot, nominal, tilt=tilt)
+        result = fit(bset)
+        for name in candidates:
+            trial = base_set_on(robot, nominal, tilt=(*tilt, name))
+            try:
+                result, bset, tilt = fit(trial), trial, (*tilt, name)
+            except (InputError, np.linalg.LinAlgError):  # too close to the offset along this log
+                continue
     kept: tuple[str, ...] = ()
     for name in separated_columns(robot, nominal):
-        trial = base_set_on(robot, nominal, keep=(*kept, name))
+        trial = base_set_on(robot, nominal, keep=(*kept, name), tilt=tilt)
         try:
-            res = identify(robot, log, settings, validation_log=validation_log, bset=trial)
+            res = fit(trial)
         except (InputError, np.linalg.LinAlgError):  # the log cannot separate it (cond, singular)
             continue
         i = int(np.flatnonzero(trial.independent == nominal.full_names.index(name))[0])
