@@ -17,11 +17,12 @@ Regrouped by least squares over random states it averages out there, but not alo
 that swings J1 over part of a turn: on the M900's MuJoCo logs (θ ≈ 4 mrad, 0.07 N·m rms of J1's torque
 unexplained) it put j1.offset 10σ off on a 1.5 rad swing, and j1.fc / j1.fv −7.2σ / +6.6σ on a 5.4 rad
 one (architecture §6.1). Kept unless the log cannot condition them: along a J1 swing of a few degrees
-the torque is nearly constant, J1's friction offset (`identify_on` then keeps those it can). A nonzero column the nominal set regroups that these kinematics separate
-(`separated_columns`: the RX130L's balancer k, regrouped with link 2's gravity on the nominal axes,
-1.3e-3 apart on tilted ones) is kept only where the log determines it (`identify_on`: σ ≤ 1/3 of its
-value within `max_cond`): such a separation sits near the rank tolerance, so the data decide, not the
-tolerance, and a log that cannot resolve it is fitted with it regrouped instead of refused.
+that torque is nearly constant, J1's friction offset (`identify_on` then keeps those it can). A
+nonzero column the nominal set regroups that these kinematics separate (`separated_columns`: the
+RX130L's balancer k, regrouped with link 2's gravity on the nominal axes, 1.3e-3 apart on tilted ones)
+is kept only where the log determines it (`identify_on`: σ ≤ 1/3 of its value within `max_cond`):
+such a separation sits near the rank tolerance, so the data decide, not the tolerance, and a log
+that cannot resolve it is fitted with it regrouped instead of refused.
 
 `inertials_in_frames_of` scores such a fit: a calibration fixes the joint axis lines, not where each
 link frame sits on them, so the bodies' inertials must be expressed in the calibrated link frames
