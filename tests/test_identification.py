@@ -718,6 +718,23 @@ def test_physical_option_gives_consistent_links(
     assert np.allclose(bset_rx.project(res.params), res.p_b)
 
 
+def test_the_consistency_note_says_beyond_the_noise_where_it_is():
+    """The console's inconsistent-links note judges the distance against √n_base (it used to say
+    "within the noise" whatever the distance: the UR5e's 10.6 σ on 59 parameters)."""
+    from types import SimpleNamespace
+
+    from rxcomm.identification.fit import Identification
+
+    def note(distance: float, n_base: int, physical: bool) -> str:
+        fit = SimpleNamespace(mahalanobis=distance)
+        return Identification.consistency_note(
+            SimpleNamespace(physical_fit=fit, bset=SimpleNamespace(n_base=n_base), physical=physical)
+        )
+
+    assert "10.6 σ away, beyond the noise (√n_base = 7.68); --physical" in note(10.6, 59, False)
+    assert "3 σ away, within the noise (√n_base = 7.68); written" in note(3.0, 59, True)
+
+
 @pytest.mark.slow
 def test_an_inconsistent_estimate_within_the_noise_is_written_consistent(
     rx130l, truth_rx, bset_rx, optimal_traj
@@ -814,3 +831,10 @@ def test_end_to_end_on_the_simulated_cell(tmp_path, rx130l, truth_rx, bset_rx):
     bound = scipy.stats.norm.isf((1.0 - 0.99 ** (1.0 / len(z))) / 2.0)
     assert np.abs(z[worst]) <= bound, (art.base_parameters[worst].name, z[worst], bound)
     assert 0.5 <= np.sqrt(np.mean(z**2)) <= 1.5, np.sqrt(np.mean(z**2))
+
+
+def test_a_log_recorded_with_an_interpolation_ratio_is_warned_of():
+    t, q = np.arange(3) * 1e-3, np.zeros((3, 6))
+    assert JointLog(t, q, q, source="a.mcap").interpolation_warning() == ""
+    warning = JointLog(t, q, q, source="a.mcap", cycles_per_sample=3).interpolation_warning()
+    assert "a.mcap was recorded with --interpolation-ratio 3" in warning and "biases the inertias" in warning

@@ -141,6 +141,13 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
     assert "0.9999, 0.9989]" in text and "no standstill" in text and "10 Hz; 12.4" in text
     assert "0 %" not in text and "0.00 %" not in text
     assert "| not measured / not measured |" in text  # no fit or cross-validation figures: never 0
+    assert "fitted regrouped" not in text
+    regrouped = dynamics_section(_p(DynamicsSummary, s | {"kinematics_regrouped": "j1.mcy"}), None)
+    assert (
+        "this log could not (their effect sits in J1's friction offset"
+        in (text := render_sections("t", "p", [regrouped]))
+        and "| j1.mcy |" in text
+    )
     s |= {
         "fit_rms_nm": [0.45, 0.4, 0.17, 0.04, 0.019, 0.02],
         "cv_rms_nm": [0.49, 0.42, 0.18, 0.042, 0.022, 0.021],

@@ -102,6 +102,15 @@ class Identification:
         names = self.params.joint_names
         return [f"{names[i]} ({v:.3g} kg·m²)" for i, v in enumerate(self.link_min_eig_kgm2) if v <= 0]
 
+    def consistency_note(self) -> str:
+        """How far the nearest physically consistent estimate is, against the noise's √n_base σ."""
+        dist, bound = self.physical_fit.mahalanobis, float(np.sqrt(self.bset.n_base))
+        return (
+            f"the nearest consistent estimate is {dist:.3g} σ away, "
+            f"{'within' if dist <= bound else 'beyond'} the noise (√n_base = {bound:.3g}); "
+            + ("written" if self.physical else "--physical writes it")
+        )
+
     def warnings(self, settings: IdentifySettings | None = None) -> list[str]:
         """What a user should act on: too few rows per parameter, parameters the data barely see."""
         settings = settings or IdentifySettings()

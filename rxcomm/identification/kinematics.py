@@ -17,7 +17,7 @@ Regrouped by least squares over random states it averages out there, but not alo
 that swings J1 over part of a turn: on the M900's MuJoCo logs (θ ≈ 4 mrad, 0.07 N·m rms of J1's torque
 unexplained) it put j1.offset 10σ off on a 1.5 rad swing, and j1.fc / j1.fv −7.2σ / +6.6σ on a 5.4 rad
 one (architecture §6.1). Kept unless the log cannot condition them: along a J1 swing of a few degrees
-that torque is nearly constant, J1's friction offset (`identify_on` then keeps those it can). A
+that torque is nearly constant, J1's friction offset (`identify_on` then keeps those it determines). A
 nonzero column the nominal set regroups that these kinematics separate (`separated_columns`: the
 RX130L's balancer k, regrouped with link 2's gravity on the nominal axes, 1.3e-3 apart on tilted ones)
 is kept only where the log determines it (`identify_on`: σ ≤ 1/3 of its value within `max_cond`):
@@ -32,7 +32,7 @@ before they compare with the estimate (tests, `bench.plant_compare`).
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -148,13 +148,22 @@ def base_set_on(
     return replace(regrouped, n_samples=n_samples, seed=seed, rank_tolerance=nominal.rank_tolerance)
 
 
+class KinematicsFit(NamedTuple):
+    """`identify_on`'s result: the identification, its base set, and the `tilt_columns` the log could
+    not condition, fitted regrouped (the user is told: their effect sits in J1's friction offset)."""
+
+    identification: Identification
+    base_set: BaseParameterSet
+    regrouped: tuple[str, ...]
+
+
 def identify_on(
     robot: Robot,
     nominal: BaseParameterSet,
     log: JointLog,
     settings: IdentifySettings,
     validation_log: JointLog | None = None,
-) -> tuple[Identification, BaseParameterSet]:
+) -> KinematicsFit:
     """Identify on `robot`'s (calibrated) kinematics with `base_set_on`'s set, each of the
     `separated_columns` kept as well where the log determines it: σ ≤ 1/3 of its value (3σ from zero)
     within `max_cond`; else it stays regrouped as on the nominal robot (module docstring).
@@ -162,40 +171,44 @@ def identify_on(
     The `tilt_columns` are kept unless the log cannot condition them within `max_cond`: along a J1
     swing of a few degrees link 1's first moment across the axis turns J1 by a nearly constant torque,
     the column of J1's friction offset (the imported UR5e's MuJoCo excitation: cond 2.4e4 on
-    mcy_R/offset). Then the fit starts from none and keeps each one the log conditions, in order; a
-    log that cannot be fitted with none of them is refused as before."""
+    mcy_R/offset). Then the fit starts from none and keeps each one the log determines, as above, in
+    order: kept but undetermined, such a column's value can be tens of times the truth's, and its
+    torque varies with J1's angle beyond the logged swing, where regrouped it is a constant error of
+    the true term's size. A log that cannot be fitted with none of them is refused as before."""
     from rxcomm.identification.fit import identify
 
     def fit(bset: BaseParameterSet) -> Identification:
         return identify(robot, log, settings, validation_log=validation_log, bset=bset)
 
-    tilt = tilted_names(robot, nominal)
+    def determined(trial: BaseParameterSet, name: str) -> Identification | None:
+        """The fit with `name`'s column kept where the log determines it (3σ from zero in `max_cond`)."""
+        try:
+            res = fit(trial)
+        except (InputError, np.linalg.LinAlgError):  # the log cannot condition it (cond, singular)
+            return None
+        i = int(np.flatnonzero(trial.independent == nominal.full_names.index(name))[0])
+        return res if res.estimate.relative_std[i] <= 1.0 / 3.0 else None
+
+    tilt = candidates = tilted_names(robot, nominal)
     bset = base_set_on(robot, nominal)
     try:
         result = fit(bset)
     except (InputError, np.linalg.LinAlgError):
         if not tilt:
             raise
-        candidates, tilt = tilt, ()
+        tilt = ()
         bset = base_set_on(robot, nominal, tilt=tilt)
         result = fit(bset)
         for name in candidates:
             trial = base_set_on(robot, nominal, tilt=(*tilt, name))
-            try:
-                result, bset, tilt = fit(trial), trial, (*tilt, name)
-            except (InputError, np.linalg.LinAlgError):  # too close to the offset along this log
-                continue
+            if (res := determined(trial, name)) is not None:
+                result, bset, tilt = res, trial, (*tilt, name)
     kept: tuple[str, ...] = ()
     for name in separated_columns(robot, nominal):
         trial = base_set_on(robot, nominal, keep=(*kept, name), tilt=tilt)
-        try:
-            res = fit(trial)
-        except (InputError, np.linalg.LinAlgError):  # the log cannot separate it (cond, singular)
-            continue
-        i = int(np.flatnonzero(trial.independent == nominal.full_names.index(name))[0])
-        if res.estimate.relative_std[i] <= 1.0 / 3.0:
+        if (res := determined(trial, name)) is not None:
             kept, bset, result = (*kept, name), trial, res
-    return result, bset
+    return KinematicsFit(result, bset, tuple(n for n in candidates if n not in tilt))
 
 
 def inertials_in_frames_of(

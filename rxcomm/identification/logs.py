@@ -65,6 +65,17 @@ class JointLog:
     def n(self) -> int:
         return int(self.q.shape[1])
 
+    def interpolation_warning(self) -> str:
+        """What to tell a user of a log recorded with an interpolation ratio ('' for none)."""
+        if self.cycles_per_sample <= 1:
+            return ""
+        return (
+            f"{self.source} was recorded with --interpolation-ratio {self.cycles_per_sample}: each torque "
+            f"sample is one drive cycle of {self.cycles_per_sample}, at one phase of the setpoint "
+            "interpolation, which biases the inertias; record identification runs with "
+            "--interpolation-ratio 1"
+        )
+
     def window(self, t0: float, t1: float) -> JointLog:
         """Samples with t0 ≤ t < t1."""
         k = (self.t >= t0) & (self.t < t1)

@@ -119,6 +119,17 @@ def dynamics_section(
         "Dynamic identification (paper §4.1, §4.3, Fig. 5b)",
         [
             Figure("base parameters (friction model)", f"{s.n_base_params} ({s.friction or 'joint'})"),
+            *(
+                [
+                    Figure(
+                        "fitted regrouped: the calibrated axis tilt separates them, this log could not "
+                        "(their effect sits in J1's friction offset; a wider J1 swing separates them)",
+                        s.kinematics_regrouped,
+                    )
+                ]
+                if s.kinematics_regrouped
+                else []
+            ),
             Figure(
                 "validation RMS prediction error per joint, moving rows (headline)",
                 _per_joint(s.validation_rms_nm, unit="N·m"),

@@ -176,6 +176,11 @@ class DynamicsSummary(Strict):
     kinematics: str | None = Field(
         None, description="nominal, or calibrated (identify --calibration): the kinematics of the fit"
     )
+    kinematics_regrouped: str | None = Field(
+        None,
+        description="calibrated kinematics: link first moments the axis tilt separates that the log could "
+        "not condition (beside J1's friction offset), fitted regrouped; '' none; None nominal kinematics",
+    )
     validation_nrmse: list[float | None] | None = Field(description="required; None: not measured")
     validation_rms_nm: list[float | None] | None = Field(description="required; None: not measured")
     seconds: float | None = Field(description="required; None: not measured")

@@ -50,6 +50,10 @@ class Friction(StrEnum):
 
 
 NOT_SCORED = "not scored"
+REGROUPED_WHY = (
+    "the calibrated axis tilt gives an effect this log cannot tell from J1's friction offset; "
+    "a wider J1 swing separates it"
+)
 
 
 def per_joint(
@@ -306,15 +310,9 @@ def console_rows(result: Identification, summary: dict[str, object]) -> dict[str
     for k in ("max_relative_std", "n_inconsistent_links"):
         shown[k] = summary[k]
     if summary["inconsistent_links"]:
-        dist = summary["consistency_distance_sigma"]
         shown["inconsistent_links"] = (
             f"{summary['inconsistent_links']}: pseudo-inertia not positive definite (no body has that mass "
-            f"distribution); the nearest consistent estimate is {dist:.3g} σ away"
-            + (
-                " (written: within the noise, ≤ √n_base σ)"
-                if result.physical
-                else " (≲ √n_base: within the noise; --physical writes it)"
-            )
+            f"distribution); {result.consistency_note()}"
         )
     for k in ("consistency_distance_sigma", "method", "seconds"):
         shown[k] = summary[k]
@@ -454,19 +452,14 @@ def run(
     robot = nominal if errors is None else errors.apply(nominal)
     joint_log = load_joint_log(log, robot)
     val_log = None if validate is None else load_joint_log(validate, robot)
-    for lg in (joint_log, val_log):
-        if lg is not None and lg.cycles_per_sample > 1:
-            console.err.print(
-                f"[yellow]warning:[/] {lg.source} was recorded with --interpolation-ratio "
-                f"{lg.cycles_per_sample}: each torque sample is one drive cycle of {lg.cycles_per_sample}, "
-                "at one phase of the setpoint interpolation, which biases the inertias; record "
-                "identification runs with --interpolation-ratio 1"
-            )
+    for warning in filter(None, (lg.interpolation_warning() for lg in (joint_log, val_log) if lg)):
+        console.err.print(f"[yellow]warning:[/] {warning}")
+    regrouped: tuple[str, ...] | None = None
     with console.phase("identify: estimating"):
         if calibration is None:
             result = identify(robot, joint_log, opts, validation_log=val_log)
         else:
-            result = identify_on(robot, base_parameters(nominal), joint_log, opts, val_log)[0]
+            result, _, regrouped = identify_on(robot, base_parameters(nominal), joint_log, opts, val_log)
     std = np.sqrt(np.maximum(np.diag(result.estimate.cov), 0.0))
     fields = artefact_fields(robot, result, std)
     inputs = {"urdf": robot.urdf_path, "drives": robot.drives_path, "log": Path(log)}
@@ -474,7 +467,11 @@ def run(
         inputs["validate"] = Path(validate)
     if calibration is not None:
         inputs["calibration"] = Path(calibration)
-    summary = {"kinematics": "nominal" if calibration is None else "calibrated", **result.summary()}
+    summary = {
+        "kinematics": "nominal" if calibration is None else "calibrated",
+        "kinematics_regrouped": None if regrouped is None else ", ".join(regrouped),
+        **result.summary(),
+    }
     fields["kinematics_errors"] = None if errors is None else errors.as_dict()  # run and plans use them
     art = Dynamics(**Dynamics.envelope(inputs, opts, summary), **fields)
     output.parent.mkdir(parents=True, exist_ok=True)
@@ -491,4 +488,6 @@ def run(
     console.summary_table(f"identify → {output}", shown)
     for w in result.warnings(opts):
         console.err.print(f"[yellow]warning:[/] {w}")
+    if regrouped:
+        console.err.print(f"note: fitted regrouped: {', '.join(regrouped)} ({REGROUPED_WHY})")
     return art
