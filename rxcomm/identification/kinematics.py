@@ -149,8 +149,9 @@ def base_set_on(
 
 
 class KinematicsFit(NamedTuple):
-    """`identify_on`'s result: the identification, its base set, and the `tilt_columns` the log could
-    not condition, fitted regrouped (the user is told: their effect sits in J1's friction offset)."""
+    """`identify_on`'s result: the identification, its base set, and the `tilt_columns` fitted
+    regrouped because the log could not condition them all and did not determine these (the user is
+    told: their effect sits in J1's friction offset)."""
 
     identification: Identification
     base_set: BaseParameterSet
