@@ -178,8 +178,9 @@ class DynamicsSummary(Strict):
     )
     kinematics_regrouped: str | None = Field(
         None,
-        description="calibrated kinematics: link first moments the axis tilt separates that the log could "
-        "not condition (beside J1's friction offset), fitted regrouped; '' none; None nominal kinematics",
+        description="calibrated kinematics: link first moments the axis tilt separates, fitted regrouped "
+        "because the log could not condition them all beside J1's friction offset and did not determine "
+        "these; '' none; None nominal kinematics",
     )
     validation_nrmse: list[float | None] | None = Field(description="required; None: not measured")
     validation_rms_nm: list[float | None] | None = Field(description="required; None: not measured")
