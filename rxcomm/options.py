@@ -50,14 +50,16 @@ ValidateOption = Annotated[
     ),
 ]
 # plan-cp, plan-ptp, plan-cycles, run: an identified payload on the flange (identify-payload).
-PayloadOption = Annotated[
-    Path | None,
-    typer.Option(
-        "--payload", help="Identified payload.yaml (identify-payload): added to the model's last link."
-    ),
-]
+PAYLOAD = typer.Option(
+    "--payload", help="Identified payload.yaml (identify-payload): added to the model's last link."
+)
+PayloadOption = Annotated[Path | None, PAYLOAD]
 TimeWeight = Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")]
-# plan-cp, plan-ptp, run: artefacts that claim another robot or an impossible one (issue 27).
+# The one option of a declared input (the model a stage computes torques with): stages/stage_cli.py
+# gives it to a stage's plain parameter of that name.
+INPUT_OPTIONS = {"dynamics": Dynamics, "payload": PAYLOAD}
+# plan-cp, plan-ptp, run: artefacts that claim another robot or an impossible one (issue 27); their
+# declarations' `artefact_policy` adds both (stages/stage_cli.py).
 OtherRobot = Annotated[
     bool,
     typer.Option(
@@ -74,7 +76,6 @@ AllowInconsistent = Annotated[
 ]
 # plan-poses, plan-cycles: a plan derived from catalogue timing.
 PLAN_OUTPUT = typer.Option("-o", "--output", help="Output plan NAME.mcap (+ NAME.yaml).")
-PlanDynamics = IdentifiedDynamics
 # plan-poses, iso9283: where the ISO 9283 path files are.
 Iso9283Paths = Annotated[
     Path | None, typer.Option("--paths", help="Directory of the ISO 9283 path specs (default ROBOT/paths).")

@@ -70,6 +70,9 @@ class Declaration:
     # The settings model, "module:Class" under rxcomm: named, not imported, so that a command's code
     # identity (rxcomm/code_identity.py reads module names) covers only what it runs; tests resolve it.
     settings: str | None = None
+    # --other-robot / --allow-inconsistent: its dynamics and calibration may claim another robot, or
+    # physically inconsistent dynamics, when asked (issue 27; stages/stage_cli.py adds both options).
+    artefact_policy: bool = False
 
     @property
     def kind(self) -> type[Artefact] | None:
@@ -176,6 +179,7 @@ DECLARATIONS: dict[str, Declaration] = {
         **TRAJECTORY,
         beside=(PLOT,),
         settings="planning.cp:CpSettings",
+        artefact_policy=True,
     ),
     "iso9283-paths": Declaration(("robot", "cell"), suffixes=("/",)),
     "plan-ptp": Declaration(
@@ -183,6 +187,7 @@ DECLARATIONS: dict[str, Declaration] = {
         **TRAJECTORY,
         beside=(PLOT,),
         settings="planning.ptp_problem:PtpOptions",
+        artefact_policy=True,
     ),
     "plan-poses": Declaration(("robot", "paths", "calibration", "dynamics"), **TRAJECTORY),
     "plan-cycles": Declaration(("robot", "plan", "dynamics", "payload"), **TRAJECTORY, positional=("plan",)),
@@ -193,6 +198,7 @@ DECLARATIONS: dict[str, Declaration] = {
         beside=(PLOT,),
         positional=("plan",),
         settings="execution.session:RunSettings",
+        artefact_policy=True,
     ),
     "iso9283": Declaration(
         ("robot", "pose-log", "line-log", "circle-log", "small-circle-log", "rectangle-log")

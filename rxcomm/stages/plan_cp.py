@@ -23,20 +23,10 @@ from rxcomm.errors import InputError
 from rxcomm.io.files import trajectory_output
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.options import (
-    TRAJECTORY_OUTPUT,
-    AllowInconsistent,
-    IdentifiedDynamics,
-    Objective,
-    OtherRobot,
-    PayloadOption,
-    PlanDuration,
-    RobotDir,
-    TimeWeight,
-    Timing,
-)
+from rxcomm.options import TRAJECTORY_OUTPUT, Objective, PlanDuration, RobotDir, TimeWeight, Timing
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
+from rxcomm.stages.stage_cli import stage
 from rxcomm.stages.summary import planned_energy
 
 if TYPE_CHECKING:
@@ -187,13 +177,13 @@ TimingOption = Annotated[
 ]
 
 
-@console.stage_command
+@stage("plan-cp")
 def command(
     robot_dir: RobotDir,
     path: PathOption = None,
     output: Annotated[Path | None, TRAJECTORY_OUTPUT] = None,
-    dynamics: IdentifiedDynamics = None,
-    payload: PayloadOption = None,
+    dynamics: Path | None = None,
+    payload: Path | None = None,
     calibration: CalibrationOption = None,
     k1: TimeWeight = 1.0,
     k2: EnergyWeightOption = 0.0,
@@ -209,19 +199,15 @@ def command(
     cell: CellOption = None,
     iso_rpy_deg: IsoRpyOption = "180,0,0",
     timing: TimingOption = "optimal",
-    other_robot: OtherRobot = False,
-    allow_inconsistent: AllowInconsistent = False,
 ) -> dict[str, object]:
     """Plan the time-optimal (or time/energy-weighted) timing of a TCP path and write it for `run`."""
     from rxcomm.calibration.loading import load_calibrated_robot
-    from rxcomm.model.artefact_checks import accept_artefacts
     from rxcomm.model.catalogue import catalogue_limits
     from rxcomm.model.payload import model_inputs, model_name
     from rxcomm.model.robot import load_robot
     from rxcomm.planning.cp import CpSettings
     from rxcomm.planning.paths import load_path
 
-    accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     if iso9283 is not None:  # the old spelling of `rxcomm iso9283-paths`
         from rxcomm.stages import iso9283_paths
 

@@ -22,21 +22,22 @@ import typer
 
 from rxcomm import console
 from rxcomm.io.files import trajectory_output
-from rxcomm.options import PLAN_OUTPUT, PayloadOption, PlanDynamics, RobotDir
+from rxcomm.options import PLAN_OUTPUT, RobotDir
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
+from rxcomm.stages.stage_cli import stage
 from rxcomm.stages.summary import motion_summary
 
 
-@console.stage_command
+@stage("plan-cycles")
 def command(
     plan: Annotated[Path, typer.Argument(help="The trajectory of one cycle (NAME.mcap, e.g. from plan-cp).")],
     robot_dir: RobotDir,
     output: Annotated[Path, PLAN_OUTPUT],
     cycles: Annotated[int, typer.Option(help="Cycles of the path (ISO 9283: 10).")] = 10,
     dwell_s: Annotated[float, typer.Option(help="Hold at each end of the path, s.")] = 0.3,
-    dynamics: PlanDynamics = None,
-    payload: PayloadOption = None,
+    dynamics: Path | None = None,
+    payload: Path | None = None,
     duration_s: Annotated[
         float | None,
         typer.Option(help="Time-scale the cycle uniformly to this duration first, s (default: as planned)."),

@@ -19,17 +19,18 @@ from rxcomm import console
 from rxcomm.errors import InputError
 from rxcomm.io.files import trajectory_output
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
-from rxcomm.options import PLAN_OUTPUT, Iso9283Paths, PlanDynamics, RobotDir
+from rxcomm.options import PLAN_OUTPUT, Iso9283Paths, RobotDir
 from rxcomm.schemas.calibration import Calibration
 from rxcomm.schemas.path import PathSpec
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
+from rxcomm.stages.stage_cli import stage
 from rxcomm.stages.summary import motion_summary
 
 PLAN_CYCLES = 8  # the plan is sampled every 8 drive cycles: it dwells and moves slowly (run resamples)
 
 
-@console.stage_command
+@stage("plan-poses")
 def command(
     robot_dir: RobotDir,
     output: Annotated[Path, PLAN_OUTPUT],
@@ -37,7 +38,7 @@ def command(
     calibration: Annotated[
         Path | None, typer.Option(help="calibration.yaml: the poses' IK on the calibrated robot.")
     ] = None,
-    dynamics: PlanDynamics = None,
+    dynamics: Path | None = None,
     cycles: Annotated[int, typer.Option(help="Pose cycles (ISO 9283: 30).")] = 30,
     dwell_s: Annotated[float, typer.Option(help="Hold at each pose, s (the tracker measures in it).")] = 0.5,
 ) -> dict[str, object]:

@@ -22,11 +22,7 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.options import (
     POSE_PREFIX,
     TRAJECTORY_OUTPUT,
-    AllowInconsistent,
-    IdentifiedDynamics,
     Objective,
-    OtherRobot,
-    PayloadOption,
     PlanDuration,
     RobotDir,
     TimeWeight,
@@ -37,6 +33,7 @@ from rxcomm.options import (
 from rxcomm.schemas.path import Branch
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
+from rxcomm.stages.stage_cli import stage
 from rxcomm.stages.summary import motion_summary, planned_energy
 
 if TYPE_CHECKING:
@@ -198,7 +195,7 @@ TimingOption = Annotated[
 ]
 
 
-@console.stage_command
+@stage("plan-ptp")
 def command(
     robot_dir: RobotDir,
     output: Annotated[Path, TRAJECTORY_OUTPUT],
@@ -206,8 +203,8 @@ def command(
     start_deg: StartDegOption = None,
     goal: GoalOption = None,
     goal_deg: GoalDegOption = None,
-    dynamics: IdentifiedDynamics = None,
-    payload: PayloadOption = None,
+    dynamics: Path | None = None,
+    payload: Path | None = None,
     calibration: CalibrationOption = None,
     k1: TimeWeight = 1.0,
     k2: EnergyWeightOption = 0.0,
@@ -225,14 +222,10 @@ def command(
     fallback: FallbackOption = False,
     plot: PlotOption = False,
     timing: TimingOption = "optimal",
-    other_robot: OtherRobot = False,
-    allow_inconsistent: AllowInconsistent = False,
 ) -> dict[str, object]:
     """Plan the time/energy-optimal rest-to-rest motion between two joint states or TCP poses."""
-    from rxcomm.model.artefact_checks import accept_artefacts
     from rxcomm.model.payload import model_name
 
-    accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
     start, goal = state_text(start, start_deg, "start"), state_text(goal, goal_deg, "goal")
     t_all, output = time.perf_counter(), trajectory_output(output)
     DECLARATIONS["plan-ptp"].check(
