@@ -53,7 +53,6 @@ ValidateOption = Annotated[
 PAYLOAD = typer.Option(
     "--payload", help="Identified payload.yaml (identify-payload): added to the model's last link."
 )
-PayloadOption = Annotated[Path | None, PAYLOAD]
 TimeWeight = Annotated[float, typer.Option(help="Weight of time in ∫(k1 + k2·τᵀτ)dt.")]
 # The one option of a declared input (the model a stage computes torques with): stages/stage_cli.py
 # gives it to a stage's plain parameter of that name.

@@ -26,18 +26,11 @@ from rxcomm.errors import GatewayError, InputError, LocatedError, RxcommError, S
 from rxcomm.io.plan_files import plan_kind
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
-from rxcomm.options import (
-    AllowInconsistent,
-    IdentifiedDynamics,
-    OtherRobot,
-    PayloadOption,
-    Plant,
-    RobotDir,
-    embedded_plant,
-)
+from rxcomm.options import Plant, RobotDir, embedded_plant
 from rxcomm.schemas.configs import Configs
 from rxcomm.schemas.trajectory import TrajectorySummary
 from rxcomm.stages.declarations import DECLARATIONS
+from rxcomm.stages.stage_cli import stage
 
 if TYPE_CHECKING:
     from rxcomm.execution.campaign import CampaignSettings
@@ -230,29 +223,29 @@ def _inputs(
 
 
 def execute(
-    plan: Path,
-    robot_dir: Path,
-    output: Path,
+    plan: _Plan,
+    robot_dir: RobotDir,
+    output: _Output,
     *,
-    gateway: str | None = None,
-    truth: Path | None = None,
-    dynamics: Path | None = None,
-    feedforward: bool = True,
-    approach: bool = False,
-    allow_remote: bool = False,
-    realtime: bool = False,
-    interpolation_ratio: int | None = None,
-    speed: float = 0.2,
-    fault_reset: bool = False,
-    plot: bool = False,
-    compare: Path | None = None,
-    show_progress: bool = True,
-    plant: str = "own",
-    calibration: Path | None = None,
-    truth_payload: Path | None = None,
+    gateway: _Gateway = None,
+    truth: _Truth = None,
+    dynamics: Path | None = None,  # τ_ff and the torque checks
+    feedforward: _Feedforward = True,
+    approach: _Approach = False,
+    allow_remote: _AllowRemote = False,
+    realtime: _Realtime = False,
+    interpolation_ratio: _InterpolationRatio = None,
+    speed: _Speed = 0.2,
+    fault_reset: _FaultReset = False,
+    plot: _Plot = False,
+    compare: _Compare = None,
+    calibration: _Calibration = None,
+    plant: Plant = "own",
+    truth_payload: _TruthPayload = None,
     payload: Path | None = None,
+    show_progress: bool = True,
 ) -> dict[str, Any]:
-    """The stage as a function (tests call it): returns the summary written. Raises RxcommError."""
+    """`command` as a function (tests call it): returns the summary written. Raises RxcommError."""
     from rxcomm.execution.campaign import CampaignSettings
     from rxcomm.execution.guards import check_output_kind, check_run_options, sigterm_as_interrupt
     from rxcomm.execution.session import VIRTUAL_CELL_WATCHDOG_MS, RunSettings, StreamSettings
@@ -260,6 +253,7 @@ def execute(
     from rxcomm.model.robot import load_robot
 
     plan, output = Path(plan), Path(output)
+    plant = embedded_plant(plant, gateway)
     check_run_options(interpolation_ratio, speed)  # exit 2 before anything is read
     kind = plan_kind(plan)
     # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
@@ -501,7 +495,6 @@ _TruthPayload = Annotated[
         "truth's payload, `payload: null` none)."
     ),
 ]
-_Dynamics = IdentifiedDynamics  # τ_ff and the torque checks
 _Feedforward = Annotated[
     bool, typer.Option("--feedforward/--no-feedforward", help="Stream τ_ff = M(q)q̈ + g(q, q̇), or zeros.")
 ]
@@ -537,54 +530,10 @@ _Compare = Annotated[
 ]
 
 
-def command(
-    plan: _Plan,
-    robot_dir: RobotDir,
-    output: _Output,
-    gateway: _Gateway = None,
-    truth: _Truth = None,
-    dynamics: _Dynamics = None,
-    feedforward: _Feedforward = True,
-    approach: _Approach = False,
-    allow_remote: _AllowRemote = False,
-    realtime: _Realtime = False,
-    interpolation_ratio: _InterpolationRatio = None,
-    speed: _Speed = 0.2,
-    fault_reset: _FaultReset = False,
-    plot: _Plot = False,
-    compare: _Compare = None,
-    calibration: _Calibration = None,
-    other_robot: OtherRobot = False,
-    allow_inconsistent: AllowInconsistent = False,
-    plant: Plant = "own",
-    truth_payload: _TruthPayload = None,
-    payload: PayloadOption = None,
-) -> None:
+@stage("run", signature_of=execute)
+def command(**options: Any) -> None:
     """Execute a trajectory (or a pose list) on the cell: stream setpoints + feed-forward torque (from
     --dynamics, else the prior model; also the torque checks), record,
     report lag errors. Exit 2 bad input, 4 communication fault, 5 safety stop or a plan outside the
     limits / not at its start."""
-    from rxcomm.model.artefact_checks import accept_artefacts
-
-    accept_artefacts(other_robot=other_robot, allow_inconsistent=allow_inconsistent)
-    console.stage_command(execute)(
-        plan,
-        robot_dir,
-        output,
-        gateway=gateway,
-        truth=truth,
-        dynamics=dynamics,
-        feedforward=feedforward,
-        approach=approach,
-        allow_remote=allow_remote,
-        realtime=realtime,
-        interpolation_ratio=interpolation_ratio,
-        speed=speed,
-        fault_reset=fault_reset,
-        plot=plot,
-        compare=compare,
-        plant=console.checked(embedded_plant, plant, gateway),
-        calibration=calibration,
-        truth_payload=truth_payload,
-        payload=payload,
-    )
+    execute(**options)
