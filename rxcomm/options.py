@@ -33,7 +33,6 @@ DYNAMICS_HELP = (
     "Identified dynamics.yaml (rxcomm identify); where optional, the robot's prior model without it."
 )
 Dynamics = typer.Option("--dynamics", help=DYNAMICS_HELP)
-IdentifiedDynamics = Annotated[Path | None, Dynamics]
 CELL = typer.Option(
     "--cell",
     help="cell.yaml: workspace, allowed region, tracker and its noise, nominal layout (what each command "

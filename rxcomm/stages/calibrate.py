@@ -20,9 +20,9 @@ from rxcomm import console
 from rxcomm.errors import InputError
 from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_model, write_yaml_artefact
-from rxcomm.options import CellFile, IdentifiedDynamics, RobotDir, parse_numbers
+from rxcomm.options import CellFile, RobotDir, parse_numbers
 from rxcomm.schemas.cell import Cell
-from rxcomm.stages.declarations import DECLARATIONS
+from rxcomm.stages.stage_cli import stage
 
 if TYPE_CHECKING:
     import pinocchio as pin
@@ -135,7 +135,6 @@ ModelOption = Annotated[
     Model,
     typer.Option("--error-model", help="Error model; auto: chosen by cross-validation over the fit poses."),
 ]
-DynamicsOption = IdentifiedDynamics  # its holding torques bend the joints in the compliance model
 
 
 def _cell_and_noise(
@@ -184,7 +183,7 @@ def _write_exports(
     return kin.summary.model_dump(exclude={"n_sample_poses"})
 
 
-@console.stage_command
+@stage("calibrate", check=True)
 def command(
     robot_dir: RobotDir,
     measurements: MeasurementsOption,
@@ -199,7 +198,7 @@ def command(
     seed: Annotated[int, typer.Option(help="Seed of the held-out split.")] = 0,
     tracker_sigma: TrackerSigmaOption = None,
     model: ModelOption = "auto",
-    dynamics: DynamicsOption = None,
+    dynamics: Path | None = None,  # its holding torques bend the joints in the compliance model
 ) -> dict[str, object]:
     """Identify the robot's geometric errors from tracker measurements; write the calibration.
 
@@ -213,15 +212,6 @@ def command(
     from rxcomm.model.robot import load_robot
 
     output = Path(output)
-    DECLARATIONS["calibrate"].check(
-        output=output,
-        urdf_out=urdf_out,
-        mdh_out=mdh_out,
-        robot=robot_dir,
-        measurements=measurements,
-        cell=cell,
-        dynamics=dynamics,
-    )
     robot = load_robot(robot_dir)
     ms = read_measurements(measurements, robot)
     inputs: dict[str, Path] = {
