@@ -603,7 +603,7 @@ def test_scoring_a_model_on_a_log_reproduces_its_validation(
     from rxcomm.stages.identify import score_run
 
     csv = tmp_path / "torques.csv"
-    val = score_run(SAMPLES / "rx130l", out, vlog, torques_csv=csv)  # the model's own 12 Hz and 20 Hz
+    val = score_run(SAMPLES / "rx130l", out, vlog, torques_out=csv)  # the model's own 12 Hz and 20 Hz
     np.testing.assert_allclose(val.rms_nm, made.validation_rms_nm, rtol=1e-9)
     np.testing.assert_allclose(val.r2, made.validation_r2, rtol=1e-9)
     table = np.loadtxt(csv, delimiter=",", comments="#", skiprows=2)

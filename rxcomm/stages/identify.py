@@ -28,7 +28,7 @@ from rxcomm.io.validate import settings_from_options
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
 from rxcomm.options import JointLog, RobotDir, ValidateOption
 from rxcomm.schemas.dynamics import Dynamics
-from rxcomm.stages.declarations import DECLARATIONS
+from rxcomm.stages.stage_cli import checking
 
 if TYPE_CHECKING:
     from rxcomm.identification.fit import Identification
@@ -203,14 +203,14 @@ def command(
         "friction": None if friction is None else friction.value,
     }
     _check_mode(model, log, output, validate, params_out)
-    common = {"settings": values, "torques_csv": torques_csv, "calibration": calibration}
+    common = {"settings": values, "torques_out": torques_csv, "calibration": calibration}
     if model is not None:
         console.err.print(
             "identify --dynamics D --validate LOG is deprecated: use rxcomm score --dynamics D --log LOG"
         )
         score_run(robot_dir, model, validate, output=output, **common)
         return
-    run(robot_dir, log, output, validate=validate, plot=plot, params_csv=params_out, **common)
+    run(robot_dir, log, output, validate=validate, plot=plot, params_out=params_out, **common)
 
 
 @console.stage_command
@@ -336,13 +336,14 @@ def fit_and_cv_rows(result: Identification) -> dict[str, object]:
 
 
 @console.stage_command
+@checking("score")
 def score_run(
     robot_dir: Path,
-    model: Path,
+    dynamics: Path,
     log: Path,
     *,
     settings: IdentifySettings | dict | None = None,
-    torques_csv: Path | None = None,
+    torques_out: Path | None = None,
     output: Path | None = None,
     calibration: Path | None = None,
 ) -> Validation:
@@ -356,19 +357,11 @@ def score_run(
     from rxcomm.model.base_parameters import dynamics_from_artefact, fitted_kinematics
     from rxcomm.model.robot import load_robot
 
-    DECLARATIONS["score"].check(
-        output=output,
-        torques_out=torques_csv,
-        robot=robot_dir,
-        dynamics=model,
-        log=log,
-        calibration=calibration,
-    )
-    art = read_yaml_artefact(model, Dynamics)
+    art = read_yaml_artefact(dynamics, Dynamics)
     nominal = load_robot(robot_dir)
     # the model's own kinematics when it records them; --calibration for a model that does not
     robot = (
-        fitted_kinematics(art, nominal, model)
+        fitted_kinematics(art, nominal, dynamics)
         if art.kinematics_errors
         else fit_kinematics(nominal, calibration)
     )
@@ -387,10 +380,10 @@ def score_run(
     try:
         params = dynamics_from_artefact(art, robot)
     except InputError as e:
-        raise InputError(e.reason, file=model, field=e.field) from e
+        raise InputError(e.reason, file=dynamics, field=e.field) from e
     val = score(robot, params, load_joint_log(log, robot), opts)
-    if torques_csv is not None:
-        console.out.print(f"torques: {write_torques_csv(torques_csv, robot.joint_names, val)}")
+    if torques_out is not None:
+        console.out.print(f"torques: {write_torques_csv(torques_out, robot.joint_names, val)}")
     if output is not None:
         from rxcomm.identification.fit import validation_summary
         from rxcomm.schemas.plain import sha256_file
@@ -406,11 +399,12 @@ def score_run(
         Path(output).parent.mkdir(parents=True, exist_ok=True)
         write_yaml_artefact(Path(output), scored)
         console.out.print(f"scored model: {output}")
-    console.summary_table(f"identify: {Path(model).name} scored on {Path(log).name}", validation_rows(val))
+    console.summary_table(f"identify: {Path(dynamics).name} scored on {Path(log).name}", validation_rows(val))
     return val
 
 
 @console.stage_command
+@checking("identify")
 def run(
     robot_dir: Path,
     log: Path,
@@ -419,8 +413,8 @@ def run(
     validate: Path | None = None,
     settings: IdentifySettings | dict | None = None,
     plot: bool = False,
-    torques_csv: Path | None = None,
-    params_csv: Path | None = None,
+    torques_out: Path | None = None,
+    params_out: Path | None = None,
     calibration: Path | None = None,
 ) -> Dynamics:
     """The stage as a function (tests call it): returns the artefact written."""
@@ -434,16 +428,6 @@ def run(
     output = Path(output)
     if output.suffix not in (".yaml", ".yml"):
         raise InputError("the output must be a .yaml file", field="output")
-    DECLARATIONS["identify"].check(
-        output=output,
-        plot=plot,
-        torques_out=torques_csv,
-        params_out=params_csv,
-        robot=robot_dir,
-        log=log,
-        validate=validate,
-        calibration=calibration,
-    )
     opts = _settings(settings)
     nominal = load_robot(robot_dir)
     if opts.friction is not None and opts.friction != nominal.friction_mode:
@@ -479,11 +463,11 @@ def run(
     if plot:
         png = plot_validation(robot, result, output.with_suffix(".png"))
         console.out.print(f"plot: {png}")
-    if torques_csv is not None:
-        path = write_torques_csv(torques_csv, robot.joint_names, result.validation)
+    if torques_out is not None:
+        path = write_torques_csv(torques_out, robot.joint_names, result.validation)
         console.out.print(f"torques: {path}")
-    if params_csv is not None:
-        console.out.print(f"parameters: {write_parameters_csv(art, params_csv, output.name)}")
+    if params_out is not None:
+        console.out.print(f"parameters: {write_parameters_csv(art, params_out, output.name)}")
     shown = console_rows(result, summary)
     console.summary_table(f"identify → {output}", shown)
     for w in result.warnings(opts):

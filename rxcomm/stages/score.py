@@ -30,4 +30,4 @@ def command(
     calibration: CalibrationOption = None,
 ) -> None:
     """Score an identified dynamics.yaml on another log without refitting: identify's validation figures."""
-    score_run(robot_dir, dynamics, log, torques_csv=torques_out, output=output, calibration=calibration)
+    score_run(robot_dir, dynamics, log, torques_out=torques_out, output=output, calibration=calibration)
