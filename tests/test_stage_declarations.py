@@ -45,6 +45,50 @@ def test_a_stage_checks_exactly_its_declared_files(tmp_path):
         decl.check(output=plan.with_suffix(".yaml"), robot=robot, plan=plan, dynamics=None, payload=None)
 
 
+def test_a_command_takes_its_model_options_and_policy_from_the_declaration():
+    def options(name: str) -> dict[str, list[str]]:
+        return {p.name: p.opts for p in cli.stage_command(name).params}
+
+    for name in ("plan-cp", "plan-ptp", "plan-cycles", "plan-poses", "run", "calibrate"):
+        assert options(name)["dynamics"] == ["--dynamics"], name
+    for name in ("plan-cp", "plan-ptp", "run"):  # declared with artefact_policy
+        assert options(name)["payload"] == ["--payload"], name
+        assert options(name)["other_robot"] == ["--other-robot"], name
+        assert options(name)["allow_inconsistent"] == ["--allow-inconsistent"], name
+    assert "other_robot" not in options("plan-cycles")
+    assert "show_progress" not in options("run")  # run.execute's switch the command line does not set
+
+
+def test_the_policy_options_set_the_policy_before_the_stage_runs():
+    from rxcomm.model import artefact_checks
+    from rxcomm.stages.stage_cli import stage
+
+    seen = []
+
+    @stage("run")
+    def command() -> None:
+        seen.append(artefact_checks._current())
+
+    command(other_robot=True)
+    command()
+    assert seen == [artefact_checks.Policy(other_robot=True), artefact_checks.Policy()]
+
+
+def test_checking_takes_the_declared_files_from_the_arguments(tmp_path):
+    from rxcomm.errors import InputError
+    from rxcomm.stages.stage_cli import checking
+
+    def cycles(plan, robot_dir, output, dynamics=None, payload=None) -> str:
+        return "ran"
+
+    plan, robot = tmp_path / "plan.mcap", ROOT / "samples/rx130l"
+    assert checking("plan-cycles")(cycles)(plan, robot, tmp_path / "x.mcap") == "ran"
+    with pytest.raises(InputError, match="is also the input plan"):
+        checking("plan-cycles")(cycles)(plan, robot, plan.with_suffix(".yaml"))
+    with pytest.raises(TypeError, match="takes no"):  # a declared file it has no parameter for
+        checking("plan-cp")(cycles)
+
+
 def test_files_written_beside_come_from_the_declaration():
     calibrate = DECLARATIONS["calibrate"].written(output="b/c.yaml", urdf_out=None, mdh_out="b/mdh.yaml")
     assert calibrate == {

@@ -73,6 +73,8 @@ def checking(name: str) -> Callable[[Callable[..., T]], Callable[..., T]]:
 
     def make(fn: Callable[..., T]) -> Callable[..., T]:
         signature = inspect.signature(fn)  # by name only: its annotations may be for type checkers
+        if missing := set(names.values()) - set(signature.parameters):
+            raise TypeError(f"{fn.__qualname__} takes no {sorted(missing)}: the files {name} declares")
 
         @functools.wraps(fn)
         def checked(*args: Any, **kwargs: Any) -> T:
