@@ -461,7 +461,7 @@ def plot_lags(log_path: Path, compare: Path | None, out: Path, robot: Robot) -> 
     return plotting.save_figure(fig, out, dpi=110)
 
 
-# the options, as typer reads them
+# execute's parameters, the options as typer reads them (`command` takes them from execute)
 _Plan = Annotated[
     Path,
     typer.Argument(
