@@ -133,3 +133,29 @@ def test_a_torque_rate_bound_that_did_not_bind_is_lowered_again(m900):
         tighten_torque_rate(traj, dynamics, limits, rate, caps, scale, margin)
         assert scale[0, 0] == pytest.approx(shrink**passes)
     assert np.all(np.isinf(caps)) and np.all(scale[:, 1:] == 1.0)
+
+
+def test_the_output_shift_carries_motor_friction():
+    """`PtpDynamics.output_shift` is the sampled plan's torque minus the NLP's (so the energy objective
+    prices what `run` computes), motor friction included: on the RX130L's coupled wrist with Coulomb
+    friction only at the motors, it is Rᵀ·Fc_m·(tanh(v_m/0.02) − tanh(v_m/0.1)) at v_m = R·q̇ / |diag R|,
+    computed here by hand; dropping the motor term leaves a shift of zero and fails this."""
+    from dataclasses import replace
+
+    robot = load_robot(SAMPLES / "rx130l")
+    assert robot.has_motor_friction
+    fc_m = np.array([0.0, 0.0, 0.0, 0.0, 3.0, 1.5])
+    params = replace(prior_parameters(robot), coulomb_nm=np.zeros(robot.n), motor_coulomb_nm=fc_m)
+    dyn = PtpDynamics.from_parameters(robot, params)
+    rng = np.random.default_rng(4)
+    r = robot.joint_to_motor
+    for _ in range(5):
+        q = rng.uniform(robot.q_min, robot.q_max)
+        qd, qdd = rng.uniform(-0.15, 0.15, 6), rng.normal(0, 1, 6)
+        vm = r @ qd / np.abs(np.diag(r))
+        by_hand = r.T @ (fc_m * (np.tanh(vm / 0.02) - np.tanh(vm / 0.1)))
+        shift = np.array(dyn.output_shift(qd)).ravel()
+        difference = np.array(dyn.output(q, qd, qdd) - dyn.inv_dyn(q, qd, qdd)).ravel()
+        assert np.abs(by_hand).max() > 1.0  # the case can fail: the coupled J5 sees both motors
+        np.testing.assert_allclose(shift, by_hand, atol=1e-9)
+        np.testing.assert_allclose(difference, by_hand, atol=1e-9)
