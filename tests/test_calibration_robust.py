@@ -18,7 +18,12 @@ from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.cli import app
 from rxcomm.errors import InputError
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
-from rxcomm.model.geometric_errors import identifiable_parameters, parameter_names, random_poses
+from rxcomm.model.geometric_errors import (
+    identifiable_parameters,
+    parameter_names,
+    predict_poses,
+    random_poses,
+)
 from rxcomm.model.kinematics import tcp_placement
 from rxcomm.model.robot import load_robot
 from rxcomm.schemas.calibration import Calibration
@@ -59,23 +64,42 @@ def _heldout(res, model="calibrated"):
 @pytest.mark.slow
 def test_camera_grade_never_worse_than_frames_only(rx):
     """20 seeded camera-grade campaigns: the default (regularised) calibration's held-out rms position
-    is ≤ frames-only's on 19 (the issue asks 20: a stated miss) and within 5 % of it on all, and its
-    mean within 5 % of the better mean of frames-only and the unregularised full model."""
-    robot, _, t2b = rx
+    is ≤ frames-only's on 19 (the issue asks 20: a stated miss, below) and within 5 % of it on all,
+    and its mean within 5 % of the better mean of frames-only and the unregularised full model.
+    Scored on the truth instead (the held-out poses without their tracker noise) it is below
+    frames-only on 20 of 20."""
+    robot, truth, t2b = rx
     plain = CalibrateSettings(model="full", regularise=False)
-    cal, frames, full = [], [], []
+    true_poses = SimulatedTracker(robot, truth, np.random.default_rng(0)).true_poses
+    cal, frames, full, exact = [], [], [], []
     for seed in range(20):
         ms, _ = _campaign(rx, seed, "camera")
         res = calibrate(robot, ms, tracker_to_base=t2b)
         cal.append(_heldout(res))
         frames.append(_heldout(res, "frames_only"))
         full.append(_heldout(calibrate(robot, ms, plain, tracker_to_base=t2b)))
-    cal, frames, full = map(np.array, (cal, frames, full))
-    # the regularised estimate misses 20 of 20 by one: 19 at or below frames-only, the 20th (22 poses at
-    # 2 mm) 2 % above it; main's cross-validated choice was 8 % and 11 % above on two
+        q = ms.q[res.heldout_idx]
+        p, _ = true_poses(q)
+        exact.append(
+            [
+                np.sqrt(np.mean(np.sum((predict_poses(robot, q, f.errors, t2b)[0] - p) ** 2, axis=1)))
+                for f in (res.fit, res.frames_only)
+            ]
+        )
+    cal, frames, full, exact = map(np.array, (cal, frames, full, exact))
+    # 19 of 20 at or below frames-only; the 20th (seed 14, 22 poses at 2 mm) reads 3.674 mm against
+    # 3.599, 2 % above. That is the score's noise, not the estimate: without the six held-out
+    # measurements' noise (3.17 mm rms) it misses those poses by 1.69 mm against frames-only's 3.37
+    # (500 random poses: 1.90 against 3.35); the noise happens to lie along frames-only's error.
+    # Fresh noise on these six poses would put the calibration above frames-only 0.8 times in 20 (20
+    # of 20 with a 40 % chance), the truth itself 0.2 times; seeds 100–119 read 20 of 20 (0.6
+    # expected). An empirical-Bayes scale on the priors reads 20 of 20 on both sets, but is further
+    # from the truth (500 poses: 1.69 / 1.75 mm mean against 1.65 / 1.67), so it is not taken.
     assert np.sum(cal <= frames) >= 19 and np.all(cal <= 1.05 * frames), np.c_[cal, frames]
-    # the mean over the campaigns within 5 % of the better of the two models' means (measured: below
-    # both; per campaign within 5 % of the better of the two on 19 of 20, 9.5 % above on one)
+    assert np.all(exact[:, 0] < exact[:, 1]), exact  # measured: worst 0.83 of frames-only
+    # the mean over the campaigns within 5 % of the better of the two models' means (measured: 2.99
+    # mm, below both: frames-only 4.35, the plain full model 3.02; per campaign within 5 % of the
+    # better of the two on 19 of 20, 8.9 % above on one)
     assert np.mean(cal) <= 1.05 * min(np.mean(frames), np.mean(full)), (
         cal.mean(),
         frames.mean(),
