@@ -294,9 +294,10 @@ class Fitter:
         24-pose camera-grade campaign, architecture §11)."""
         prob = self.problem(poses)
         aug = Regularised(prob, self.prior)
-        res = prob.residual(fit.x)
+        full = aug.residual(fit.x)  # the data rows, then the prior rows
+        res = full[: full.size - aug.rows.size]
         jac = aug.jacobian(fit.x)
-        w = loss_weights(self.settings.loss, aug.residual(fit.x) / ROBUST_SCALE)
+        w = loss_weights(self.settings.loss, full / ROBUST_SCALE)
         sw = np.sqrt(w)
         qm, rm = np.linalg.qr(jac * sw[:, None])  # W^½·J = Q·R
         u = jac @ np.linalg.pinv(rm)  # J·R⁻¹, so J·A⁻¹·JᵀW = u·vᵀ
