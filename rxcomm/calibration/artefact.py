@@ -140,6 +140,7 @@ def _summary(robot: Robot, res: CalibrationResult, torque_model: str, source: st
         "tracker_position_sigma_m": res.noise.position_sigma_m,
         "tracker_orientation_sigma_rad": res.noise.orientation_sigma_rad,
         "tracker_sigma_source": source,
+        "prior_scale": res.prior_scale if res.settings.regularise else None,
         "n_undetermined": len(res.undetermined),
         "compliance_torque_model": torque_model,
         "heldout_rms_position_error_m": stat("heldout", "calibrated", "rms_position_error_m"),

@@ -106,6 +106,12 @@ class CalibrationResult:
     data_frames: DataFrames
     undetermined: tuple[str, ...] = ()  # parameters the data cannot determine (σ above the threshold)
     notes: tuple[str, ...] = ()  # what the user should know (frames far from the guess, tool offset…)
+    prior_scale: float = 1.0  # on the geometric priors' σ, from the data (`Fitter.noise_from_residuals`)
+
+
+# The prior scale from which the widening is worth a note (the sample truths, drawn on the classes'
+# scale, read ≤ 1.1).
+WIDENED_PRIOR_NOTE = 2.0
 
 
 def split_poses(ms: MeasurementSet, settings: CalibrateSettings) -> tuple[np.ndarray, np.ndarray, float]:
@@ -145,25 +151,26 @@ def _identifiable(robot: Robot, ms: MeasurementSet, n_fit: int, point) -> tuple[
 
 
 def _with_noise(full_f: Fitter, fit: np.ndarray, given_p: float | None, estimate: bool) -> Fitter:
-    """The fitter with σ_p, σ_o estimated from the residuals when not given: robust first (blunders),
-    outliers out, then efficient on the clean poses, and the poses tested again against that σ
-    until the clean set stays (the robust scale, a median, is the noisier estimate: its flags are
-    provisional; at 24 poses it read 0.77 mm for 1.5 mm of noise and dropped a clean pose, which
-    took the efficient estimate from 1.23 to 1.03 mm, architecture §11). Position noise given,
-    orientation not: the given σ_p is kept and the ratio taken from the residuals."""
-    if not estimate:
+    """The fitter with σ_p, σ_o estimated from the residuals when not given, and its priors' scale
+    (`Fitter.noise_from_residuals`): robust first (blunders), outliers out, then efficient on the
+    clean poses, and the poses tested again against that σ until the clean set stays (the robust
+    scale, a median, is the noisier estimate: its flags are provisional; at 24 poses it read 0.77 mm
+    for 1.5 mm of noise and dropped a clean pose, which took the efficient estimate from 1.23 to
+    1.03 mm, architecture §11). Position noise given, orientation not: the given σ_p is kept and the
+    ratio taken from the residuals."""
+    if not estimate and full_f.prior is None:
         return full_f
-    full_f = full_f.noise_from_residuals(fit, robust=True)
+    f = full_f.noise_from_residuals(fit, robust=True) if estimate else full_f
     clean = None
     for _ in range(4):
-        _, kept, _ = full_f.fit_dropping_outliers(fit)
+        _, kept, _ = f.fit_dropping_outliers(fit)
         if clean is not None and np.array_equal(kept, clean):
             break
         clean = kept
-        full_f = full_f.noise_from_residuals(clean, robust=False)
-    if given_p is not None:
-        full_f = replace(full_f, sigma_o=full_f.sigma_o * given_p / full_f.sigma_p, sigma_p=given_p)
-    return full_f
+        f = f.noise_from_residuals(clean, robust=False, noise=estimate)
+    if given_p is not None and estimate:
+        f = replace(f, sigma_o=f.sigma_o * given_p / f.sigma_p, sigma_p=given_p)
+    return f
 
 
 def _tables(
@@ -274,10 +281,15 @@ def calibrate(
     except InputError as e:
         raise explained(robot, ms_fit, point, e) from e
     notes += fit_notes(result, po, noise_source != "estimated")
+    if full_f.prior_scale >= WIDENED_PRIOR_NOTE:
+        notes.append(
+            f"the joint errors are about {full_f.prior_scale:.1f}× the manufacturing classes' σ, so the "
+            "priors were widened to match: the nominal model is further off than this class's tolerances "
+            "(a catalogue model, a reworked or damaged arm)"
+        )
     limit = settings.undetermined_std_ratio * noise.position_sigma_m
-    undetermined = undetermined_parameters(
-        robot, chosen.idx, chosen.comp, result, limit, sig if settings.regularise else None
-    )
+    prior = sig * full_f.prior_scale if settings.regularise else None
+    undetermined = undetermined_parameters(robot, chosen.idx, chosen.comp, result, limit, prior)
     sets = {"fit": fit, "heldout": heldout}
     tables = _tables(
         robot, ms, sets, {"nominal": None, "calibrated": result, "frames_only": frames}, tau, t2b, point
@@ -319,4 +331,5 @@ def calibrate(
         data_frames=data,
         undetermined=tuple(undetermined),
         notes=tuple(notes),
+        prior_scale=full_f.prior_scale,
     )

@@ -32,6 +32,9 @@ from rxcomm.model.geometric_errors import (
 )
 from rxcomm.model.robot import Robot
 
+# The widest the data may make the geometric priors (× the manufacturing classes' σ).
+PRIOR_SCALE_MAX = 30.0
+
 # The robust losses' scale on the weighted residual (3σ: a residual within the noise keeps most weight).
 ROBUST_SCALE = 3.0
 
@@ -239,6 +242,7 @@ class Fitter:
     comp: tuple[int, ...] = ()  # compliant joints
     x0: np.ndarray | None = None
     geometric_prior: np.ndarray | None = None  # [48] prior σ (`priors.effective_prior_sigmas`)
+    prior_scale: float = 1.0  # on the geometric priors' σ, as the data ask (`noise_from_residuals`)
 
     def problem(self, poses: np.ndarray) -> Problem:
         sub = self.ms.subset(poses)
@@ -261,7 +265,9 @@ class Fitter:
         """Prior σ of the solution vector (`priors`), None when the fit is not regularised."""
         if not self.settings.regularise:
             return None
-        return prior_sigmas(self.robot, self.idx, self.comp, self.geometric_prior)
+        out = prior_sigmas(self.robot, self.idx, self.comp, self.geometric_prior)
+        out[: len(self.idx)] *= self.prior_scale
+        return out
 
     def fit(self, poses: np.ndarray, x0: np.ndarray | None = None) -> FitResult:
         return fit_problem(
@@ -292,10 +298,15 @@ class Fitter:
         lean on it: its residual is a prediction error, v_k → 1 + J_k·A⁻¹·J_kᵀ, not 1 − h_k (which
         overstated such a pose by 1/√((1 − h)(1 + h')): 8.3σ for 2.3σ of noise on a clean
         24-pose camera-grade campaign, architecture §11)."""
-        prob = self.problem(poses)
-        aug = Regularised(prob, self.prior)
+        full, var, n_data = self._row_variances(poses, fit)
+        res, red = full[:n_data], np.maximum(var[:n_data], 1e-6)
+        return (res / np.sqrt(red)).reshape(poses.size, -1), red.reshape(poses.size, -1)
+
+    def _row_variances(self, poses: np.ndarray, fit: FitResult) -> tuple[np.ndarray, np.ndarray, int]:
+        """(the weighted residual with its prior rows, each row's variance v_k (`standardised`), the
+        number of data rows)."""
+        aug = Regularised(self.problem(poses), self.prior)
         full = aug.residual(fit.x)  # the data rows, then the prior rows
-        res = full[: full.size - aug.rows.size]
         jac = aug.jacobian(fit.x)
         w = loss_weights(self.settings.loss, full / ROBUST_SCALE)
         sw = np.sqrt(w)
@@ -303,8 +314,7 @@ class Fitter:
         u = jac @ np.linalg.pinv(rm)  # J·R⁻¹, so J·A⁻¹·JᵀW = u·vᵀ
         v = qm * sw[:, None]
         var = 1.0 - 2.0 * np.sum(u * v, axis=1) + np.einsum("ij,jk,ik->i", u, v.T @ v, u)
-        red = np.maximum(var[: res.size], 1e-6)
-        return (res / np.sqrt(red)).reshape(poses.size, -1), red.reshape(poses.size, -1)
+        return full, var, full.size - aug.rows.size
 
     def robust(self) -> Fitter:
         """This fitter with a redescending loss (Cauchy, scale 3σ) unless a robust loss is set: the
@@ -348,30 +358,56 @@ class Fitter:
         result = result if rob is self else self.fit(poses, result.x)
         return result, poses, np.array(sorted(flagged), dtype=int)
 
-    def noise_from_residuals(self, poses: np.ndarray, robust: bool, rounds: int = 6) -> Fitter:
-        """This fitter with σ_p, σ_o estimated from the fit's residuals (variance components):
-        per group s² = Σ r_k² / Σ (1 − h_k) (Förstner), h the hat-matrix diagonal, so the redundancy
-        the fit leaves each row is accounted for; `robust`: the scale 1.4826·median|r_k/√(1 − h_k)|
-        of a robust fit (`robust`) instead, which a blunder does not inflate. Repeated until the
-        weights settle."""
+    def noise_from_residuals(
+        self, poses: np.ndarray, robust: bool, rounds: int = 6, noise: bool = True
+    ) -> Fitter:
+        """This fitter with σ_p, σ_o estimated from the fit's residuals and its priors' scale
+        (variance components, `variance_factors`), refitted until the weights settle. `robust`: from
+        a robust fit (`robust`), whose median scale a blunder does not inflate; `noise` False: σ_p,
+        σ_o stay (given), only the priors' scale is estimated."""
         f = self.robust() if robust else self
         fit = None
         for _ in range(rounds):
             fit = f.fit(poses, None if fit is None else fit.x)
-            z, red = f.standardised(poses, fit)
-            z = np.abs(z)
-            if robust:
-                k_p = 1.4826 * float(np.median(z[:, :3]))
-                k_o = 1.4826 * float(np.median(z[:, 3:])) if z.shape[1] == 6 else 1.0
-            else:
-                k_p = math.sqrt(float(np.mean(z[:, :3] ** 2 * red[:, :3])) / float(np.mean(red[:, :3])))
-                k_o = 1.0
-                if z.shape[1] == 6:
-                    k_o = math.sqrt(float(np.mean(z[:, 3:] ** 2 * red[:, 3:])) / float(np.mean(red[:, 3:])))
-            f = replace(f, sigma_p=f.sigma_p * k_p, sigma_o=f.sigma_o * k_o)
-            if abs(k_p - 1) < 0.01 and abs(k_o - 1) < 0.01:
+            k_p, k_o, k_prior = f.variance_factors(poses, fit, robust, noise)
+            scale = min(max(f.prior_scale * k_prior, 1.0), PRIOR_SCALE_MAX)
+            settled = abs(scale / f.prior_scale - 1) < 0.01
+            f = replace(f, sigma_p=f.sigma_p * k_p, sigma_o=f.sigma_o * k_o, prior_scale=scale)
+            if abs(k_p - 1) < 0.01 and abs(k_o - 1) < 0.01 and settled:
                 break
         return replace(f, settings=self.settings)
+
+    def variance_factors(
+        self, poses: np.ndarray, fit: FitResult, robust: bool, noise: bool = True
+    ) -> tuple[float, float, float]:
+        """(k_p, k_o, k_prior): the factors the residuals ask of σ_p, σ_o and the geometric priors'
+        σ. Per group s² = Σ r_k² / Σ v_k (Förstner; v_k the row's variance, `standardised`: 1 − h_k
+        for a plain fit), so the redundancy the fit leaves each row is accounted for; `robust`: the
+        noise from the scale 1.4826·median|r_k/√v_k| instead, which a blunder does not inflate. The
+        geometric priors are a group of their own (Koch & Kusche 2002, regularisation parameters as
+        variance components): their rows x_k/σ_k say how far the joint errors are from the
+        manufacturing classes, so a robot further off its nominal model than the classes is not held
+        to them (the caller keeps the scale ≥ 1: estimated below 1 it moved the camera-grade
+        estimate away from the truth, architecture §11). 1 where a group is not estimated (`noise`
+        False; no prior, or one the data leave less than half a row of say)."""
+        full, var, n_data = self._row_variances(poses, fit)
+        k_p = k_o = k_prior = 1.0
+        if noise:
+            red = np.maximum(var[:n_data], 1e-6).reshape(poses.size, -1)
+            z = full[:n_data].reshape(poses.size, -1) / np.sqrt(red)  # as `standardised`
+            k = []
+            for c in (slice(0, 3), slice(3, 6))[: z.shape[1] // 3]:
+                if robust:
+                    k.append(1.4826 * float(np.median(np.abs(z[:, c]))))
+                else:
+                    k.append(math.sqrt(float(np.sum(z[:, c] ** 2 * red[:, c]) / np.sum(red[:, c]))))
+            k_p, k_o = k[0], (k[1] if len(k) == 2 else 1.0)
+        if self.prior is not None:
+            rows = Regularised(self.problem(poses), self.prior).rows
+            geo = n_data + np.flatnonzero(rows < len(self.idx))
+            if geo.size and float(np.sum(var[geo])) > 0.5:
+                k_prior = math.sqrt(float(np.sum(full[geo] ** 2) / np.sum(var[geo])))
+        return k_p, k_o, k_prior
 
     def compare_baseline(self, poses: np.ndarray, heldout: np.ndarray, main: FitResult) -> BaselineComparison:
         """The same calibration from the baseline poses; a set that cannot identify the parameters

@@ -212,6 +212,8 @@ def model_figures(s: CalibrationSummary, prior: CalibrationSummary | None = None
                 + ("" if ori is None else f", {fmt(ori, 1e3, unit='mrad')}"),
             )
         )
+    if s.prior_scale is not None:
+        out.append(Figure("priors: the manufacturing classes' σ ×", fmt(s.prior_scale)))
     if s.model is not None:
         out.append(Figure("error model chosen (5-fold cross-validation)", str(s.model)))
     if s.rigid_heldout_max_position_error_m is not None:

@@ -180,6 +180,11 @@ class CalibrationSummary(Strict):
     tracker_position_sigma_m: float | None = Field(description="required; None: not measured")
     tracker_orientation_sigma_rad: float | None = None
     tracker_sigma_source: str | None = None
+    prior_scale: float | None = Field(
+        None,
+        description="factor on the manufacturing classes' prior σ the data asked for (≥ 1; 1: the classes "
+        "hold); None: not regularised",
+    )
     n_undetermined: int | None = None
     compliance_torque_model: str | None = None
     heldout_rms_position_error_m: float | None = None
