@@ -298,13 +298,14 @@ class Fitter:
         lean on it: its residual is a prediction error, v_k → 1 + J_k·A⁻¹·J_kᵀ, not 1 − h_k (which
         overstated such a pose by 1/√((1 − h)(1 + h')): 8.3σ for 2.3σ of noise on a clean
         24-pose camera-grade campaign, architecture §11)."""
-        full, var, n_data = self._row_variances(poses, fit)
+        full, var, prior_rows = self._row_variances(poses, fit)
+        n_data = full.size - prior_rows.size
         res, red = full[:n_data], np.maximum(var[:n_data], 1e-6)
         return (res / np.sqrt(red)).reshape(poses.size, -1), red.reshape(poses.size, -1)
 
-    def _row_variances(self, poses: np.ndarray, fit: FitResult) -> tuple[np.ndarray, np.ndarray, int]:
-        """(the weighted residual with its prior rows, each row's variance v_k (`standardised`), the
-        number of data rows)."""
+    def _row_variances(self, poses: np.ndarray, fit: FitResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(the weighted residual: the data rows, then the prior rows; each row's variance v_k
+        (`standardised`); the parameter each prior row holds (`Regularised.rows`))."""
         aug = Regularised(self.problem(poses), self.prior)
         full = aug.residual(fit.x)  # the data rows, then the prior rows
         jac = aug.jacobian(fit.x)
@@ -314,7 +315,7 @@ class Fitter:
         u = jac @ np.linalg.pinv(rm)  # J·R⁻¹, so J·A⁻¹·JᵀW = u·vᵀ
         v = qm * sw[:, None]
         var = 1.0 - 2.0 * np.sum(u * v, axis=1) + np.einsum("ij,jk,ik->i", u, v.T @ v, u)
-        return full, var, full.size - aug.rows.size
+        return full, var, aug.rows
 
     def robust(self) -> Fitter:
         """This fitter with a redescending loss (Cauchy, scale 3σ) unless a robust loss is set: the
@@ -390,7 +391,8 @@ class Fitter:
         to them (the caller keeps the scale ≥ 1: estimated below 1 it moved the camera-grade
         estimate away from the truth, architecture §11). 1 where a group is not estimated (`noise`
         False; no prior, or one the data leave less than half a row of say)."""
-        full, var, n_data = self._row_variances(poses, fit)
+        full, var, prior_rows = self._row_variances(poses, fit)
+        n_data = full.size - prior_rows.size
         k_p = k_o = k_prior = 1.0
         if noise:
             red = np.maximum(var[:n_data], 1e-6).reshape(poses.size, -1)
@@ -403,8 +405,7 @@ class Fitter:
                     k.append(math.sqrt(float(np.sum(z[:, c] ** 2 * red[:, c]) / np.sum(red[:, c]))))
             k_p, k_o = k[0], (k[1] if len(k) == 2 else 1.0)
         if self.prior is not None:
-            rows = Regularised(self.problem(poses), self.prior).rows
-            geo = n_data + np.flatnonzero(rows < len(self.idx))
+            geo = n_data + np.flatnonzero(prior_rows < len(self.idx))
             if geo.size and float(np.sum(var[geo])) > 0.5:
                 k_prior = math.sqrt(float(np.sum(full[geo] ** 2) / np.sum(var[geo])))
         return k_p, k_o, k_prior
