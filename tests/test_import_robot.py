@@ -149,6 +149,43 @@ def test_truth_for_the_imported_robot_runs_on_both_plants(imported):
         assert np.all(np.abs(fb.following_error_rad) < 0.1 * cell.following_error_limit_rad), plant
 
 
+def test_a_simulation_force_clamp_is_not_the_drawn_drive(tmp_path):
+    """A model whose force range is a simulation's clamp (the wrist's 25 N·m × 100, as MuJoCo
+    Menagerie's ARX L5 gives every joint 100 N·m): the truth's torque offset and noise come from a
+    drive sized for the joint (≤ 5 × its largest need), so the drives hold the arm when the brakes
+    release: peak following error 7.3 mrad (J2's gravity; the wrist 2.1), half the window at most.
+    On main they were 1 % / 0.4 % of the clamp, offsets of 12 and 18 N·m on J4 and J5 pushed them 82
+    and 148 mrad off on both plants (the window is 35: 0x8611; the ARX L5 tripped 32 ms after its
+    brakes released)."""
+    from rxcomm.cell.sim import simulated_cell
+    from rxcomm.cell.truth_draw import DRIVE_OF_NEED, drive_torque_nm
+
+    arm = tmp_path / "clamped.xml"
+    arm.write_text(ARM.read_text().replace('actuatorfrcrange="-25 25"', 'actuatorfrcrange="-2500 2500"'))
+    out = tmp_path / "clamped"
+    assert CliRunner().invoke(app, ["import-robot", str(arm), "-o", str(out)]).exit_code == 0
+    robot = load_robot(out)
+    assert np.allclose(np.asarray(robot.tau_max)[3:5], 2500.0)
+    q, qd, qdd = random_states(robot, 400, seed=0)
+    need = np.abs(RobotDynamics(robot, prior_parameters(robot)).inverse_dynamics(q, qd, qdd)).max(axis=0)
+    drive = drive_torque_nm(robot)
+    assert np.allclose(drive[3:5], DRIVE_OF_NEED * need[3:5]) and np.all(drive[3:5] < 100.0), drive
+    truth = out / "truth.yaml"
+    r = CliRunner().invoke(app, ["truth", "--robot", str(out), "--seed", "5", "-o", str(truth)])
+    assert r.exit_code == 0 and "force clamp" in r.output and "a4 " in r.output, r.output
+    dyn = yaml.safe_load(truth.read_text())
+    assert np.all(np.abs(dyn["dynamics"]["torque_offset_nm"]) <= 0.04 * drive + 1e-4)  # 4σ of 1 %
+    assert np.allclose(dyn["noise"]["torque_noise_nm"], 0.004 * drive, atol=1e-4)
+    q0 = [0.0, -0.3, 0.5, 0.0, 0.4, 0.0]
+    for plant in ("own", "mujoco"):
+        cell = simulated_cell(truth, plant=plant, q0=q0)
+        peak = np.zeros(6)
+        for _ in range(1000):
+            fb = cell.cycle(np.array(q0), np.zeros(6), np.ones(6, bool))
+            peak = np.maximum(peak, np.abs(fb.following_error_rad))
+        assert np.all(peak < 0.5 * cell.following_error_limit_rad), (plant, peak)
+
+
 def test_the_kept_mjcf_is_the_mujoco_plants_source(imported):
     """The plant parses the kept MJCF (not the URDF written from it): with the truth's errors its TCP
     site is rxcomm's FK of the imported robot to < 1 µm, without errors mj_inverse is rxcomm's inverse

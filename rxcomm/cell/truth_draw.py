@@ -10,8 +10,14 @@ the sizes of the samples' truths (architecture §6):
   largest holding torque of 200 random poses;
 - dynamics: mass ×(1 + N(0, 5 %)), centre of mass + N(0, 5 mm), the inertia about it ×(1 + N(0, 5 %))
   (stays a physical body), rotor inertia ×(1 + N(0, 5 %)), friction ×(1 + N(0, 15 %)) (≥ 0), offsets
-  N(0, 1 % of the peak torque), the balancer (if any) k and L0 ×(1 + N(0, 5 %));
-- noise: encoder 1 µrad, torque 0.4 % of the peak torque, tracker 50 µm / 0.1 mrad, 3.5 ms latency.
+  N(0, 1 % of the drive's torque), the balancer (if any) k and L0 ×(1 + N(0, 5 %));
+- noise: encoder 1 µrad, torque 0.4 % of the drive's torque, tracker 50 µm / 0.1 mrad, 3.5 ms latency.
+
+The drive's torque (`drive_torque_nm`) is the peak torque, but at most `DRIVE_OF_NEED` × the largest
+torque the joint needs within its limits: a simulation model's force clamp (MuJoCo Menagerie's ARX L5:
+100 N·m on every joint, 0.36 N·m needed at its wrist) is no drive, and 1 % of it, a constant torque
+0.86 N·m on a 0.005 kg·m² wrist against 0.3 N·m of friction, tripped 0x8611 32 ms after the brakes
+released, before any motion (architecture §6.1).
 """
 
 from __future__ import annotations
@@ -31,7 +37,8 @@ SIGMA_LENGTH_M = 1e-3
 SIGMA_ANGLE_RAD = 1e-3
 COMPLIANCE_SAG_RAD = 2e-4
 MASS_REL, COM_M, INERTIA_REL, ROTOR_REL, FRICTION_REL = 0.05, 0.005, 0.05, 0.05, 0.15
-OFFSET_OF_PEAK, TORQUE_NOISE_OF_PEAK = 0.01, 0.004
+OFFSET_OF_DRIVE, TORQUE_NOISE_OF_DRIVE = 0.01, 0.004
+DRIVE_OF_NEED = 5.0  # the samples' peaks are 0.8–4.4 × their joints' largest need (M900 J6: 4.4)
 
 
 def _link(pi: np.ndarray, rng: np.random.Generator) -> dict:
@@ -49,6 +56,15 @@ def _link(pi: np.ndarray, rng: np.random.Generator) -> dict:
             round(float(i2[a, b]), 8) for a, b in ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))
         ],
     }
+
+
+def drive_torque_nm(robot: Robot, n_states: int = 400) -> np.ndarray:
+    """[n] the torque a drive of the simulated cell is sized for, N·m: the peak torque, at most
+    `DRIVE_OF_NEED` × the largest |τ| of the prior model over random states within the position,
+    velocity and acceleration limits (a fixed draw: a property of the robot, not of the seed)."""
+    q, qd, qdd = random_states(robot, n_states, seed=0)
+    need = np.abs(RobotDynamics(robot, prior_parameters(robot)).inverse_dynamics(q, qd, qdd)).max(axis=0)
+    return np.minimum(np.asarray(robot.tau_max, float), DRIVE_OF_NEED * need)
 
 
 def draw_truth(
@@ -69,7 +85,7 @@ def draw_truth(
         q, _, _ = random_states(robot, 200, seed=seed)
         held = np.abs(RobotDynamics(robot, prior).gravity_torque(q)).max(axis=0)
         stiffness = {robot.joint_names[j]: float(f"{held[j] / COMPLIANCE_SAG_RAD:.3g}") for j in (1, 2)}
-    n, peak = robot.n, np.asarray(robot.tau_max)
+    n, drive = robot.n, drive_torque_nm(robot)
 
     def scale(v, rel: float) -> list[float]:
         return [round(float(x), 9) for x in np.maximum(np.asarray(v) * (1 + rel * rng.standard_normal(n)), 0)]
@@ -81,7 +97,7 @@ def draw_truth(
         "rotor_inertia_kgm2": scale(robot.rotor_inertia, ROTOR_REL),
         "coulomb_friction_nm": scale(robot.coulomb_prior, FRICTION_REL),
         "viscous_friction_nm_s_per_rad": scale(robot.viscous_prior, FRICTION_REL),
-        "torque_offset_nm": [round(float(v), 4) for v in OFFSET_OF_PEAK * peak * rng.standard_normal(n)],
+        "torque_offset_nm": [round(float(v), 4) for v in OFFSET_OF_DRIVE * drive * rng.standard_normal(n)],
     }
     if robot.drives.spring is not None:
         s = robot.drives.spring
@@ -103,7 +119,7 @@ def draw_truth(
             "dynamics": dynamics,
             "noise": {
                 "encoder_lsb_rad": 1e-6,
-                "torque_noise_nm": [round(float(v), 4) for v in TORQUE_NOISE_OF_PEAK * peak],
+                "torque_noise_nm": [round(float(v), 4) for v in TORQUE_NOISE_OF_DRIVE * drive],
                 "tracker_position_sigma_m": 5e-5,
                 "tracker_orientation_sigma_rad": 1e-4,
                 "tracker_latency_s": 0.0035,

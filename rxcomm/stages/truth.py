@@ -32,7 +32,7 @@ def command(
 
 def run(robot_dir: Path, output: Path, *, seed: int = 0, compliance: bool = False) -> dict[str, object]:
     from rxcomm.cell.truth import load_truth
-    from rxcomm.cell.truth_draw import draw_truth
+    from rxcomm.cell.truth_draw import DRIVE_OF_NEED, draw_truth, drive_torque_nm
     from rxcomm.io.files import atomic_write_text, part_path
     from rxcomm.io.yaml_io import dump_yaml, read_yaml_model
     from rxcomm.model.robot import load_robot
@@ -60,4 +60,13 @@ def run(robot_dir: Path, output: Path, *, seed: int = 0, compliance: bool = Fals
     console.out.print(
         f"truth for {robot.name} (seed {seed}) → {output}: 48 geometric errors, compliant joints: {compliant}"
     )
+    drive, peak = drive_torque_nm(robot), robot.tau_max
+    capped = [
+        f"{n} {d:.3g} (peak {p:.4g})" for n, d, p in zip(robot.joint_names, drive, peak, strict=True) if d < p
+    ]
+    if capped:
+        console.out.print(
+            f"  torque offset and noise drawn for a drive of {DRIVE_OF_NEED:g}× the joint's largest need, "
+            f"not its stated peak (a simulation's force clamp?), N·m: {', '.join(capped)}"
+        )
     return {"truth": str(output), "seed": seed}
