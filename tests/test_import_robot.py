@@ -14,6 +14,7 @@ import yaml
 from typer.testing import CliRunner
 
 from rxcomm.cli import app
+from rxcomm.errors import InfeasibleError
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters, random_states
 from rxcomm.model.kinematics import tcp_pose
 from rxcomm.model.robot import load_robot
@@ -184,6 +185,40 @@ def test_a_simulation_force_clamp_is_not_the_drawn_drive(tmp_path):
             fb = cell.cycle(np.array(q0), np.zeros(6), np.ones(6, bool))
             peak = np.maximum(peak, np.abs(fb.following_error_rad))
         assert np.all(peak < 0.5 * cell.following_error_limit_rad), (plant, peak)
+
+
+def test_a_branch_label_the_test_paths_hold_at_its_sign_change_is_left_open(tmp_path):
+    """A yaw wrist (tests/data/yaw_wrist_arm.xml, as MuJoCo Menagerie's ARX L5): with the tool
+    forward its J5 stays at 0 along the whole test plane, no singularity there, so the wrist-sign
+    label tells no two solutions apart. The path files leave it open (null: either), so a calibration's
+    3 mrad on J5 either way still plans the line; main wrote 'negative' (round-off) and every planner
+    refused the line on the calibrated ARX L5 as unreachable on that branch."""
+    from rxcomm.model.geometric_errors import ErrorModel
+    from rxcomm.planning.path_ik import solve_path_ik
+    from rxcomm.planning.paths import load_path
+    from rxcomm.schemas.path import Branch
+
+    out = tmp_path / "yaw"
+    r = CliRunner().invoke(app, ["import-robot", str(ARM.parent / "yaw_wrist_arm.xml"), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    robot = load_robot(out)
+    for f in (out / "paths").glob("iso9283-*.yaml"):
+        branch = yaml.safe_load(f.read_text())["branch"]
+        assert branch == {"shoulder": "front", "elbow": "up", "wrist": None}, (f.name, branch)
+    spec, path = load_path(out / "paths" / "iso9283-line.yaml", robot)
+    for offset in (-3e-3, 3e-3):
+        calibrated = ErrorModel.from_mapping(robot, {"j5.rz": offset}).apply(robot)
+        assert abs(solve_path_ik(calibrated, path, spec.branch).q[:, 4]).max() < 0.01
+    refused = 0
+    for wrist in ("positive", "negative"):
+        for offset in (-3e-3, 3e-3):
+            calibrated = ErrorModel.from_mapping(robot, {"j5.rz": offset}).apply(robot)
+            try:
+                solve_path_ik(calibrated, path, spec.branch.model_copy(update={"wrist": wrist}))
+            except InfeasibleError:
+                refused += 1
+    assert refused == 2  # either label refuses one of the two calibrations
+    assert Branch.model_validate(branch) == spec.branch
 
 
 def test_the_kept_mjcf_is_the_mujoco_plants_source(imported):

@@ -255,20 +255,30 @@ class BranchSelector:
         self.branch = branch or Branch(shoulder=None, elbow=None, wrist=None)
         self._forward = robot.forward_in_joint1
 
-    def labels(self, data: pin.Data, q: np.ndarray) -> dict[str, str]:
-        """Shoulder/elbow/wrist labels of q (forward kinematics is run here)."""
+    def label_quantities(self, data: pin.Data, q: np.ndarray) -> dict[str, float]:
+        """The signed quantity each label of q is the sign of, in radians (forward kinematics is run
+        here): shoulder, the wrist centre's elevation from the plane across joint 1's forward
+        direction; elbow, the elbow's from the shoulder–wrist line (vertical part); wrist, the wrist's
+        middle joint angle. Its magnitude is the label's margin: how far a calibration may move the
+        arm before the same configuration reads the other label."""
         pin.forwardKinematics(self.robot.model, data, q)
         r = self.robot
         j1, s, e, w = (data.oMi[i] for i in (1, r.shoulder_joint_id, r.elbow_joint_id, r.wrist_joint_id))
-        front = (w.translation - j1.translation) @ (j1.rotation @ self._forward) >= 0
+        reach = w.translation - j1.translation
+        front = reach @ (j1.rotation @ self._forward) / max(float(np.linalg.norm(reach)), 1e-12)
         u = w.translation - s.translation
         u = u / max(np.linalg.norm(u), 1e-12)
         de = e.translation - s.translation
-        up = (de - (de @ u) * u)[2] >= 0
+        up = (de - (de @ u) * u)[2] / max(float(np.linalg.norm(de)), 1e-12)
+        return {"shoulder": float(front), "elbow": float(up), "wrist": float(q[r.wrist_joint_id - 1])}
+
+    def labels(self, data: pin.Data, q: np.ndarray) -> dict[str, str]:
+        """Shoulder/elbow/wrist labels of q (forward kinematics is run here)."""
+        x = self.label_quantities(data, q)
         return {
-            "shoulder": "front" if front else "back",
-            "elbow": "up" if up else "down",
-            "wrist": "positive" if q[r.wrist_joint_id - 1] >= 0 else "negative",
+            "shoulder": "front" if x["shoulder"] >= 0 else "back",
+            "elbow": "up" if x["elbow"] >= 0 else "down",
+            "wrist": "positive" if x["wrist"] >= 0 else "negative",
         }
 
     def matches(self, data: pin.Data, q: np.ndarray) -> bool:

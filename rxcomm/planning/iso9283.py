@@ -200,6 +200,27 @@ def iso9283_cube_any_branch(
         return max(found, key=lambda cb: cb[0].side_m)
 
 
+# How far a label's quantity (`BranchSelector.label_quantities`) must stay from its sign change along
+# the test paths for the label to be written: 5× the 3.7 mrad a calibration moved the ARX L5's J5.
+LABEL_MARGIN_RAD = 0.02
+
+
+def calibration_safe_branch(robot: Robot, cube: Iso9283Cube, branch: Branch) -> Branch:
+    """`branch` without the labels the cube's test paths (followed on `robot`, the nominal model) come
+    within `LABEL_MARGIN_RAD` of flipping: there the label tells no two solutions apart, and a
+    calibration's few mrad read the same configuration as the other label, so every planner refused
+    the path on it (MuJoCo Menagerie's ARX L5, tool forward: its yaw wrist holds J5 at 0 along the
+    whole test plane). A label left out means either (`Branch`)."""
+    selector = BranchSelector(robot, branch)
+    data = robot.create_data()
+    margin = dict.fromkeys(("shoulder", "elbow", "wrist"), np.inf)
+    for spec in iso9283_paths(cube, branch).values():
+        for q in solve_path_ik(robot, build_path(spec), branch).q:
+            for k, v in selector.label_quantities(data, q).items():
+                margin[k] = min(margin[k], abs(v))
+    return branch.model_copy(update={k: None for k, m in margin.items() if m < LABEL_MARGIN_RAD})
+
+
 def _path_clear(robot: Robot, spec: PathSpec, sigma_min_margin: float) -> bool:
     try:
         solve_path_ik(robot, build_path(spec), spec.branch, sigma_min_margin=sigma_min_margin)

@@ -16,7 +16,7 @@ import numpy as np
 from rxcomm.errors import InputError
 from rxcomm.io.yaml_io import dump_yaml
 from rxcomm.model.robot import Robot
-from rxcomm.planning.iso9283 import iso9283_cube_any_branch, iso9283_paths
+from rxcomm.planning.iso9283 import calibration_safe_branch, iso9283_cube_any_branch, iso9283_paths
 from rxcomm.schemas.cell import Box
 
 # The TCP orientations tried, in order (URDF roll, pitch, yaw in degrees): tool down, tool forward
@@ -39,10 +39,14 @@ def iso9283_path_files(
     """The robot's ISO 9283 test cube at TCP orientation `rpy_deg` inside `workspace` (base frame), and
     its test-plane path files. InputError where no cube is reachable."""
     cube, branch = iso9283_cube_any_branch(robot, tuple(np.radians(rpy_deg)), workspace=workspace)
+    branch = calibration_safe_branch(robot, cube, branch)
     texts = {}
     for name, spec in iso9283_paths(cube, branch).items():
         header = f"# ISO 9283 test path for {robot.name}, written by `rxcomm {written_by}`.\n"
         data = spec.model_dump(mode="json", exclude_none=True)
+        data["branch"] = spec.branch.model_dump(
+            mode="json"
+        )  # a label left out is null: absent reads the default
         if data["geometry"].get("points_m") is None:
             data["geometry"].pop("full", None)  # only meaningful for the three-point form
         if not data["limits"]:
@@ -51,7 +55,7 @@ def iso9283_path_files(
     facts = {
         "cube_centre_m": cube.centre_m.tolist(),
         "cube_side_m": cube.side_m,
-        "ik_branch": ", ".join(f"{k} {v}" for k, v in branch.model_dump().items()),
+        "ik_branch": ", ".join(f"{k} {v or 'either'}" for k, v in branch.model_dump().items()),
         **{f"{k}_m": v.tolist() for k, v in cube.points_m.items()},
     }
     return Iso9283PathFiles(facts, texts, (float(rpy_deg[0]), float(rpy_deg[1]), float(rpy_deg[2])))
