@@ -95,6 +95,11 @@ class SafetyStop(RxcommError):
     exit_code = 5
 
 
+class DriveTrip(SafetyStop):
+    """A drive faulted on the motion itself (following error 0x8611, a torque or position fault): what
+    the plan did to this robot and its loops, not an operator's or the link's stop."""
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised like Ctrl-C where a stage installs the handler (`run`): the same quick stop,
     disabled drives, kept log and exit 5, with "terminated (SIGTERM)" in the message."""

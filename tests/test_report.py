@@ -22,6 +22,7 @@ from rxcomm.reporting.runs import execution_section, trajectory_section
 from rxcomm.reporting.targets import (
     StageTargets,
     acceptance_verdict,
+    feedforward_row,
     identification_row,
     runs_row,
     stage_verdicts,
@@ -235,6 +236,31 @@ def test_stage_verdicts_against_the_targets():
     assert runs_row(virtual).measured == "1 of 1 completed, underruns not applicable (virtual time)"
     strict = StageTargets(validation_r2_min=0.98)
     assert identification_row(summaries["dynamics"], strict).verdict is Verdict.failed
+
+
+def test_a_trip_without_feed_forward_is_reported_as_a_bound_and_only_when_asked_for():
+    """The plan without feed-forward may trip the drives (MuJoCo Menagerie's ARX L5: J6 0x8611 at 0.097
+    s, its lag at the 35 mrad window): the lag ratio is then a lower bound (≥), the stop is named,
+    and `runs_row` counts it only where the run was told the trip is its result (--trip-is-result)."""
+    reason = (
+        "axis fault (stop cause 5), following error (0x8611) at t = 0.097 s (joint6 following error (0x8611))"
+    )
+    ff = _p(RunLogSummary, {"max_lag_rad": [1e-4, 2e-4, 8.7e-4]})
+    noff = _p(
+        RunLogSummary, {"max_lag_rad": [1e-3, 3.5e-2, 1e-3], "outcome": "safety_stop", "stop_reason": reason}
+    )
+    row = feedforward_row(ff, noff, StageTargets())
+    assert row.verdict is Verdict.passed and row.measured == "≥ ×40.2"
+    assert row.note == f"35 → 0.87 mrad; without feed-forward: {reason}"
+    text = render_sections("t", "", [execution_section(ff, noff, None)])
+    assert "(until the drives tripped: axis fault" in text and "| ≥ ×40.2 |" in text
+
+    def log(trip_is_result):
+        return RunLog.model_construct(summary=noff, settings=RunLogSettings(trip_is_result=trip_is_result))
+
+    asked = runs_row({"run-noff.yaml": log(True)})
+    assert asked.verdict is Verdict.passed and asked.note.startswith("run-noff.yaml: tripped as its result")
+    assert runs_row({"run-noff.yaml": log(None)}).verdict is Verdict.failed
 
 
 def test_parameter_tables_carry_sigma_in_stated_units():

@@ -291,6 +291,32 @@ def test_following_error_trip_is_a_safety_stop_exit_5(tmp_path, rx130l):
 
 
 @pytest.mark.slow
+def test_a_trip_asked_for_as_the_result_writes_the_log_whole_and_exits_0(tmp_path, rx130l):
+    """`--trip-is-result` (the plan without feed-forward, paper Fig. 2): the same 0x8611 trip ends the
+    run with NAME.mcap and NAME.yaml written, the stop in the summary, and no exception (exit 0); a
+    pose list refuses the option (exit 2)."""
+    backend = LaggingBackend(Q0, delay=10, fe_limit=0.002, rated_torque_nm=np.asarray(rx130l.tau_max))
+    srv = start_cell(rx130l, backend)
+    try:
+        plan = save_plan(tmp_path / "plan.mcap", cosine_plan(Q0, DQ, 1.0))
+        out = tmp_path / "log.mcap"
+        summary = run_stage.execute(
+            plan, ROBOT_DIR, out, gateway=gw(srv), show_progress=False, trip_is_result=True
+        )
+        assert summary["outcome"] == "safety_stop" and "0x8611" in summary["stop_reason"]
+        assert out.is_file() and out.with_suffix(".yaml").is_file() and not Path(str(out) + ".part").exists()
+        log = read_run_log(out)
+        assert log.summary["outcome"] == "safety_stop" and log.envelope["settings"]["trip_is_result"] is True
+        assert np.abs(log.joints.following_error).max() > 0.0015
+    finally:
+        srv.stop()
+    configs = tmp_path / "configs.yaml"
+    configs.write_text("kind: rxcomm/Configs\n")
+    with pytest.raises(InputError, match="trip-is-result"):
+        run_stage.execute(configs, ROBOT_DIR, tmp_path / "m.yaml", show_progress=False, trip_is_result=True)
+
+
+@pytest.mark.slow
 def test_ctrl_c_quick_stops_disables_and_keeps_the_log(tmp_path, cell, rx130l, monkeypatch):
     plan = save_plan(tmp_path / "plan.mcap", cosine_plan(Q0, DQ, 3.0))
     out = tmp_path / "log.mcap"
@@ -308,8 +334,9 @@ def test_ctrl_c_quick_stops_disables_and_keeps_the_log(tmp_path, cell, rx130l, m
                 raise KeyboardInterrupt
 
     monkeypatch.setattr(ses._Recorder, "__call__", interrupting)
-    with pytest.raises(SafetyStop, match="Ctrl-C"):
-        run_stage.execute(plan, ROBOT_DIR, out, gateway=gw(cell), show_progress=False)
+    with pytest.raises(SafetyStop, match="Ctrl-C"):  # an operator's stop is no drive trip: still .part
+        run_stage.execute(plan, ROBOT_DIR, out, gateway=gw(cell), show_progress=False, trip_is_result=True)
+    assert not out.exists()
     log = read_run_log(Path(str(out) + ".part"))
     assert 0 < len(log.joints) < 7500
     assert axis_states(cell) == [DriveState.SWITCH_ON_DISABLED] * 6

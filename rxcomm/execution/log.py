@@ -225,10 +225,11 @@ class RunLogWriter:
             t[keep], np.asarray(position_m)[keep], np.asarray(quaternion_wxyz)[keep], channel.rate_hz
         )
 
-    def close(self, result: RunResult) -> tuple[Path, dict[str, Any]]:
+    def close(self, result: RunResult, stop_is_result: bool = False) -> tuple[Path, dict[str, Any]]:
         """Write the rest of ``result.log`` and the summary; returns (the file written, the summary).
 
-        Completed: ``NAME.mcap`` + ``NAME.yaml``. Stopped: ``NAME.mcap.part`` only (finished, readable).
+        Completed (or stopped with `stop_is_result`: the stop is what the run measured): ``NAME.mcap``
+        + ``NAME.yaml``. Stopped: ``NAME.mcap.part`` only (finished, readable).
         """
         log = result.log
         if self._w is None:  # stopped before the plan's stream began (or a log written after the fact)
@@ -256,7 +257,7 @@ class RunLogWriter:
         except BaseException:
             w.abort()
             raise
-        if result.error is not None:
+        if result.error is not None and not stop_is_result:
             return w.abort(), summary
         return w.finish(before_rename=lambda part: write_mcap_summary(RunLog, data, self.path, part)), summary
 

@@ -30,7 +30,7 @@ from collections.abc import Callable
 import numpy as np
 from pydantic import Field
 
-from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop, Terminated
+from rxcomm.errors import DriveTrip, GatewayError, InputError, RxcommError, SafetyStop, Terminated
 from rxcomm.execution.plan import StreamPlan
 from rxcomm.execution.record_sink import BackgroundSink
 from rxcomm.execution.records import (
@@ -105,6 +105,11 @@ class RunSettings(Strict):
         SAMPLED_LIMIT_TOLERANCE, ge=0, description="limit ratios up to 1 + this pass"
     )
     fault_reset: bool = Field(False, description="reset drive faults and latched gateway stops first")
+    trip_is_result: bool = Field(
+        False,
+        description="a drive trip on the motion (`DriveTrip`) ends the run as its result: the log "
+        "written whole with the stop in its summary (the plan without feed-forward, paper Fig. 2)",
+    )
     stream: StreamSettings = StreamSettings()
 
 
@@ -371,7 +376,9 @@ class Session:
             text += f"; {stalls.describe(watchdog=st.stop_cause != StopCause.UNDERRUN)}"
         if code in COMMUNICATION_ERRORS:
             return GatewayError(f"stream stopped by the gateway: {text}")
-        if Status(st.status) & STOP_BITS or faulted:
+        if faulted:
+            return DriveTrip(f"stream stopped by the gateway: {text}")
+        if Status(st.status) & STOP_BITS:
             return SafetyStop(f"stream stopped by the gateway: {text}")
         return error
 

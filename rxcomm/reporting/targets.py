@@ -92,14 +92,21 @@ def feedforward_row(ff: RunLogSummary | None, noff: RunLogSummary | None, t: Sta
     ratio = without / with_ff
     ok = ratio >= t.lag_reduction_min
     note = f"{without * 1e3:.3g} → {with_ff * 1e3:.3g} mrad"
-    return VerdictRow(criterion, f"×{ratio:.1f}", threshold, Verdict.passed if ok else Verdict.failed, note)
+    value = f"×{ratio:.1f}"
+    if noff.outcome not in (None, "completed"):  # tripped: its lag would have grown past the window
+        value, note = f"≥ ×{ratio:.1f}", f"{note}; without feed-forward: {noff.stop_reason}"
+    return VerdictRow(criterion, value, threshold, Verdict.passed if ok else Verdict.failed, note)
 
 
 def runs_row(runs: Mapping[str, RunLog]) -> VerdictRow:
     criterion, threshold = "every run completed, no setpoint underrun", "all completed, 0 underruns"
     if not runs:
         return VerdictRow(criterion, NOT_MEASURED, threshold, Verdict.not_measured)
-    done = [n for n, a in runs.items() if a.summary.outcome == "completed"]
+    # a drive trip a run was asked to measure (`run --trip-is-result`: the plan without feed-forward)
+    measured = [
+        n for n, a in runs.items() if a.summary.outcome == "safety_stop" and a.settings.trip_is_result
+    ]
+    done = [n for n, a in runs.items() if a.summary.outcome == "completed" or n in measured]
     # a run in virtual time has no deadline to miss: its underruns are a string saying so, not 0
     counted = {n: a.summary.underruns for n, a in runs.items()}
     counted = {n: u for n, u in counted.items() if isinstance(u, int | float)}
@@ -107,6 +114,7 @@ def runs_row(runs: Mapping[str, RunLog]) -> VerdictRow:
     ok = len(done) == len(runs) and underruns == 0
     failed = sorted(set(runs) - set(done))
     notes = [f"not completed: {', '.join(failed)}"] if failed else []
+    notes += [f"{n}: tripped as its result (--trip-is-result)" for n in measured]
     if counted and len(counted) < len(runs):
         notes.append(f"underruns not applicable (virtual time) in {len(runs) - len(counted)} of {len(runs)}")
     # no run in real time: no deadline, so underruns are not measured (never said as 0)

@@ -29,7 +29,8 @@ message repeats the ``joint_names`` (a channel constant). Times are epoch time: 
 clock at its start + the sample time (readers give s from the start).
 
 A run that ends in a stop keeps its log as ``NAME.mcap.part`` (finished, readable; its envelope
-summary says ``outcome`` and ``stop_reason``) and writes no ``NAME.yaml``.
+summary says ``outcome`` and ``stop_reason``) and writes no ``NAME.yaml``; a drive trip a run was
+told is its result (`run --trip-is-result`, settings ``trip_is_result``) is written whole instead.
 """
 
 from __future__ import annotations

@@ -57,6 +57,9 @@ class RunLogSettings(RunRecord):
     approach_speed_fraction: float | None = Field(None, description="of velocity and acceleration limits")
     start_tolerance_rad: float | None = Field(None, description="per joint: 'at the start' within this")
     realtime: bool | None = Field(None, description="the embedded cell ran on the wall clock")
+    trip_is_result: bool | None = Field(
+        None, description="a drive trip ended the run as its result (the log written whole, exit 0)"
+    )
 
 
 class MeasurementsSettings(RunRecord):

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from rxcomm import console, plotting
-from rxcomm.errors import GatewayError, InputError, LocatedError, RxcommError, SafetyStop
+from rxcomm.errors import DriveTrip, GatewayError, InputError, LocatedError, RxcommError, SafetyStop
 from rxcomm.io.plan_files import plan_kind
 from rxcomm.io.validate import check_kind
 from rxcomm.io.yaml_io import read_yaml_artefact
@@ -237,6 +237,7 @@ def execute(
     interpolation_ratio: _InterpolationRatio = None,
     speed: _Speed = 0.2,
     fault_reset: _FaultReset = False,
+    trip_is_result: _TripIsResult = False,
     plot: _Plot = False,
     compare: _Compare = None,
     calibration: _Calibration = None,
@@ -256,6 +257,8 @@ def execute(
     plant = embedded_plant(plant, gateway)
     check_run_options(interpolation_ratio, speed)  # exit 2 before anything is read
     kind = plan_kind(plan)
+    if trip_is_result and kind == "poses":
+        raise InputError("--trip-is-result is for a trajectory plan, not a pose list", field="trip-is-result")
     # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
     cfg = load_poses(plan) if kind == "poses" else None
     if kind == "trajectory" and plan.suffix.lower() == ".mcap":
@@ -292,6 +295,7 @@ def execute(
                 approach=approach,
                 approach_speed_fraction=speed,
                 fault_reset=fault_reset,
+                trip_is_result=trip_is_result,
                 stream=stream,
             )
             return _trajectory(job, settings, realtime, stop_bar, compare if plot else None, plot)
@@ -360,8 +364,10 @@ def _trajectory(
         tracker = functools.partial(record_tracker, server, robot) if embedded else None
         result = execute_trajectory(client, robot, prepared, params, settings, sink, job.progress, tracker)
     stop_bar()
+    # a drive trip on the plan's own motion (not the approach, not Ctrl-C or the link) is its result
+    tripped = settings.trip_is_result and isinstance(result.error, DriveTrip) and result.log is not None
     try:
-        written, summary = sink.close(result)
+        written, summary = sink.close(result, stop_is_result=tripped)
     except OSError as e:  # a full disk: the stop is controlled, the log is what reached the disk
         raise _with_context(
             result.error or console.os_error(e),
@@ -372,7 +378,12 @@ def _trajectory(
     if plot:
         figure = plot_lags(written, compare, job.output.with_suffix(".png"), robot)
         console.out.print(f"figure: {figure}")
-    if result.error is not None:
+    if tripped:
+        console.err.print(
+            f"warning: {_with_context(result.error, result.stop_note, None)}; the run's result "
+            f"(--trip-is-result): {written}"
+        )
+    elif result.error is not None:
         raise _with_context(result.error, result.stop_note, written)
     return summary
 
@@ -516,6 +527,14 @@ _Speed = Annotated[
 ]
 _FaultReset = Annotated[
     bool, typer.Option(help="Reset drive faults and latched gateway stops before moving.")
+]
+_TripIsResult = Annotated[
+    bool,
+    typer.Option(
+        help="A drive trip on the plan's motion (0x8611 following error, a torque fault) is the run's "
+        "result, as for the plan without feed-forward (paper Fig. 2): NAME.mcap and NAME.yaml are "
+        "written with the stop in the summary, exit 0. Other stops still keep NAME.part (exit 4/5)."
+    ),
 ]
 _Plot = Annotated[bool, typer.Option(help="Write NAME.png: lag errors per joint and TCP error over time.")]
 _Calibration = Annotated[
