@@ -77,6 +77,8 @@ class CatalogueLimits:
     seed: int
     following_error_peak_rad: np.ndarray  # per joint, the own-axis peak following error at a_max
     following_error_allowed_rad: float  # the stated fraction of the drives' window
+    following_error_reversal_peak_rad: np.ndarray  # the same after a reversal (servo.py)
+    following_error_reversal_allowed_rad: float
     acceleration_binding: tuple[str, ...]  # per joint: "torque", "following error" or "drive"
 
     def binding_text(self) -> str:
@@ -112,8 +114,10 @@ class CatalogueLimits:
             "payload_kg": self.payload_kg,
             "following_error": "and a = the largest whose own-axis following error, without torque "
             "feed-forward (drives.yaml servo loops on the axis' largest inertia, friction, the jerk "
-            "ramp), peaks within the allowed fraction of the window (rxcomm.model.servo)",
+            "ramp), peaks within the allowed fraction of the window from rest and within the "
+            "reversal's after a reversal (the integrator holding −F_c; rxcomm.model.servo)",
             "following_error_allowed_rad": self.following_error_allowed_rad,
+            "following_error_reversal_allowed_rad": self.following_error_reversal_allowed_rad,
             "joints": [
                 {
                     "name": name,
@@ -125,6 +129,7 @@ class CatalogueLimits:
                     "acceleration_bound_by": self.acceleration_bound_by[k],
                     "acceleration_binding": self.acceleration_binding[k],
                     "following_error_peak_rad": float(self.following_error_peak_rad[k]),
+                    "following_error_reversal_peak_rad": float(self.following_error_reversal_peak_rad[k]),
                     "velocity_worst_pose_rad": pose(
                         self.velocity_bound_by[k], self.velocity_worst_pose_rad[k]
                     ),
@@ -336,5 +341,7 @@ def catalogue_limits(
         seed=seed,
         following_error_peak_rad=track.peak_rad,
         following_error_allowed_rad=track.allowed_rad,
+        following_error_reversal_peak_rad=track.reversal_peak_rad,
+        following_error_reversal_allowed_rad=track.reversal_allowed_rad,
         acceleration_binding=binding,
     )

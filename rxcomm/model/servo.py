@@ -11,12 +11,17 @@ within a stated fraction of the window. This module gives that second bound's te
 
 - `peak_following_error`: the peak following error of the discrete loop (the cell's equations, drive
   cycle, speed feed-forward filter) on a rigid axis of its largest inertia with its friction
-  (Coulomb stick–slip, viscous), for a move from rest at the generic controller's jerk ramp;
-- `tracking_bound`: per axis the largest acceleration whose peak error stays within
-  `TRACKING_FRACTION` (60 %) of the window. The other axes' inertial coupling and the Coriolis
-  torques are left to the remaining 40 %: their worst case (every axis at its limit at the worst
-  pose at once, as the torque bound takes it) would claim more than the window on the M900 sample,
-  whose factory runs stay well within it.
+  (Coulomb stick–slip, viscous), for a move from rest at the generic controller's jerk ramp, with
+  the velocity integrator at rest or holding the friction of a move the other way (a reversal);
+- `tracking_bound`: per axis the largest acceleration whose peak error from rest stays within
+  `TRACKING_FRACTION` (60 %) of the window and after a reversal within `REVERSAL_FRACTION` (90 %).
+  The other axes' inertial coupling and the Coriolis torques are left to the rest: their worst case
+  (every axis at its limit at the worst pose at once, as the torque bound takes it) would claim
+  more than the window on the M900 sample, whose factory runs stay well within it. The reversal
+  starts with the drive pushing −F_c and must swing to +F_c from the error before the axis breaks
+  away: on a light wrist whose friction is large against its loop gain (MuJoCo Menagerie's ARX L5,
+  J6: 0.005 kg·m², 0.3 N·m, K_p = 0.32 N·m·s/rad) that doubles the error, and the factory line,
+  timed on the move from rest alone, tripped 0x8611 0.3 s after its approach.
 
 On the RX130L sample the catalogue's torque bound leaves J6 a peak of 18 mrad (of 35); its drive
 accelerations (scale 1.0) would give J6 40 mrad: the 0x8611 trip an RX160-class arm met (issue 29).
@@ -66,12 +71,14 @@ def peak_following_error(
     disturbance_nm: np.ndarray,
     horizon_s: float = 0.8,
     viscous_nominal_nm_s: np.ndarray | None = None,
+    integral_start_nm: np.ndarray | None = None,
 ) -> np.ndarray:
     """Peak |demand − actual| per axis (rad) of the drive loop (the cell's equations, rxcomm.cell.drives)
     without torque feed-forward, on a rigid axis of inertia `j_plant` with Coulomb (stick–slip) and
     viscous friction and a constant `disturbance_nm` opposing the motion (the other axes' coupling,
     Coriolis), for a demand from rest whose acceleration rises to `accel` in `ramp_s` (the generic
-    controller's jerk) and holds until the speed reaches `v_max`. Every argument is per axis [n]."""
+    controller's jerk) and holds until the speed reaches `v_max`; `integral_start_nm`: the velocity
+    integrator's torque at the start (−coulomb_nm: a reversal). Every argument is per axis [n]."""
     w = loops.velocity_bandwidth_rad_s
     b_nom = np.zeros(len(j_nominal)) if viscous_nominal_nm_s is None else viscous_nominal_nm_s
     kv, kp = w / loops.position_gain_ratio, velocity_gain(w, j_nominal, b_nom)
@@ -79,6 +86,8 @@ def peak_following_error(
     alpha = cycle_s / (VELOCITY_FILTER_S + cycle_s)
     n = len(j_nominal)
     q, v, enc, vel, d1, d2, vff, integ = (np.zeros(n) for _ in range(8))
+    if integral_start_nm is not None:
+        integ = np.array(integral_start_nm, dtype=float)
     dv, d, peak = np.zeros(n), np.zeros(n), np.zeros(n)
     for k in range(int(round(horizon_s / cycle_s))):
         vel = vel + alpha * ((q - enc) / cycle_s - vel)
@@ -101,17 +110,21 @@ def peak_following_error(
 
 
 TRACKING_FRACTION = 0.6  # of the following-error window an axis' own motion may use (the rest: coupling)
+REVERSAL_FRACTION = 0.9  # the same after a reversal, the friction's worst start (the rest: coupling)
 
 
 @dataclass(frozen=True)
 class TrackingBound:
     """Per axis: the largest acceleration ≤ the given one whose own following error stays within
-    `allowed_rad`, the peak error at it, and whether the bound cut the given acceleration."""
+    `allowed_rad` from rest and `reversal_allowed_rad` after a reversal, the peak errors at it, and
+    whether the bound cut the given acceleration."""
 
     a_max: np.ndarray
     peak_rad: np.ndarray
     allowed_rad: float
     binds: np.ndarray
+    reversal_peak_rad: np.ndarray
+    reversal_allowed_rad: float
 
 
 def tracking_bound(
@@ -124,41 +137,39 @@ def tracking_bound(
     viscous_nm_s: np.ndarray,
     fraction: float = TRACKING_FRACTION,
     iterations: int = 12,
+    reversal_fraction: float = REVERSAL_FRACTION,
 ) -> TrackingBound:
     """The accelerations (≤ `a_max`) a generic controller's drives (drives.yaml `servo`, tuned on
     `nominal_axis_inertia`) follow without torque feed-forward with a peak following error ≤
-    `fraction` of the window, on the axis' largest inertia `j_plant` with its friction
-    (`peak_following_error`); bisection per axis where `a_max` itself exceeds it."""
+    `fraction` of the window from rest and ≤ `reversal_fraction` after a reversal, on the axis'
+    largest inertia `j_plant` with its friction (`peak_following_error`); bisection per axis where
+    `a_max` itself exceeds either."""
     loops = robot.drives.servo
-    allowed = fraction * loops.following_error_limit_rad
+    window = loops.following_error_limit_rad
+    allowed, reversal_allowed = fraction * window, reversal_fraction * window
     jn = nominal_axis_inertia(robot)
     a_max = np.asarray(a_max, float)
     zero = np.zeros(robot.n)
+    coulomb = np.asarray(coulomb_nm, float)
 
-    def peak(a: np.ndarray) -> np.ndarray:
-        cyc = robot.drives.cycle_s
-        return peak_following_error(
-            loops,
-            jn,
-            j_plant,
-            cyc,
-            a,
-            v_max,
-            ramp_s,
-            coulomb_nm,
-            viscous_nm_s,
-            zero,
-            viscous_nominal_nm_s=np.asarray(robot.viscous_prior, float),
-        )
+    def peaks(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        args = (loops, jn, j_plant, robot.drives.cycle_s, a, v_max, ramp_s, coulomb, viscous_nm_s, zero)
+        b_nom = np.asarray(robot.viscous_prior, float)
+        rest = peak_following_error(*args, viscous_nominal_nm_s=b_nom)
+        return rest, peak_following_error(*args, viscous_nominal_nm_s=b_nom, integral_start_nm=-coulomb)
 
-    p = peak(a_max)
-    binds = p > allowed
-    if not binds.any():
-        return TrackingBound(a_max, p, allowed, binds)
-    lo, hi = np.zeros(robot.n), a_max.copy()
-    for _ in range(iterations):
-        mid = np.where(binds, (lo + hi) / 2, a_max)
-        ok = peak(mid) <= allowed
-        lo, hi = np.where(binds & ok, mid, lo), np.where(binds & ~ok, mid, hi)
-    a = np.where(binds, lo, a_max)
-    return TrackingBound(a, peak(a), allowed, binds)
+    def within(a: np.ndarray) -> np.ndarray:
+        rest, reversal = peaks(a)
+        return (rest <= allowed) & (reversal <= reversal_allowed)
+
+    binds = ~within(a_max)
+    a = a_max
+    if binds.any():
+        lo, hi = np.zeros(robot.n), a_max.copy()
+        for _ in range(iterations):
+            mid = np.where(binds, (lo + hi) / 2, a_max)
+            ok = within(mid)
+            lo, hi = np.where(binds & ok, mid, lo), np.where(binds & ~ok, mid, hi)
+        a = np.where(binds, lo, a_max)
+    rest, reversal = peaks(a)
+    return TrackingBound(a, rest, allowed, binds, reversal, reversal_allowed)

@@ -29,6 +29,9 @@ class CatalogueJoint(Strict):
     acceleration_bound_by: str | None = None
     acceleration_binding: str | None = Field(None, description="torque, following error or drive")
     following_error_peak_rad: float | None = None
+    following_error_reversal_peak_rad: float | None = Field(
+        None, description="the same after a reversal (the velocity integrator holding −F_c)"
+    )
     velocity_worst_pose_rad: list[float] | None = Field(None, description="None: bound by the drive")
     acceleration_worst_pose_rad: list[float] | None = Field(
         None, description="None: bound by the drive or by the following error"
@@ -45,6 +48,7 @@ class CatalogueLimits(Strict):
     payload_kg: float | None = None
     following_error: str | None = None
     following_error_allowed_rad: float | None = None
+    following_error_reversal_allowed_rad: float | None = None
     joints: list[CatalogueJoint]
 
 
