@@ -248,22 +248,14 @@ def execute(
 ) -> dict[str, Any]:
     """`command` as a function (tests call it): returns the summary written. Raises RxcommError."""
     from rxcomm.execution.campaign import CampaignSettings
-    from rxcomm.execution.guards import check_output_kind, check_run_options, sigterm_as_interrupt
+    from rxcomm.execution.guards import check_run_options, sigterm_as_interrupt
     from rxcomm.execution.session import VIRTUAL_CELL_WATCHDOG_MS, RunSettings, StreamSettings
-    from rxcomm.io.mcap_io import read_mcap_envelope
     from rxcomm.model.robot import load_robot
 
     plan, output = Path(plan), Path(output)
     plant = embedded_plant(plant, gateway)
     check_run_options(interpolation_ratio, speed)  # exit 2 before anything is read
-    kind = plan_kind(plan)
-    if trip_is_result and kind == "poses":
-        raise InputError("--trip-is-result is for a trajectory plan, not a pose list", field="trip-is-result")
-    # what the plan is comes first: a wrong-kind plan gets a message about the plan, not the output
-    cfg = load_poses(plan) if kind == "poses" else None
-    if kind == "trajectory" and plan.suffix.lower() == ".mcap":
-        check_kind(read_mcap_envelope(plan), TrajectorySummary, file=plan, prefix="envelope")
-    check_output_kind(kind, output)
+    cfg = _read_plan(plan, output, trip_is_result)
     if compare is not None and not plot:
         raise InputError("--compare draws into the --plot figure: pass --plot too", field="compare")
     DECLARATIONS["run"].check(
@@ -306,6 +298,23 @@ def execute(
     finally:
         restore_sigterm()
         stop_bar()
+
+
+def _read_plan(plan: Path, output: Path, trip_is_result: bool) -> Configs | None:
+    """The pose list (None: a trajectory, its envelope checked), after the options that depend on
+    the plan's kind; what the plan is comes first: a wrong-kind plan gets a message about the plan,
+    not the output."""
+    from rxcomm.execution.guards import check_output_kind
+    from rxcomm.io.mcap_io import read_mcap_envelope
+
+    kind = plan_kind(plan)
+    if trip_is_result and kind == "poses":
+        raise InputError("--trip-is-result is for a trajectory plan, not a pose list", field="trip-is-result")
+    cfg = load_poses(plan) if kind == "poses" else None
+    if kind == "trajectory" and plan.suffix.lower() == ".mcap":
+        check_kind(read_mcap_envelope(plan), TrajectorySummary, file=plan, prefix="envelope")
+    check_output_kind(kind, output)
+    return cfg
 
 
 def _trajectory(
