@@ -44,9 +44,8 @@ def iso9283_path_files(
     for name, spec in iso9283_paths(cube, branch).items():
         header = f"# ISO 9283 test path for {robot.name}, written by `rxcomm {written_by}`.\n"
         data = spec.model_dump(mode="json", exclude_none=True)
-        data["branch"] = spec.branch.model_dump(
-            mode="json"
-        )  # a label left out is null: absent reads the default
+        # a label left out is written null: an absent one would read as the default
+        data["branch"] = spec.branch.model_dump(mode="json")
         if data["geometry"].get("points_m") is None:
             data["geometry"].pop("full", None)  # only meaningful for the three-point form
         if not data["limits"]:
