@@ -79,6 +79,28 @@ def test_cp_energy_objective_beats_the_torque_plan_at_its_cycle_time(rx130l):
 
 
 @pytest.mark.slow
+def test_cp_energy_plan_far_slower_than_its_fastest_keeps_moving(rx130l):
+    """At 8 × its time-optimal duration the ISO line's energy optimum is a law whose σ̇² stays positive
+    between the nodes, so the NLP's interval times are the law's. Without the sag row it zig-zagged σ̈ by
+    ±5 m/s² between nodes at the speed floor, σ̇² dipped below zero in between, and sampling the law
+    crashed on a NaN duration."""
+    from rxcomm.planning.cp import CpSettings, plan_cp
+    from rxcomm.planning.paths import load_path
+    from rxcomm.planning.timing import PlanDynamics
+
+    _, path = load_path(ROOT / "samples/rx130l/paths/iso9283-line.yaml", rx130l)
+    dyn = PlanDynamics.load(rx130l, None, 0.02)
+    t_opt = plan_cp(rx130l, path, dyn, CpSettings()).duration_s
+    slow = plan_cp(rx130l, path, dyn, CpSettings(objective="energy", duration_s=8 * t_opt))
+    law = slow.profile
+    assert law.duration_s == pytest.approx(slow.nlp.duration_s, rel=0.02)
+    assert slow.duration_s == pytest.approx(8 * t_opt, abs=2 * rx130l.drives.cycle_s)
+    inside = (slow.t > law.t_nodes[1]) & (slow.t < law.t_nodes[-2])
+    assert np.all(slow.sigma_dot[inside] > 0)
+    assert slow.report.max_ratio <= 1.002
+
+
+@pytest.mark.slow
 def test_ptp_energy_objective_beats_the_torque_plan_at_its_cycle_time(rx130l):
     from rxcomm.planning.ptp import plan_ptp
     from rxcomm.planning.ptp_problem import PtpDynamics, PtpOptions

@@ -23,12 +23,13 @@ from rxcomm.model.dynamics import RobotDynamics, prior_parameters
 from rxcomm.model.limits import check_limits, robot_limits
 from rxcomm.model.robot import load_robot
 from rxcomm.planning.cp import check_statics, plan_cp
-from rxcomm.planning.cp_grid import toppra_grid
+from rxcomm.planning.cp_grid import jerk_step, toppra_grid
 from rxcomm.planning.path_dynamics import path_dynamics
 from rxcomm.planning.path_ik import solve_path_ik
+from rxcomm.planning.path_nlp import S_MIN
 from rxcomm.planning.path_profile import PathProfile
 from rxcomm.planning.paths import build_path
-from rxcomm.planning.timing import PlanDynamics
+from rxcomm.planning.timing import PlanDynamics, path_coefficients
 from rxcomm.planning.topp import PlanLimits, ToppraPath, time_optimal
 from rxcomm.schemas.path import PathSpec
 from rxcomm.stages import plan_cp as stage
@@ -174,6 +175,22 @@ def test_toppra_grid_follows_the_joint_path_bending(rx130l, singular_jp):
     step = np.diff(g)
     mid = (g[:-1] + g[1:]) / 2
     assert step[np.abs(mid - 0.6) < 0.05].mean() < 0.5 * step[mid < 0.2].mean()  # dense at the wrist
+
+
+def test_end_ramp_reaches_the_nlp_speed_floor_from_a_slow_start(rx130l, singular_jp):
+    """The constant-jerk ramp at a path end lasts until σ̇ = S_MIN, also where the torque rate allows
+    a shorter one: from a slow warm start (small end σ̈) the shorter step left b₁ = 1.5·σ̈₁·Δσ₀ below the
+    NLP's floor S_MIN² within the acceleration limits, and IPOPT called the problem infeasible (the
+    Unitree Z1's line at its factory's time, 4 × its time-optimal duration)."""
+    dyn = PlanDynamics.load(rx130l, None, 0.02)
+    pd = path_coefficients(dyn, singular_jp, np.array([0.0, 1e-3, singular_jp.length_m]))
+    for node, sigma in ((0, 0.0), (-1, singular_jp.length_m)):
+        qs = singular_jp(np.array([sigma]), 1)[0]
+        fast = jerk_step(pd, node, qs, 5.0, rx130l.tau_rate_max, dyn.eps)
+        assert 1.5 * 5.0 * fast > 2 * S_MIN**2  # the torque rate decides here, as before
+        for accel in (1e-3, 1e-2, 0.1):
+            step = jerk_step(pd, node, qs, accel, rx130l.tau_rate_max, dyn.eps)
+            assert 1.5 * accel * step >= S_MIN**2 * (1 - 1e-9), accel
 
 
 # --- the stage on the sample paths (end to end) -------------------------------------------------------

@@ -12,7 +12,7 @@ import numpy as np
 
 from rxcomm.planning.path_dynamics import PathDynamics
 from rxcomm.planning.path_ik import JointPath
-from rxcomm.planning.path_nlp import coulomb_levels
+from rxcomm.planning.path_nlp import S_MIN, coulomb_levels
 from rxcomm.planning.path_profile import PathProfile
 from rxcomm.planning.topp import PlanLimits
 
@@ -74,7 +74,7 @@ def jerk_step(
     `accel` in the shortest time t the torque-rate limit allows. In the ramp the inertial rate m·j
     (j = a/t) is constant and every moving joint's Coulomb term crosses its band |q̇| ≲ 2ε, adding up
     to ±0.56·Fc·√(2|q'|·j/ε) — with the inertial rate when starting, against it when stopping (see
-    `path_nlp`). σ at the end of the ramp is a·t²/6."""
+    `path_nlp`). σ at the end of the ramp is a·t²/6; the ramp lasts long enough to reach σ̇ = S_MIN."""
     if rate_max is None or accel <= 0:
         return 0.0
     fc = coulomb_levels(pd)
@@ -85,6 +85,12 @@ def jerk_step(
     worst = np.maximum(inertial, np.abs(inertial + sign_f * band)) / rate_max
     ok = np.all(worst <= 1.0, axis=1)
     t_min = float(t[np.argmax(ok), 0]) if ok.any() else 1.0
+    # The ramp must also reach the NLP's speed floor (σ̇ ≥ S_MIN inside): b₁ = 1.5·σ̈₁·Δσ₀, and a slow
+    # warm start's small end acceleration otherwise gives a step whose b₁ cannot reach S_MIN² within
+    # the acceleration limits (IPOPT: Infeasible_Problem_Detected; the Unitree Z1's line at 4 × its
+    # time-optimal duration). At the warm's acceleration the ramp ends on the floor; a longer one, to
+    # 2·S_MIN, left the RX130L large circle at 8 × T_opt 1.010 × its torque-rate limit (measured).
+    t_min = max(t_min, 2 * S_MIN / accel)
     return accel * t_min**2 / 6
 
 
