@@ -328,6 +328,33 @@ def _with_baseline(ms, extra):
 
 
 @pytest.mark.slow  # 1.4 s CPU (make test-fast: the unit tier within 60 s)
+def test_poses_without_a_tracker_reading_are_counted_and_named(rx_meas):
+    """A campaign that lost poses (out of sight, or an arm that never came to rest: the Unitree Z1 on
+    MuJoCo lost 22 of its 32 selected poses) says so per role, and says when the selected poses, fewer
+    now, are compared with a naive set that lost fewer; the report shows the counts."""
+    from rxcomm.calibration.artefact import calibration_artefact
+    from rxcomm.reporting.calibration import pose_count_figures
+
+    robot, t2b, ms, tracker = rx_meas
+    naive = _measure(tracker, ms.q[:32], ["baseline"] * 32)
+    whole = calibrate(robot, _with_baseline(ms, naive), tracker_to_base=t2b)
+    assert not any("tracker reading" in n for n in whole.notes)
+    assert whole.unread == {"fit": 0, "validation": 0, "baseline": 0}
+    valid = ms.valid.copy()
+    valid[:12] = False  # 12 of the 32 selected poses and 3 of the 16 validation poses unread
+    valid[32:35] = False
+    lost = MeasurementSet(ms.q, ms.position_m, ms.rotation, valid, ms.role)
+    res = calibrate(robot, _with_baseline(lost, naive), tracker_to_base=t2b)
+    assert res.fit_idx.size == 20 and res.unread == {"fit": 12, "validation": 3, "baseline": 0}
+    (note,) = [n for n in res.notes if "tracker reading" in n]
+    assert "12 of 32 fit, 3 of 16 validation" in note and "not like for like" in note
+    summary = calibration_artefact(robot, res, {}, None).summary
+    assert (summary.n_unread_fit_poses, summary.n_unread_validation_poses) == (12, 3)
+    (fig,) = pose_count_figures(summary)
+    assert fig.ours == "20 / 13; naive 32; 12 / 3 / 0"
+
+
+@pytest.mark.slow  # 1.4 s CPU (make test-fast: the unit tier within 60 s)
 def test_baseline_poses_are_fitted_apart_and_judged_on_the_same_heldout_poses(tmp_path, rx_meas):
     robot, t2b, ms, tracker = rx_meas
     plain = calibrate(robot, ms, tracker_to_base=t2b)

@@ -46,7 +46,7 @@ models), `compliance` (holding torques), `plausibility` (the checks and notes), 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pinocchio as pin
@@ -55,7 +55,7 @@ from rxcomm.calibration.compliance import compliant_joints, holding_torques
 from rxcomm.calibration.diagnosis import explained, heldout_disagreement
 from rxcomm.calibration.frames import DataFrames, estimate_frames, reference_base
 from rxcomm.calibration.lm import BaselineComparison, FitResult, Fitter, at_links, rank_check
-from rxcomm.calibration.measurements import MeasurementSet
+from rxcomm.calibration.measurements import ROLES, MeasurementSet
 from rxcomm.calibration.plausibility import (
     check_beats_nominal,
     check_fits_robot,
@@ -107,11 +107,29 @@ class CalibrationResult:
     undetermined: tuple[str, ...] = ()  # parameters the data cannot determine (σ above the threshold)
     notes: tuple[str, ...] = ()  # what the user should know (frames far from the guess, tool offset…)
     prior_scale: float = 1.0  # on the geometric priors' σ, from the data (`Fitter.noise_from_residuals`)
+    unread: dict[str, int] = field(default_factory=dict)  # role → its poses without a tracker reading
 
 
 # The prior scale from which the widening is worth a note (the sample truths, drawn on the classes'
 # scale, read ≤ 1.1).
 WIDENED_PRIOR_NOTE = 2.0
+
+
+def unread_note(ms: MeasurementSet) -> str | None:
+    """What the campaign could not measure (no tracker reading: a pose out of sight, or an arm that did
+    not come to rest), and where that makes the selected poses' comparison with the naive ones unfair."""
+    counts = {role: ms.unread(role) for role in ROLES}
+    lost = [f"{k} of {n} {role}" for role, (k, n) in counts.items() if k]
+    if not lost:
+        return None
+    text = f"poses without a tracker reading, left out: {', '.join(lost)}"
+    (kf, nf), (kb, nb) = counts["fit"], counts["baseline"]
+    if nb and nf and kf / nf > kb / nb:
+        text += (
+            f"; the selected poses ({nf - kf} measured) are compared with {nb - kb} naive ones, which is "
+            "not like for like"
+        )
+    return text
 
 
 def split_poses(ms: MeasurementSet, settings: CalibrateSettings) -> tuple[np.ndarray, np.ndarray, float]:
@@ -305,6 +323,7 @@ def calibrate(
         tables |= _tables(robot, ms, {"heldout": heldout}, {"rigid": rigid.fit}, tau, t2b, point)
     valid = np.flatnonzero(ms.valid)
     baseline_poses = valid[np.array(ms.role)[valid] == "baseline"]
+    notes += [] if (note := unread_note(ms)) is None else [note]
     comparison = None
     if baseline_poses.size:
         comparison = fitter.compare_baseline(baseline_poses, heldout, result)
@@ -332,4 +351,5 @@ def calibrate(
         undetermined=tuple(undetermined),
         notes=tuple(notes),
         prior_scale=full_f.prior_scale,
+        unread={role: ms.unread(role)[0] for role in ROLES},
     )

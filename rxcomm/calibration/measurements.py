@@ -44,6 +44,11 @@ class MeasurementSet:
     def position_only(self) -> bool:
         return self.rotation is None
 
+    def unread(self, role: str) -> tuple[int, int]:
+        """(poses of `role` without a tracker reading, poses of `role`)."""
+        mine = np.array(self.role) == role
+        return int(np.sum(mine & ~self.valid)), int(np.sum(mine))
+
     def subset(self, idx: np.ndarray) -> MeasurementSet:
         idx = np.asarray(idx, dtype=int)
         return MeasurementSet(

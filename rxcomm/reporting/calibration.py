@@ -131,6 +131,22 @@ def compliance_table(compliance: Sequence[Mapping]) -> Table | None:
     )
 
 
+def pose_count_figures(s: CalibrationSummary) -> list[Figure]:
+    """How many poses each figure rests on, and how many the campaign could not read (a pose out of the
+    tracker's sight, an arm that never came to rest): the selected set's advantage over the naive one
+    shrinks with every pose it loses."""
+    if s.n_fit is None or s.n_unread_fit_poses is None:
+        return []
+    naive = "" if s.n_baseline_poses is None else f"; naive {s.n_baseline_poses}"
+    lost = [s.n_unread_fit_poses, s.n_unread_validation_poses, s.n_unread_baseline_poses]
+    return [
+        Figure(
+            "poses fitted / held out (naive); without a tracker reading, left out: fit / validation / naive",
+            f"{s.n_fit} / {s.n_heldout}{naive}; " + " / ".join(str(k or 0) for k in lost),
+        )
+    ]
+
+
 def baseline_pose_figures(s: CalibrationSummary) -> list[Figure]:
     """Held-out errors of the calibration from the naive poses beside the selected poses', when the
     campaign measured both (select-configs --measure-baseline)."""
@@ -174,6 +190,7 @@ def calibration_section(
         "Geometric calibration (paper §3.1–3.4, Table 2)",
         [
             Figure("identifiable parameters", str(s.n_identifiable), "39 → 30 by QR"),
+            *pose_count_figures(s),
             Figure(
                 "held-out max position error: nominal → calibrated",
                 f"{fmt(s.nominal_heldout_max_position_error_m, 1e3)} → "

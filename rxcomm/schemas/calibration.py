@@ -191,6 +191,11 @@ class CalibrationSummary(Strict):
     n_fit: int | None = None
     n_heldout: int | None = None
     n_outliers: int | None = None
+    n_unread_fit_poses: int | None = Field(
+        None, description="fit poses in the measurements without a tracker reading (valid: false), left out"
+    )
+    n_unread_validation_poses: int | None = Field(None, description="the same for the validation poses")
+    n_unread_baseline_poses: int | None = Field(None, description="the same for the naive (baseline) poses")
     residual_scale: float | None = None
     jacobian_cond: float | None = None
     function_evaluations: int | None = None
