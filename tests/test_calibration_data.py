@@ -254,7 +254,10 @@ def test_joint_compliance_is_seen_and_modelled(robot):
     assert h_rigid.max_position_error_m > 1.5 * h_free.max_position_error_m
     assert h_rigid.rms_position_error_m > 1.5 * h_free.rms_position_error_m
     assert h_bent.rms_position_error_m <= 1.10 * h_free.rms_position_error_m
-    assert bent.tables[("heldout", "rigid")].max_position_error_m == h_rigid.max_position_error_m
+    # the same rigid estimate to the round-off of its iterated weights (the priors' scale settles to 1 %)
+    assert bent.tables[("heldout", "rigid")].max_position_error_m == pytest.approx(
+        h_rigid.max_position_error_m, rel=1e-6
+    )
     st = truth_parameters(robot, truth)
     tau_true = RobotDynamics(robot, st).gravity_torque(ms.q[:32])
     from rxcomm.calibration.compliance import holding_torques

@@ -32,7 +32,9 @@ from rxcomm.model.geometric_errors import (
 )
 from rxcomm.model.robot import Robot
 
-# The widest the data may make the geometric priors (× the manufacturing classes' σ).
+# The range the data may give the geometric priors (× the manufacturing classes' σ): down to all but
+# frames-only for an arm better than its class (architecture §11), up to a catalogue model's errors.
+PRIOR_SCALE_MIN = 0.01
 PRIOR_SCALE_MAX = 30.0
 
 # The robust losses' scale on the weighted residual (3σ: a residual within the noise keeps most weight).
@@ -371,7 +373,7 @@ class Fitter:
         for _ in range(rounds):
             fit = f.fit(poses, None if fit is None else fit.x)
             k_p, k_o, k_prior = f.variance_factors(poses, fit, robust, noise)
-            scale = min(max(f.prior_scale * k_prior, 1.0), PRIOR_SCALE_MAX)
+            scale = min(max(f.prior_scale * k_prior, PRIOR_SCALE_MIN), PRIOR_SCALE_MAX)
             settled = abs(scale / f.prior_scale - 1) < 0.01
             f = replace(f, sigma_p=f.sigma_p * k_p, sigma_o=f.sigma_o * k_o, prior_scale=scale)
             if abs(k_p - 1) < 0.01 and abs(k_o - 1) < 0.01 and settled:
@@ -388,9 +390,9 @@ class Fitter:
         geometric priors are a group of their own (Koch & Kusche 2002, regularisation parameters as
         variance components): their rows x_k/σ_k say how far the joint errors are from the
         manufacturing classes, so a robot further off its nominal model than the classes is not held
-        to them (the caller keeps the scale ≥ 1: estimated below 1 it moved the camera-grade
-        estimate away from the truth, architecture §11). 1 where a group is not estimated (`noise`
-        False; no prior, or one the data leave less than half a row of say)."""
+        to them, and one better than them is not given their freedom to fit noise (architecture §11).
+        1 where a group is not estimated (`noise` False; no prior, or one the data leave less than
+        half a row of say)."""
         full, var, prior_rows = self._row_variances(poses, fit)
         n_data = full.size - prior_rows.size
         k_p = k_o = k_prior = 1.0

@@ -182,8 +182,8 @@ class CalibrationSummary(Strict):
     tracker_sigma_source: str | None = None
     prior_scale: float | None = Field(
         None,
-        description="factor on the manufacturing classes' prior σ the data asked for (≥ 1; 1: the classes "
-        "hold); None: not regularised",
+        description="factor on the manufacturing classes' prior σ the data asked for (0.01–30; 1: the "
+        "classes hold, below 1 the arm is better than them); None: not regularised",
     )
     n_undetermined: int | None = None
     compliance_torque_model: str | None = None

@@ -61,7 +61,7 @@ def print_model_and_noise(robot: Robot, res: CalibrationResult, source: str) -> 
     ori = "" if n.orientation_sigma_rad is None else f", {n.orientation_sigma_rad * 1e3:.4g} mrad"
     out.print(f"  tracker noise ({source}): {n.position_sigma_m * 1e3:.4g} mm{ori} (1σ per axis)")
     if res.settings.regularise:
-        out.print(f"  priors: the manufacturing classes × {res.prior_scale:.3g} (the data's scale, ≥ 1)")
+        out.print(f"  priors: the manufacturing classes × {res.prior_scale:.3g} (the data's scale)")
     out.print(
         "  candidate models (cross-validated over the fit poses, a report; the estimate is regularised by "
         "the priors; rms position / orientation):"
