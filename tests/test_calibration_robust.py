@@ -327,3 +327,28 @@ def test_joint_mixup_is_named(rx, good, change, named):
         bad = MeasurementSet(q, good.position_m, rot, good.valid, good.role)
         with pytest.raises(InputError, match=named):
             calibrate(robot, bad, tracker_to_base=t2b)
+
+
+@pytest.mark.slow
+def test_a_robot_already_as_good_as_its_model_is_not_refused(rx):
+    """No joint or frame errors at all (a robot calibrated before, checked again): the calibration
+    cannot beat the nominal model, and on six held-out poses at camera grade it misses them a little
+    more often than not. That is the noise, not a robot the measurements fail to describe: a note,
+    the calibration written. On main `calibrate` refused (exit 3, "the measurements do not describe
+    this robot") 18 of camera-grade seeds 0–19, and 5 of 5 tracker-grade ones: a robot checked with
+    a laser tracker after its calibration was loaded. A held-out misfit beyond the noise still
+    refuses (tests/test_calibration_data.py::test_worse_than_nominal_exits_3)."""
+    robot, truth, t2b = rx
+    g = truth.geometry
+    zero = {k: 0.0 for k in g.error_parameters}
+    perfect = (
+        robot,
+        truth.model_copy(update={"geometry": g.model_copy(update={"error_parameters": zero})}),
+        t2b,
+    )
+    noted = 0
+    for seed, grade in [(0, "camera"), (1, "camera"), (3, "camera"), (4, "camera"), (0, "tracker")]:
+        ms, _ = _campaign(perfect, seed, grade)
+        res = calibrate(robot, ms, tracker_to_base=t2b)
+        noted += any("does not beat the nominal model" in n for n in res.notes)
+    assert noted >= 4  # measured: all five (in the fit's position + orientation metric)

@@ -80,13 +80,12 @@ def explained(robot: Robot, ms: MeasurementSet, point: np.ndarray | None, error:
     return InputError(what, file=ms.source, field="q")
 
 
-def heldout_disagreement(
+def heldout_standardised(
     fitter: Fitter, result: FitResult, fit: np.ndarray, heldout: np.ndarray
-) -> tuple[np.ndarray, str | None]:
-    """(the held-out poses beyond `outlier_sigma` prediction σ, a warning naming them or None); the
-    prediction's covariance from the fit poses `fit`."""
-    if heldout.size == 0:
-        return heldout, None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(weighted residuals [n, k] of the held-out poses, the same over their prediction σ): the
+    prediction's covariance from the fit poses `fit`, so a pose is scored against the noise plus
+    the fit's own uncertainty there."""
     prob = fitter.problem(heldout)
     res = prob.residual(result.x).reshape(heldout.size, -1)
     jac = prob.jacobian(result.x)
@@ -94,7 +93,18 @@ def heldout_disagreement(
     j_fit = fit_prob.jacobian(result.x)
     info = j_fit.T @ j_fit + np.diag(Regularised(fit_prob, fitter.prior).precision)
     var = 1.0 + np.einsum("ij,jk,ik->i", jac, np.linalg.pinv(info), jac).reshape(heldout.size, -1)
-    z = np.max(np.abs(res) / np.sqrt(var), axis=1)
+    return res, res / np.sqrt(var)
+
+
+def heldout_disagreement(
+    fitter: Fitter, result: FitResult, fit: np.ndarray, heldout: np.ndarray
+) -> tuple[np.ndarray, str | None]:
+    """(the held-out poses beyond `outlier_sigma` prediction σ, a warning naming them or None); the
+    prediction's covariance from the fit poses `fit`."""
+    if heldout.size == 0:
+        return heldout, None
+    res, zs = heldout_standardised(fitter, result, fit, heldout)
+    z = np.max(np.abs(zs), axis=1)
     bad = z > fitter.settings.outlier_sigma
     if not np.any(bad):
         return heldout[bad], None
