@@ -123,6 +123,25 @@ def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_meas
     assert "0.09 / 0.16 mm; p = 2.5e-07" in text and "×4.1" in text
 
 
+def test_calibration_section_carries_the_calibrations_notes():
+    """What calibrate told the user to act on reaches the customer's report (on main the section's
+    note was fixed text, and claimed a simulated cell whose joints bend, whatever the robot)."""
+    s = {
+        "n_identifiable": 30,
+        "nominal_heldout_max_position_error_m": 1e-2,
+        "heldout_max_position_error_m": 1.5e-4,
+        "heldout_max_orientation_error_rad": 3e-4,
+        "frames_only_heldout_max_position_error_m": 5e-3,
+        "seconds": 0.1,
+    }
+    s = _p(CalibrationSummary, s)
+    notes = ["poses without a tracker reading, left out: 3 of 32 fit", "a moved tracker?"]
+    text = render_sections("t", "p", [calibration_section(s, [], notes=notes)])
+    assert "Calibration note: poses without a tracker reading, left out: 3 of 32 fit." in text
+    assert "Calibration note: a moved tracker?" in text and "?." not in text
+    assert "simulated cell" not in render_sections("t", "p", [calibration_section(s, [])])
+
+
 def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
     s = {
         "n_base_params": 61,

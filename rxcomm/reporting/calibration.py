@@ -182,9 +182,11 @@ def calibration_section(
     parameters: Sequence[Mapping] = (),
     compliance: Sequence[Mapping] = (),
     prior: CalibrationSummary | None = None,
+    notes: Sequence[str] = (),
 ) -> Section:
     """The summary's figures, Table 2, the parameters ± σ and the joint stiffness (calibration.yaml);
-    `prior`: the summary of the same calibration with the prior model's holding torques, if made."""
+    `prior`: the summary of the same calibration with the prior model's holding torques, if made;
+    `notes`: the calibration's own (what the user should act on), in the section's note."""
     named = [calibration_table(tables), calibration_parameter_table(parameters), compliance_table(compliance)]
     return Section(
         "Geometric calibration (paper §3.1–3.4, Table 2)",
@@ -211,8 +213,12 @@ def calibration_section(
             Figure("compute time", fmt(s.seconds, unit="s")),
         ],
         tables=[t for t in named if t is not None],
-        note="Errors are measured on held-out poses the fit never saw, at the tracker noise above; the "
-        "simulated cell's joints bend under gravity.",
+        note=" ".join(
+            [
+                "Errors are measured on held-out poses the fit never saw, at the tracker noise above.",
+                *(f"Calibration note: {n}" + ("" if n[-1:] in ".?!" else ".") for n in notes),
+            ]
+        ),
     )
 
 

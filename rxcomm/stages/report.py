@@ -132,6 +132,7 @@ def _stage_sections(build: Path, a: dict[str, Any], tol: dict) -> list[Section]:
             _dump(cal.parameters),
             _dump(cal.compliance),
             None if prior is None else prior.summary,
+            cal.notes,
         )
     if s["excitation.yaml"]:
         exc_tol = tol.get("excitation", DEFAULT_TOLERANCE)
