@@ -99,15 +99,19 @@ def test_render_shows_ours_in_the_stage_and_the_paper_beside_ours_at_the_end():
     assert "![" in stage and "run-ff.png" in stage
 
 
+# A calibration summary's figures the section always shows.
+_CALIBRATION_FIGURES = {
+    "n_identifiable": 30,
+    "nominal_heldout_max_position_error_m": 1e-2,
+    "heldout_max_position_error_m": 1.5e-4,
+    "heldout_max_orientation_error_rad": 3e-4,
+    "frames_only_heldout_max_position_error_m": 5e-3,
+    "seconds": 0.1,
+}
+
+
 def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_measured():
-    s = {
-        "n_identifiable": 30,
-        "nominal_heldout_max_position_error_m": 1e-2,
-        "heldout_max_position_error_m": 1.5e-4,
-        "heldout_max_orientation_error_rad": 3e-4,
-        "frames_only_heldout_max_position_error_m": 5e-3,
-        "seconds": 0.1,
-    }
+    s = dict(_CALIBRATION_FIGURES)
     assert "naive" not in render_sections("t", "p", [calibration_section(_p(CalibrationSummary, s), [])])
     s |= {
         "n_baseline_poses": 32,
@@ -126,15 +130,7 @@ def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_meas
 def test_calibration_section_carries_the_calibrations_notes():
     """What calibrate told the user to act on reaches the customer's report (on main the section's
     note was fixed text, and claimed a simulated cell whose joints bend, whatever the robot)."""
-    s = {
-        "n_identifiable": 30,
-        "nominal_heldout_max_position_error_m": 1e-2,
-        "heldout_max_position_error_m": 1.5e-4,
-        "heldout_max_orientation_error_rad": 3e-4,
-        "frames_only_heldout_max_position_error_m": 5e-3,
-        "seconds": 0.1,
-    }
-    s = _p(CalibrationSummary, s)
+    s = _p(CalibrationSummary, _CALIBRATION_FIGURES)
     notes = ["poses without a tracker reading, left out: 3 of 32 fit", "a moved tracker?"]
     text = render_sections("t", "p", [calibration_section(s, [], notes=notes)])
     assert "Calibration note: poses without a tracker reading, left out: 3 of 32 fit." in text
