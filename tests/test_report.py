@@ -388,13 +388,7 @@ def test_the_preamble_says_what_the_run_logs_ran_on():
 
 
 def test_stiffness_from_identified_torques_is_shown_beside_the_prior_torques():
-    s = {
-        "n_identifiable": 30,
-        "nominal_heldout_max_position_error_m": 1e-2,
-        "heldout_max_position_error_m": 1.5e-4,
-        "heldout_max_orientation_error_rad": 3e-4,
-        "frames_only_heldout_max_position_error_m": 5e-3,
-        "seconds": 0.1,
+    s = _CALIBRATION_FIGURES | {
         "compliance_torque_model": "identified",
         "stiffness_nm_per_rad": {"J3": 4.3e5},
         "stiffness_std_nm_per_rad": {"J3": 4e4},
