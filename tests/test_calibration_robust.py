@@ -94,7 +94,8 @@ def test_camera_grade_never_worse_than_frames_only(rx):
     assert np.all(cal <= frames), np.c_[cal, frames]
     assert np.all(exact[:, 0] < exact[:, 1]), exact  # measured: worst 0.83 of frames-only
     # the mean over the campaigns within 5 % of the better of the two models' means (measured: 2.995
-    # mm, below both: frames-only 4.35, the plain full model 3.02)
+    # mm, below both: frames-only 4.353, the plain full model 3.014; per campaign within 5 % of the
+    # better of the two on 18 of 20, seeds 2 and 19 6.4 % and 10.9 % above the plain full model)
     assert np.mean(cal) <= 1.05 * min(np.mean(frames), np.mean(full)), (
         cal.mean(),
         frames.mean(),
