@@ -158,6 +158,13 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
     assert "0 %" not in text and "0.00 %" not in text
     assert "| not measured / not measured |" in text  # no fit or cross-validation figures: never 0
     assert "fitted regrouped" not in text
+    # a joint whose static friction is below its torque noise has no band to be inside: said so
+    viscous = s | {
+        "validation_standstill_in_band_fraction": [None, None, None, None, 0.95, None],
+        "validation_stiction_band_below_noise": [True, False, False, True, False, False],
+    }
+    text = render_sections("t", "p", [dynamics_section(_p(DynamicsSummary, viscous), None)])
+    assert "| [band < noise, no standstill, no standstill, band < noise, 0.95, no standstill] |" in text
     regrouped = dynamics_section(_p(DynamicsSummary, s | {"kinematics_regrouped": "j1.mcy"}), None)
     assert (
         "this log could not (their effect sits in J1's friction offset"

@@ -216,6 +216,8 @@ def validation_summary(val: Validation, joint_names: tuple[str, ...] | list[str]
         "validation_standstill_fraction": val.standstill_fraction.tolist(),
         "validation_standstill_rms_nm": nan_list(val.standstill_rms_nm),
         "validation_standstill_in_band_fraction": nan_list(val.standstill_in_band_fraction),
+        "validation_stiction_band_nm": val.stiction_band_nm.tolist(),
+        "validation_stiction_band_below_noise": [bool(b) for b in val.band_below_noise],
     }
 
 
@@ -296,7 +298,7 @@ def identify(
     else:
         params, p_b = closest, est.p_b
     tick = time.perf_counter()
-    val = validate(robot, params, val_data, val_source, settings.min_speed_rad_s)
+    val = validate(robot, params, val_data, val_source, settings.min_speed_rad_s, est.sigma_joint_nm)
     timings["validate"] = time.perf_counter() - tick
     return Identification(
         bset=bset,
@@ -323,10 +325,15 @@ def identify(
 
 
 def score(
-    robot: Robot, params: DynamicParameters, log: JointLog, settings: IdentifySettings | None = None
+    robot: Robot,
+    params: DynamicParameters,
+    log: JointLog,
+    settings: IdentifySettings | None = None,
+    noise_nm: np.ndarray | None = None,
 ) -> Validation:
     """An identified model checked on another log without refitting (e.g. last month's model against
-    today's recording): the same processing and figures as `identify`'s validation."""
+    today's recording): the same processing and figures as `identify`'s validation; `noise_nm`: the
+    model's own fit noise per joint (its summary's), for the stiction band."""
     settings = settings or IdentifySettings()
     if settings.cutoff_hz == "auto":
         raise InputError(
@@ -336,4 +343,5 @@ def score(
     if settings.friction is not None and settings.friction != robot.friction_mode:
         robot = robot.with_friction(settings.friction)
     data = preprocess(check_log(log, robot, settings), settings, robot)
-    return validate(robot, params, data, f"log: {Path(log.source).name or 'given'}", settings.min_speed_rad_s)
+    source = f"log: {Path(log.source).name or 'given'}"
+    return validate(robot, params, data, source, settings.min_speed_rad_s, noise_nm)

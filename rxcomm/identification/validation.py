@@ -14,6 +14,7 @@ last part alone is often standstill on real recordings. `score` checks a model o
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,8 +34,10 @@ class Validation:
     joint moved on fewer than `MIN_SCORED_ROWS` rows (not scored: nothing was measured, not 0).
     Standstill rows apart: `standstill_fraction`, `standstill_rms_nm` (NaN without any) and
     `standstill_in_band_fraction`, the share whose measured torque lies within the prediction
-    without Coulomb friction ± the static friction (stiction: anything inside is no model error).
-    `rms_all_nm`: the plain RMS error over every row. `source` says on what."""
+    without Coulomb friction ± the static friction (stiction: anything inside is no model error),
+    NaN where the band (`stiction_band_nm`) is narrower than the joint's torque noise
+    (`band_below_noise`: a row can then be neither inside nor outside it, as on a joint whose friction
+    is all viscous). `rms_all_nm`: the plain RMS error over every row. `source` says on what."""
 
     t: np.ndarray
     measured: np.ndarray
@@ -48,6 +51,8 @@ class Validation:
     standstill_in_band_fraction: np.ndarray
     rms_all_nm: np.ndarray
     moving: np.ndarray
+    stiction_band_nm: np.ndarray
+    band_below_noise: np.ndarray
 
     @property
     def scored(self) -> np.ndarray:
@@ -99,9 +104,15 @@ def joint_scores(
 
 
 def validate(
-    robot: Robot, params: DynamicParameters, data: Processed, source: str, min_speed_rad_s: float = 0.05
+    robot: Robot,
+    params: DynamicParameters,
+    data: Processed,
+    source: str,
+    min_speed_rad_s: float = 0.05,
+    noise_nm: np.ndarray | None = None,
 ) -> Validation:
-    """Predicted against measured torque of processed samples (both seen through the same filter).
+    """Predicted against measured torque of processed samples (both seen through the same filter);
+    `noise_nm`: each joint's torque noise (the fit's), below which a stiction band is not scored.
 
     The headline is the plain prediction error on the rows where the joint moves. A joint slower than
     `min_speed_rad_s` sticks: its friction is static, anywhere within ±Fc, so those rows are scored
@@ -127,12 +138,14 @@ def validate(
     still_rms, in_band = np.full(n, np.nan), np.full(n, np.nan)
     still = ~moving
     band = friction_band_nm(robot, params)
+    below = np.zeros(n, dtype=bool) if noise_nm is None else band < np.asarray(noise_nm, dtype=float)
     rms, nrmse, r2 = joint_scores(data.tau, pred, moving)
     for j in range(n):
         if still[:, j].any():
             s_ = still[:, j]
             still_rms[j] = math.sqrt(float(np.mean(err[s_, j] ** 2)))
-            in_band[j] = float(np.mean(np.abs(data.tau[s_, j] - free[s_, j]) <= band[j]))
+            if not below[j]:
+                in_band[j] = float(np.mean(np.abs(data.tau[s_, j] - free[s_, j]) <= band[j]))
     return Validation(
         t=data.t,
         measured=data.tau,
@@ -146,7 +159,20 @@ def validate(
         standstill_in_band_fraction=in_band,
         rms_all_nm=np.sqrt(np.mean(err**2, axis=0)),
         moving=moving,
+        stiction_band_nm=band,
+        band_below_noise=below,
     )
+
+
+def in_band_labels(fraction: Sequence[float | None], below_noise: Sequence[bool] | None) -> list[str]:
+    """Per joint, the standstill in-band share as written on the console and in the report: 3
+    significant digits; "no standstill" where the joint never stood still, "band < noise" where its
+    static friction is narrower than its torque noise (nothing to score against)."""
+    below = list(below_noise) if below_noise is not None else [False] * len(fraction)
+    return [
+        ("band < noise" if b else "no standstill") if v is None else f"{v:.3g}"
+        for v, b in zip(fraction, below, strict=True)
+    ]
 
 
 def holdout_mask(t: np.ndarray, fraction: float, blocks: int) -> np.ndarray:

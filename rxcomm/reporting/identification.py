@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
+from rxcomm.identification.validation import in_band_labels
 from rxcomm.reporting.document import (
     DEFAULT_TOLERANCE,
     NOT_MEASURED,
@@ -38,6 +39,13 @@ def excitation_section(
         ],
         image,
     )
+
+
+def _in_band(s: DynamicsSummary) -> str:
+    if s.validation_standstill_in_band_fraction is None:
+        return NOT_MEASURED
+    labels = in_band_labels(s.validation_standstill_in_band_fraction, s.validation_stiction_band_below_noise)
+    return "[" + ", ".join(labels) + "]"
 
 
 def _per_joint(
@@ -142,7 +150,7 @@ def dynamics_section(
             Figure("validation R² per joint", _per_joint(s.validation_r2, decimals=4)),
             Figure(
                 "standstill rows inside the stiction band, per joint",
-                _per_joint(s.validation_standstill_in_band_fraction, none="no standstill"),
+                _in_band(s),
             ),
             Figure(
                 "fit RMS error per joint beside the cross-validated held-out RMS (contiguous folds)",

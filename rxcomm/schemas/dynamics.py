@@ -195,7 +195,19 @@ class DynamicsSummary(Strict):
     validation_total_rms_every_row_nm: float | None = None
     validation_standstill_fraction: list[float | None] | None = None
     validation_standstill_rms_nm: list[float | None] | None = None
-    validation_standstill_in_band_fraction: list[float | None] | None = None
+    validation_standstill_in_band_fraction: list[float | None] | None = Field(
+        None,
+        description="per joint, the share of standstill rows inside the stiction band; null: no "
+        "standstill, or the band is narrower than the torque noise (validation_stiction_band_below_noise)",
+    )
+    validation_stiction_band_nm: list[float | None] | None = Field(
+        None, description="per joint, the static friction band ±Fc (joint side) scored against"
+    )
+    validation_stiction_band_below_noise: list[bool] | None = Field(
+        None,
+        description="per joint, the band is narrower than the fit's torque noise (noise_sigma_nm): its "
+        "standstill rows are not scored against it",
+    )
     friction: str | None = None
     cutoff_hz: float | None = None
     rows_per_parameter: float | None = None

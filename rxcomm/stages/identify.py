@@ -259,7 +259,9 @@ def _settings(settings: IdentifySettings | dict | None) -> IdentifySettings:
 
 def validation_rows(val: Validation) -> dict[str, object]:
     """The console lines of a validation (per joint; "not scored" where the joint did not move)."""
-    nan = [None if not np.isfinite(v) else float(v) for v in val.standstill_in_band_fraction]
+    from rxcomm.identification.validation import in_band_labels, nan_list
+
+    in_band = in_band_labels(nan_list(val.standstill_in_band_fraction), val.band_below_noise)
     return {
         "validation": val.source,
         "validation_rms_nm (moving rows)": per_joint(
@@ -275,7 +277,7 @@ def validation_rows(val: Validation) -> dict[str, object]:
             if np.isfinite(val.total_rms_moving_nm)
             else "not scored"
         ),
-        "standstill_in_band_fraction": per_joint(nan, none="no standstill"),
+        "standstill_in_band_fraction": ", ".join(in_band),
     }
 
 
@@ -381,7 +383,9 @@ def score_run(
         params = dynamics_from_artefact(art, robot)
     except InputError as e:
         raise InputError(e.reason, file=dynamics, field=e.field) from e
-    val = score(robot, params, load_joint_log(log, robot), opts)
+    noise = art.summary.noise_sigma_nm  # the model's own fit noise: its stiction band scored against it
+    noise_nm = None if noise is None else np.array([np.nan if v is None else v for v in noise])
+    val = score(robot, params, load_joint_log(log, robot), opts, noise_nm)
     if torques_out is not None:
         console.out.print(f"torques: {write_torques_csv(torques_out, robot.joint_names, val)}")
     if output is not None:
