@@ -272,6 +272,47 @@ def test_a_joint_spring_is_named_with_the_torque_the_model_cannot_explain(tmp_pa
     assert "a2: a spring" not in r.output
 
 
+def test_gravity_compensation_is_left_out_the_arm_has_its_weight(tmp_path, imported):
+    """MuJoCo's `gravcomp` (Menagerie's i2rt YAM lifts links 2–6 with it: a simulation's stand-in for
+    a controller's gravity feed-forward): the import names the bodies, sizes the drives on the arm's
+    weight as without it, and the MuJoCo plant has that weight, mj_inverse = rxcomm's inverse dynamics
+    (on main: no word, and the plant carried only the other bodies' weight; the YAM's links 2–6 were
+    weightless: J3 felt 0 N·m of gravity at a pose where the truth's arm puts 4.3 on it)."""
+    from rxcomm.cell.mujoco_model import build_mujoco_model
+    from rxcomm.cell.truth import load_truth
+
+    text = ARM.read_text()
+    lifted = text.replace('<body name="upper_arm"', '<body name="upper_arm" gravcomp="1"')
+    lifted = lifted.replace('<body name="forearm"', '<body name="forearm" gravcomp="1"')
+    assert lifted.count("gravcomp") == 2
+    model = tmp_path / "lifted.xml"
+    model.write_text(lifted)
+    out = tmp_path / "out"
+    r = CliRunner(env={"COLUMNS": "300"}).invoke(app, ["import-robot", str(model), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "gravcomp on upper_arm, forearm: MuJoCo's gravity compensation" in r.output
+    drives = yaml.safe_load((out / "drives.yaml").read_text())["joints"]
+    plain = yaml.safe_load((imported / "drives.yaml").read_text())["joints"]
+    assert [j["peak_torque_nm"] for j in drives] == [j["peak_torque_nm"] for j in plain]
+    truth_path = out / "truth.yaml"
+    r = CliRunner().invoke(app, ["truth", "--robot", str(out), "--seed", "9", "-o", str(truth_path)])
+    assert r.exit_code == 0, r.output
+    truth = load_truth(truth_path)
+    built = build_mujoco_model(truth, errors=False, compliance=False)
+    assert any(n.startswith("gravcomp on upper_arm, forearm") for n in built.notes)
+    m, d = built.model, mujoco.MjData(built.model)
+    q, qd, qdd = random_states(truth.robot, 20, seed=3)
+    tau_rx = RobotDynamics(truth.robot, truth.params).inverse_dynamics(
+        q, np.zeros_like(qd), np.zeros_like(qdd)
+    )
+    assert np.abs(tau_rx[:, 1]).max() > 10.0  # J2 holds the arm's weight
+    for i in range(len(q)):
+        d.qpos[built.motor_qpos], d.qvel[:], d.qacc[:] = q[i], 0.0, 0.0
+        mujoco.mj_inverse(m, d)
+        tau = d.qfrc_inverse[built.motor_dof] + np.array(truth.params.offset_nm)
+        assert np.abs(tau - tau_rx[i]).max() <= 1e-6 * np.abs(tau_rx).max()
+
+
 RX_URDF = Path(__file__).parent.parent / "samples" / "rx130l" / "rx130l.urdf"
 
 

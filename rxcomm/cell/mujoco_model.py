@@ -37,6 +37,9 @@ No faithful MuJoCo form (the plant says so at start-up, `MujocoPlantModel.notes`
 - MuJoCo's friction is a soft constraint: it slides at exactly F_c but sticks with a creep, not the
   own plant's exact stiction (`FRICTION_SOLREF_CYCLES`, `FRICTION_SOLIMP` make it stiff);
 - a brake is a joint-equality lock to the braked angle (the own plant: friction + 2·peak torque).
+
+Left out: a body's `gravcomp` (MuJoCo's gravity compensation, a simulation's stand-in for a
+controller's): the truth's arm has its weight at its joints, as import-robot sized its drives.
 """
 
 from __future__ import annotations
@@ -51,7 +54,11 @@ import pinocchio as pin
 from rxcomm.cell.truth import SimTruth
 from rxcomm.errors import InputError
 from rxcomm.model.geometric_errors import ErrorModel, placement_to_se3
-from rxcomm.model.mjcf_import import compile_without_absent_meshes
+from rxcomm.model.mjcf_import import (
+    compile_without_absent_meshes,
+    gravity_compensated_bodies,
+    gravity_compensation_note,
+)
 
 COMPLIANCE_DAMPING_RATIO = 0.05  # assumed: the truth gives no transmission damping
 FRICTION_SOLREF_CYCLES = 2.0  # friction constraint time constant, in integration steps (MuJoCo's minimum)
@@ -103,10 +110,11 @@ def model_source(robot_dir: Path, urdf: Path) -> Path:
     return kept[0] if kept else Path(urdf)
 
 
-def _load_spec(source: Path) -> mujoco.MjSpec:
+def _load_spec(source: Path) -> tuple[mujoco.MjSpec, list[str]]:
     """MuJoCo's spec of `source`, static links kept, its actuators, keyframes and sensors dropped,
     every body's placement the compiled one as a quaternion (an MJCF's Euler angles, axis-angles or
-    degrees resolved by MuJoCo's compiler)."""
+    degrees resolved by MuJoCo's compiler), and no body's gravity compensated (the names of those that
+    were: `gravity_compensated_bodies`)."""
     try:
         spec = mujoco.MjSpec.from_file(str(source))
         spec.compiler.fusestatic = False
@@ -119,11 +127,14 @@ def _load_spec(source: Path) -> mujoco.MjSpec:
         raise InputError(f"MuJoCo cannot load it: {e}", file=source) from e
     # as import-robot read it: a model kept without its mesh files loses those geoms (no contacts here)
     compiled, _ = compile_without_absent_meshes(spec, source)
+    compensated = gravity_compensated_bodies(compiled)
+    for body in spec.bodies:  # as import-robot read it: the arm has its weight (gravcomp left out)
+        body.gravcomp = 0.0
     for i, body in enumerate(spec.bodies):  # the spec's body order is the compiled model's
         if i > 0:
             body.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
             body.pos, body.quat = compiled.body_pos[i].copy(), compiled.body_quat[i].copy()
-    return spec
+    return spec, compensated
 
 
 def _set_placement(element, m: pin.SE3) -> None:
@@ -179,7 +190,7 @@ def build_mujoco_model(
     own dynamics). `q0_rad` is where the compliance damping is sized (default all zero)."""
     robot, params = truth.robot, truth.params
     source = model_source(robot.drives_path.parent, robot.urdf_path)
-    spec = _load_spec(source)
+    spec, compensated = _load_spec(source)
     h = robot.drives.cycle_s if timestep_s is None else timestep_s
     spec.option.timestep = h
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
@@ -213,6 +224,8 @@ def build_mujoco_model(
     at = _shift(anchors[bodies.index(flange)]) if flange in bodies else pin.SE3.Identity()
     _set_placement(site, at * placement_to_se3(tcp.xyz_m, tcp.rpy_rad) * pin.exp6(err.twist("tool")))
     notes = [f"model source: {source.name} (MuJoCo's parser)"] if source != robot.urdf_path else []
+    if compensated:
+        notes.append(gravity_compensation_note(compensated))
     notes += ["torque offset τ_0: no MuJoCo element, a constant generalised force on each motor hinge"]
     notes.append("brakes: a joint-equality lock at the braked angle (own plant: friction + 2·peak torque)")
     notes.append(

@@ -14,9 +14,11 @@ whatever MJCF spelling was used, the numbers are MuJoCo's own:
 
 What a MuJoCo model cannot know is written with the stated default of `ASSUMED` and listed in
 `ImportedRobot.assumed` (the stage prints it). What rxcomm's model cannot hold is said in
-`ImportedRobot.notes`: a joint `stiffness` (a spring the MuJoCo plant keeps). Anything but a serial
-chain of six hinges is refused, naming the joint or body that breaks it (exit 2); joints below the
-sixth link (a gripper's) are named as such, to be deleted so the bodies import as a rigid tool.
+`ImportedRobot.notes`: a joint `stiffness` (a spring the MuJoCo plant keeps); a body's `gravcomp`
+(MuJoCo's gravity compensation: left out here and on the MuJoCo plant, the arm has its weight).
+Anything but a serial chain of six hinges is refused, naming the joint or body that breaks it (exit
+2); joints below the sixth link (a gripper's) are named as such, to be deleted so the bodies import
+as a rigid tool.
 """
 
 from __future__ import annotations
@@ -70,9 +72,31 @@ def compile_model(path: Path) -> tuple[mujoco.MjModel, list[str]]:
     except ValueError as e:
         raise InputError(f"MuJoCo cannot read it: {e}", file=path) from e
     model, dropped = compile_without_absent_meshes(spec, path)
-    return model, [
-        "mesh files absent: their geoms dropped; inertias from the bodies' <inertial>"
-    ] if dropped else []
+    notes = (
+        ["mesh files absent: their geoms dropped; inertias from the bodies' <inertial>"] if dropped else []
+    )
+    if compensated := gravity_compensated_bodies(model):
+        notes.append(gravity_compensation_note(compensated))
+        model.body_gravcomp[:] = 0.0  # the holding torques below are the arm's own weight
+    return model, notes
+
+
+def gravity_compensated_bodies(model: mujoco.MjModel) -> list[str]:
+    """The bodies MuJoCo's `gravcomp` lifts (a simulation's stand-in for a controller's gravity
+    feed-forward: with it the arm has no weight at its joints)."""
+    return [
+        _name(model, mujoco.mjtObj.mjOBJ_BODY, b, "body")
+        for b in range(model.nbody)
+        if model.body_gravcomp[b] != 0.0
+    ]
+
+
+def gravity_compensation_note(bodies: list[str]) -> str:
+    return (
+        f"gravcomp on {', '.join(bodies)}: MuJoCo's gravity compensation, a simulation's stand-in for a "
+        "controller's, left out: the arm has its weight at its joints (in the holding torques here and "
+        "on the MuJoCo plant) and rxcomm's feed-forward holds it"
+    )
 
 
 def compile_without_absent_meshes(spec: mujoco.MjSpec, path: Path) -> tuple[mujoco.MjModel, bool]:
