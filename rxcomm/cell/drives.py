@@ -30,7 +30,9 @@ saturated in the error's direction and is clamped to ±τ_peak. The position dem
 joint's software limits (the URDF's), as CiA 402 drives do (0x607D): a master pushing beyond them sees
 the following error grow until the trip. A disabled axis keeps its integrator (the drive's
 holding-torque memory) and preloads it when re-enabled, so releasing the brake does not let the arm
-sag; at the first enable after power-on it is zero and the integrators build the holding torque.
+sag; at the first enable after power-on it is zero and the integrators build the holding torque
+(a run without feed-forward on a cell it started hands them the model's static torque first,
+`rxcomm.execution.handover`: a light wrist otherwise sags past the trip window).
 
 Defaults and why: ω_v = 60 rad/s, K_v = 15 /s, T_i = 67 ms, T_f = 0.5 ms. Measured on the RX130L
 sample: without feed-forward a J1–J3 move at 70 % of the velocity limits lags ≈ 1.4/1.9/1.8 mrad

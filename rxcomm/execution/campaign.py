@@ -21,6 +21,7 @@ from pydantic import Field
 from rxcomm.errors import GatewayError, InputError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
 from rxcomm.execution.guards import raise_if_terminated
+from rxcomm.execution.handover import hand_over
 from rxcomm.execution.plan import StreamPlan, prepare_plan
 from rxcomm.execution.records import RunResult, timing_figures
 from rxcomm.execution.session import Session, StreamSettings, StreamStopped, interrupt_reason
@@ -35,6 +36,9 @@ from rxcomm.schemas.strict import Strict
 
 class CampaignSettings(Strict):
     feedforward: bool = True
+    handover: bool = Field(
+        False, description="without feed-forward, the static torque to the drives first (RunSettings)"
+    )
     speed_fraction: float = Field(0.2, gt=0, le=1, description="of velocity and acceleration limits")
     settle_s: float = Field(0.5, ge=0, description="demand held at each pose before reading the tracker, s")
     tracker_attempts: int = Field(20, ge=1, description="tracker reads per pose before giving up")
@@ -148,6 +152,8 @@ def run_campaign(
         held = ses.demand()
         if np.max(np.abs(held - q_now)) > 1e-3:
             raise SafetyStop(f"the robot moved while enabling: {np.round(held - q_now, 5).tolist()} rad")
+        if settings.handover and not settings.feedforward:  # the arm's weight to the integrators first
+            hand_over(ses, robot, params, held)
         for i, move in enumerate(moves):
             if progress is not None:
                 progress("poses", i / len(moves))

@@ -99,6 +99,11 @@ class RunSettings(Strict):
 
     feedforward: bool = Field(True, description="stream τ_ff of the model; False: zeros")
     approach: bool = Field(False, description="move to the plan's start first (jerk-limited)")
+    handover: bool = Field(
+        False,
+        description="without feed-forward, first hand the model's static torque over to the drives' "
+        "integrators (drives just powered on: the simulated cell `run` starts; rxcomm.execution.handover)",
+    )
     approach_speed_fraction: float = Field(0.2, gt=0, le=1, description="of velocity and acceleration limits")
     start_tolerance_rad: float = Field(1e-3, gt=0, description="per joint: 'at the start' within this")
     limit_tolerance: float = Field(

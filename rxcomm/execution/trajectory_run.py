@@ -15,6 +15,7 @@ import numpy as np
 
 from rxcomm.errors import GatewayError, LocatedError, RxcommError, SafetyStop
 from rxcomm.execution.approach import move_trajectory
+from rxcomm.execution.handover import hand_over
 from rxcomm.execution.log import RunLogWriter
 from rxcomm.execution.plan import StreamPlan, distance_to_start, prepare_plan
 from rxcomm.execution.records import RecordSink, RunResult
@@ -105,6 +106,8 @@ def run_trajectory(
         start = approach.q[0] if approach is not None else plan.q[0]
         if np.max(np.abs(held - start)) > settings.start_tolerance_rad:
             raise SafetyStop(f"the robot moved while enabling: {np.round(held - start, 5).tolist()} rad")
+        if settings.handover and not settings.feedforward:  # the arm's weight to the integrators first
+            hand_over(ses, robot, params, held)
         if approach is not None:
             result.approach = ses.stream(approach, _named(progress, "approach"))
         stage = "plan"

@@ -45,6 +45,11 @@ class RunRecord(Strict):
         None, description="the model of τ_ff and the torque checks: --dynamics (identified) or the prior"
     )
     embedded_cell: bool | None = Field(None, description="a simulated cell started by `run` itself")
+    handover: bool | None = Field(
+        None,
+        description="without feed-forward, the model's static torque was first handed over to the "
+        "drives' integrators (drives just powered on)",
+    )
     plant: str | None = Field(
         None, description="the embedded cell's plant (own, mujoco); None: a gateway, or not recorded"
     )
