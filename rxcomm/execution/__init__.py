@@ -3,6 +3,7 @@
 - ``plan``: resample a trajectory on the drive-cycle grid, feed-forward torque, dense limit check;
 - ``approach``: jerk-limited moves (to a plan's start, between campaign poses);
 - ``session``: gateway checks, interpolation ratio, enable, stream + record, stop;
+- ``handover``: without feed-forward on drives just powered on, the static torque to their integrators;
 - ``records``: what a stream records (``StreamLog``, ``RunResult``) and the hand-over to a record sink
   that keeps the master's memory bounded;
 - ``trajectory_run``: a trajectory run (approach, stream into the log writer, tracker channel);
