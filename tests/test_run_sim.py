@@ -82,6 +82,10 @@ def test_feedforward_from_the_true_model_cuts_joint_lag_3x(tmp_path, rx130l, tru
     assert lag_off.max() >= 3.0 * lag_on.max(), (lag_off, lag_on)
     assert off["max_tcp_error_m"] >= 3.0 * on["max_tcp_error_m"]  # Fig. 2(b): the TCP error
     assert off["max_tcp_error_m"] > 1e-3  # without feed-forward the TCP lags by millimetres
+    # the cell run started was just powered on: without feed-forward its drives got the static torque
+    # first (rxcomm.execution.handover, tests/test_handover.py); with it, the plan's torque holds
+    settings = {k: yaml.safe_load((tmp_path / f"{k}.yaml").read_text())["settings"] for k in ("on", "off")}
+    assert settings["off"]["handover"] is True and settings["on"]["handover"] is False
     assert on["underruns"] == off["underruns"] == "not applicable (virtual time)"
     assert (tmp_path / "on.png").stat().st_size > 10_000
 

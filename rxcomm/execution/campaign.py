@@ -152,7 +152,7 @@ def run_campaign(
         held = ses.demand()
         if np.max(np.abs(held - q_now)) > 1e-3:
             raise SafetyStop(f"the robot moved while enabling: {np.round(held - q_now, 5).tolist()} rad")
-        if settings.handover and not settings.feedforward:  # the arm's weight to the integrators first
+        if settings.handover:  # the arm's weight to the drives' integrators first
             hand_over(ses, robot, params, held)
         for i, move in enumerate(moves):
             if progress is not None:

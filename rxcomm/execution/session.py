@@ -101,8 +101,8 @@ class RunSettings(Strict):
     approach: bool = Field(False, description="move to the plan's start first (jerk-limited)")
     handover: bool = Field(
         False,
-        description="without feed-forward, first hand the model's static torque over to the drives' "
-        "integrators (drives just powered on: the simulated cell `run` starts; rxcomm.execution.handover)",
+        description="first hand the model's static torque over to the drives' integrators: a run without "
+        "feed-forward on drives just powered on (the simulated cell `run` starts; rxcomm.execution.handover)",
     )
     approach_speed_fraction: float = Field(0.2, gt=0, le=1, description="of velocity and acceleration limits")
     start_tolerance_rad: float = Field(1e-3, gt=0, description="per joint: 'at the start' within this")

@@ -106,7 +106,7 @@ def run_trajectory(
         start = approach.q[0] if approach is not None else plan.q[0]
         if np.max(np.abs(held - start)) > settings.start_tolerance_rad:
             raise SafetyStop(f"the robot moved while enabling: {np.round(held - start, 5).tolist()} rad")
-        if settings.handover and not settings.feedforward:  # the arm's weight to the integrators first
+        if settings.handover:  # the arm's weight to the drives' integrators first
             hand_over(ses, robot, params, held)
         if approach is not None:
             result.approach = ses.stream(approach, _named(progress, "approach"))

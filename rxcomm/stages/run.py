@@ -285,7 +285,7 @@ def execute(
             settings = RunSettings(
                 feedforward=feedforward,
                 approach=approach,
-                handover=gateway is None,  # the cell run starts is just powered on
+                handover=gateway is None and not feedforward,  # run's own cell: just powered on
                 approach_speed_fraction=speed,
                 fault_reset=fault_reset,
                 trip_is_result=trip_is_result,
@@ -293,7 +293,7 @@ def execute(
             )
             return _trajectory(job, settings, realtime, stop_bar, compare if plot else None, plot)
         settings_c = CampaignSettings(
-            feedforward=feedforward, handover=gateway is None, speed_fraction=speed,
+            feedforward=feedforward, handover=gateway is None and not feedforward, speed_fraction=speed,
             fault_reset=fault_reset, stream=stream,
         )  # fmt: skip
         return _campaign(job, cfg, settings_c, stop_bar)
