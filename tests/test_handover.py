@@ -2,8 +2,8 @@
 over to the drives' integrators (rxcomm.execution.handover): the arm does not sag when the plan starts.
 
 On drives whose integrators start empty the arm sags until they build its holding torque; MuJoCo
-Menagerie's i2rt YAM (a light wrist, J4 ≈ 1.1 N·m on ≈ 3e-3 kg·m²) reached the 35 mrad following-error
-window in 70 ms and tripped every run without feed-forward. Shown here on the hand-made arm, whose J2
+Menagerie's i2rt YAM (J4: 1.1 N·m on 0.016 kg·m² at q = 0) reached the 35 mrad following-error window
+in 70 ms and tripped every run without feed-forward. Shown here on the hand-made arm, whose J2
 sags 8 mrad from power-on without it."""
 
 from __future__ import annotations

@@ -2,15 +2,16 @@
 
 At the first enable after power-on a drive's integrator is empty (`rxcomm.cell.drives`): without a
 feed-forward the arm sags until the loops build its holding torque. On an arm whose static torque is
-large against its inertia that sag trips the drive: MuJoCo Menagerie's i2rt YAM (J4 ≈ 1.1 N·m on
-≈ 3e-3 kg·m²) reached the 35 mrad following-error window 70 ms after the enable, in every run without
-feed-forward, before its approach had moved. So a run or campaign without feed-forward on drives
-just powered on (the simulated cell `run` starts is) first stands still for `HANDOVER_S` with the
-model's static torque as feed-forward, ramped to zero: the integrators take it over, and the plan
-starts on an arm standing under its own loops, as a controller's that has been holding it does. A
-gateway's drives may hold already (a drive re-enabled keeps its integrator: its holding-torque
-memory, and the torque actual reads 0 until a cycle has run): adding the static torque there would
-kick the arm by it, so they get no hand-over. With the feed-forward on, the plan's own torque holds.
+large against its inertia (the loops' gains scale with it) that sag trips the drive: MuJoCo
+Menagerie's i2rt YAM (J4: 1.1 N·m on 0.016 kg·m² at q = 0) reached the 35 mrad following-error window
+70 ms after the enable, in every run without feed-forward, before its approach had moved. So a run or
+campaign without feed-forward on drives just powered on (the simulated cell `run` starts is) first
+stands still for `HANDOVER_S` with the model's static torque as feed-forward, ramped to zero: the
+integrators take it over, and the plan starts on an arm standing under its own loops, as a
+controller's that has been holding it does. A gateway's drives may hold already (a drive re-enabled
+keeps its integrator: its holding-torque memory, and the torque actual reads 0 until a cycle has run):
+adding the static torque there would kick the arm by it, so they get no hand-over. With the
+feed-forward on, the plan's own torque holds.
 """
 
 from __future__ import annotations
