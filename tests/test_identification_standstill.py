@@ -17,10 +17,10 @@ from rxcomm.identification.excitation_problem import ExcitationProblem
 from rxcomm.identification.fit import identify, score
 from rxcomm.identification.logs import JointLog
 from rxcomm.identification.settings import IdentifySettings
-from rxcomm.identification.validation import in_band_labels
 from rxcomm.io.yaml_io import read_yaml_artefact, read_yaml_model
 from rxcomm.model.base_parameters import base_parameters
 from rxcomm.model.dynamics import RobotDynamics, prior_parameters, truth_parameters
+from rxcomm.reporting.identification import in_band_labels
 from rxcomm.schemas.cell import Cell
 from rxcomm.schemas.dynamics import Dynamics
 from rxcomm.schemas.excitation import ExcitationSettings

@@ -14,7 +14,6 @@ last part alone is often standstill on real recordings. `score` checks a model o
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -162,17 +161,6 @@ def validate(
         stiction_band_nm=band,
         band_below_noise=below,
     )
-
-
-def in_band_labels(fraction: Sequence[float | None], below_noise: Sequence[bool] | None) -> list[str]:
-    """Per joint, the standstill in-band share as written on the console and in the report: 3
-    significant digits; "no standstill" where the joint never stood still, "band < noise" where its
-    static friction is narrower than its torque noise (nothing to score against)."""
-    below = list(below_noise) if below_noise is not None else [False] * len(fraction)
-    return [
-        ("band < noise" if b else "no standstill") if v is None else f"{v:.3g}"
-        for v, b in zip(fraction, below, strict=True)
-    ]
 
 
 def holdout_mask(t: np.ndarray, fraction: float, blocks: int) -> np.ndarray:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from rxcomm.identification.validation import in_band_labels
 from rxcomm.reporting.document import (
     DEFAULT_TOLERANCE,
     NOT_MEASURED,
@@ -39,6 +38,17 @@ def excitation_section(
         ],
         image,
     )
+
+
+def in_band_labels(fraction: Sequence[float | None], below_noise: Sequence[bool] | None) -> list[str]:
+    """Per joint, the standstill in-band share as written on the console and in the report: 3
+    significant digits; "no standstill" where the joint never stood still, "band < noise" where its
+    static friction is narrower than its torque noise (nothing to score against)."""
+    below = list(below_noise) if below_noise is not None else [False] * len(fraction)
+    return [
+        ("band < noise" if b else "no standstill") if v is None else f"{v:.3g}"
+        for v, b in zip(fraction, below, strict=True)
+    ]
 
 
 def _in_band(s: DynamicsSummary) -> str:

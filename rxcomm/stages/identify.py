@@ -259,7 +259,8 @@ def _settings(settings: IdentifySettings | dict | None) -> IdentifySettings:
 
 def validation_rows(val: Validation) -> dict[str, object]:
     """The console lines of a validation (per joint; "not scored" where the joint did not move)."""
-    from rxcomm.identification.validation import in_band_labels, nan_list
+    from rxcomm.identification.validation import nan_list
+    from rxcomm.reporting.identification import in_band_labels
 
     in_band = in_band_labels(nan_list(val.standstill_in_band_fraction), val.band_below_noise)
     return {
