@@ -11,7 +11,9 @@ integrators take it over, and the plan starts on an arm standing under its own l
 controller's that has been holding it does. A gateway's drives may hold already (a drive re-enabled
 keeps its integrator: its holding-torque memory, and the torque actual reads 0 until a cycle has run):
 adding the static torque there would kick the arm by it, so they get no hand-over. With the
-feed-forward on, the plan's own torque holds.
+feed-forward on, the plan's own torque holds. On a realtime cell the drives run from the enable on,
+and the hand-over begins only once its stream's prefill is written (tens of ms, not measured): the
+sag before it is not prevented there.
 """
 
 from __future__ import annotations
