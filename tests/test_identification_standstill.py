@@ -89,7 +89,7 @@ def test_every_row_error_is_the_moving_row_error_and_in_band_is_reported(rx130l,
 def test_a_joint_without_static_friction_is_not_scored_against_its_band(rx130l):
     """J1 and J4 with viscous friction only: their identified band (Fc ≈ 0 ± its σ) is narrower than
     the torque noise (0.078 against 0.27 N·m on J1), so their standstill rows are "band < noise", not
-    a share inside it (on main 0.28 and 0.30: noise against a band fitted to noise, read as a model
+    a share inside it (on c934362 0.25 and 0.20: noise against a band fitted to noise, read as a model
     that misses most standstill rows; the Doosan M1013, all six joints viscous, printed 0 on four
     and 0.08–0.10 on two); the other joints still scored (> 0.9)."""
     log, _ = _standstill_log(rx130l, viscous_only=(0, 3))
