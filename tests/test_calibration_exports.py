@@ -105,8 +105,10 @@ def test_mdh_export_reproduces_the_calibrated_fk_to_the_residual_it_states(calib
     got = _errors_vs(robot, errors, art.mdh, fresh)
     assert got[0] <= 1.2 * stated[0] and got[1] <= 1.2 * stated[1]
     assert got[0] > 0.3 * stated[0]  # the stated figure is the loss, not a bound far above it
-    # With Hayati's β on J3 the calibrated kinematics are exact again.
-    assert art.mdh_beta.max_position_residual_m < 1e-9
+    # With Hayati's β on J3 the calibrated kinematics are exact again, and the export says 0, not
+    # the fit's round-off (it wrote 7.55e-13 mm into the report before).
+    assert art.mdh_beta.max_position_residual_m == 0.0 == art.nominal.max_position_residual_m
+    assert art.mdh_beta.max_orientation_residual_rad == 0.0 == art.nominal.max_orientation_residual_rad
     assert _errors_vs(robot, errors, art.mdh_beta, fresh)[0] < 1e-9
     assert art.mdh_beta.joints[2].beta_rad != 0 and all(j.beta_rad == 0 for j in art.mdh.joints)
 
@@ -119,7 +121,7 @@ def test_zero_offsets_are_the_encoder_offsets_of_an_offsets_only_calibration():
     for name, value in offsets.items():
         assert got[name.split(".")[0]] == pytest.approx(value, abs=1e-9)
     # Offsets keep J2 ∥ J3: plain MDH is exact.
-    assert art.mdh.max_position_residual_m < 1e-9
+    assert art.mdh.max_position_residual_m == 0.0
 
 
 def test_yaml_and_csv_round_trip(tmp_path, calibrated):

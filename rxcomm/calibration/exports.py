@@ -38,8 +38,8 @@ def _placement(m: pin.SE3) -> Placement:
     return Placement(xyz_m=tuple(xyz), rpy_rad=tuple(rpy))
 
 
-def _form(robot: Robot, target: Robot, mdh: Mdh, check: np.ndarray) -> MdhForm:
-    dp, do = residual(target, mdh, check)
+def _form(robot: Robot, target: Robot, mdh: Mdh, check: np.ndarray, length_m: float) -> MdhForm:
+    dp, do = residual(target, mdh, check, length_m)
     joints = [
         MdhJoint(joint=name, **{f: float(getattr(r, f)) for f in FIELDS})
         for name, r in zip(robot.joint_names, mdh.rows, strict=True)
@@ -88,8 +88,8 @@ def kinematics_artefact(
     nominal = mdh_from_robot(robot)
     plain = fit_mdh(robot, calibrated, fit_q, length, beta=False)
     hayati = fit_mdh(robot, calibrated, fit_q, length, beta=True)
-    forms = {k: _form(robot, calibrated, m, check_q) for k, m in (("mdh", plain), ("beta", hayati))}
-    nominal_form = _form(robot, robot, nominal, check_q)
+    forms = {k: _form(robot, calibrated, m, check_q, length) for k, m in (("mdh", plain), ("beta", hayati))}
+    nominal_form = _form(robot, robot, nominal, check_q, length)
     names = robot.joint_names
     pairs = [(names[i], names[j]) for i, j in nominal.parallel]
     notes = []

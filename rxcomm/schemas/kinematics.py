@@ -34,8 +34,12 @@ class MdhForm(Strict):
     base: Placement = Field(description="robot base frame → MDH frame 0")
     joints: list[MdhJoint]
     tool: Placement = Field(description="MDH frame n → TCP")
-    max_position_residual_m: float = Field(description="max TCP position error vs the calibrated FK")
-    max_orientation_residual_rad: float = Field(description="max TCP orientation error vs the calibrated FK")
+    max_position_residual_m: float = Field(
+        description="max TCP position error vs the calibrated FK (0: exact, within round-off)"
+    )
+    max_orientation_residual_rad: float = Field(
+        description="max TCP orientation error vs the calibrated FK (0: exact, within round-off)"
+    )
 
 
 class ZeroOffset(Strict):
