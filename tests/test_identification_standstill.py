@@ -103,6 +103,13 @@ def test_a_joint_without_static_friction_is_not_scored_against_its_band(rx130l):
     assert summary["validation_stiction_band_below_noise"] == list(val.band_below_noise)
     labels = in_band_labels(summary["validation_standstill_in_band_fraction"], val.band_below_noise)
     assert labels[0] == labels[3] == "band < noise" and float(labels[1]) > 0.9
+    # with the counts the share reads as rows ("k of n"): a share of 4 rows is not one of 40
+    rows = summary["validation_standstill_rows"]
+    assert rows == [int(k) for k in (~val.moving).sum(axis=0)] and min(rows) >= 40
+    counted = in_band_labels(summary["validation_standstill_in_band_fraction"], val.band_below_noise, rows)
+    inside, _, total = counted[1].partition(" of ")
+    assert int(total) == rows[1]
+    assert int(inside) / rows[1] == pytest.approx(val.standstill_in_band_fraction[1])
     # without the noise (a model scored with none recorded) the band is scored as it is
     bare = score(rx130l, res.params, log, IdentifySettings(friction="joint", cutoff_hz=res.cutoff_hz))
     assert not bare.band_below_noise.any() and bare.standstill_in_band_fraction[0] < 0.5
@@ -150,7 +157,7 @@ def test_scoring_a_model_writes_it_with_the_new_figures(tmp_path, rx130l, stands
     base = ["identify", "--robot", str(SAMPLES / "rx130l"), "--friction", "joint"]
     r = CliRunner().invoke(app, [*base, "--log", str(path), "-o", str(model)])
     assert r.exit_code == 0, r.output
-    assert "every row" in r.output and "standstill_in_band" in r.output
+    assert "every row" in r.output and "standstill rows in the stiction band" in r.output
     art = read_yaml_artefact(model, Dynamics)
     assert art.summary.cutoff_choice.startswith("auto")
     score = ["score", "--robot", str(SAMPLES / "rx130l"), "--dynamics", str(model), "--log", str(path)]

@@ -165,6 +165,13 @@ def test_dynamics_section_says_not_scored_for_a_joint_that_did_not_move():
     }
     text = render_sections("t", "p", [dynamics_section(_p(DynamicsSummary, viscous), None)])
     assert "| [band < noise, no standstill, no standstill, band < noise, 0.95, no standstill] |" in text
+    # with the rows counted (dynamics.yaml from now on) the share is said as rows: 2 of 4 is thin
+    counted = viscous | {
+        "validation_standstill_in_band_fraction": [None, None, None, None, 0.5, None],
+        "validation_standstill_rows": [3, 0, 0, 250, 4, 0],
+    }
+    text = render_sections("t", "p", [dynamics_section(_p(DynamicsSummary, counted), None)])
+    assert "| [band < noise, no standstill, no standstill, band < noise, 2 of 4, no standstill] |" in text
     regrouped = dynamics_section(_p(DynamicsSummary, s | {"kinematics_regrouped": "j1.mcy"}), None)
     assert (
         "this log could not (their effect sits in J1's friction offset"

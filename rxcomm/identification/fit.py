@@ -214,6 +214,7 @@ def validation_summary(val: Validation, joint_names: tuple[str, ...] | list[str]
         "validation_total_rms_moving_nm": finite(val.total_rms_moving_nm),
         "validation_total_rms_every_row_nm": finite(val.total_rms_every_row_nm),
         "validation_standstill_fraction": val.standstill_fraction.tolist(),
+        "validation_standstill_rows": [int(k) for k in val.standstill_rows],
         "validation_standstill_rms_nm": nan_list(val.standstill_rms_nm),
         "validation_standstill_in_band_fraction": nan_list(val.standstill_in_band_fraction),
         "validation_stiction_band_nm": val.stiction_band_nm.tolist(),

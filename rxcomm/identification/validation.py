@@ -32,7 +32,8 @@ class Validation:
     `nrmse` (RMS error / (max − min) of the measured torque on those rows) and `r2`; NaN where the
     joint moved on fewer than `MIN_SCORED_ROWS` rows (not scored: nothing was measured, not 0).
     Standstill rows apart: `standstill_fraction`, `standstill_rms_nm` (NaN without any) and
-    `standstill_in_band_fraction`, the share whose measured torque lies within the prediction
+    `standstill_rows` (how many) and `standstill_in_band_fraction`, the share whose measured torque
+    lies within the prediction
     without Coulomb friction ± the static friction (stiction: anything inside is no model error),
     NaN where the band (`stiction_band_nm`) is narrower than the joint's torque noise
     (`band_below_noise`: a row can then be neither inside nor outside it, as on a joint whose friction
@@ -46,6 +47,7 @@ class Validation:
     r2: np.ndarray
     source: str
     standstill_fraction: np.ndarray
+    standstill_rows: np.ndarray
     standstill_rms_nm: np.ndarray
     standstill_in_band_fraction: np.ndarray
     rms_all_nm: np.ndarray
@@ -154,6 +156,7 @@ def validate(
         r2=r2,
         source=source,
         standstill_fraction=still.mean(axis=0),
+        standstill_rows=still.sum(axis=0),
         standstill_rms_nm=still_rms,
         standstill_in_band_fraction=in_band,
         rms_all_nm=np.sqrt(np.mean(err**2, axis=0)),

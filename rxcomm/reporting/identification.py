@@ -40,21 +40,34 @@ def excitation_section(
     )
 
 
-def in_band_labels(fraction: Sequence[float | None], below_noise: Sequence[bool] | None) -> list[str]:
-    """Per joint, the standstill in-band share as written on the console and in the report: 3
-    significant digits; "no standstill" where the joint never stood still, "band < noise" where its
-    static friction is narrower than its torque noise (nothing to score against)."""
+def in_band_labels(
+    fraction: Sequence[float | None],
+    below_noise: Sequence[bool] | None,
+    rows: Sequence[int] | None = None,
+) -> list[str]:
+    """Per joint, the standstill in-band share as written on the console and in the report: "k of n"
+    rows where the counts are known (a share of 2 rows is not one of 2000), else 3 significant
+    digits; "no standstill" where the joint never stood still, "band < noise" where its static
+    friction is narrower than its torque noise (nothing to score against)."""
     below = list(below_noise) if below_noise is not None else [False] * len(fraction)
-    return [
-        ("band < noise" if b else "no standstill") if v is None else f"{v:.3g}"
-        for v, b in zip(fraction, below, strict=True)
-    ]
+    counts = list(rows) if rows is not None else [None] * len(fraction)
+
+    def label(v: float | None, b: bool, n: int | None) -> str:
+        if v is None:
+            return "band < noise" if b else "no standstill"
+        return f"{v:.3g}" if n is None else f"{round(v * n)} of {n}"
+
+    return [label(v, b, n) for v, b, n in zip(fraction, below, counts, strict=True)]
 
 
 def _in_band(s: DynamicsSummary) -> str:
     if s.validation_standstill_in_band_fraction is None:
         return NOT_MEASURED
-    labels = in_band_labels(s.validation_standstill_in_band_fraction, s.validation_stiction_band_below_noise)
+    labels = in_band_labels(
+        s.validation_standstill_in_band_fraction,
+        s.validation_stiction_band_below_noise,
+        s.validation_standstill_rows,
+    )
     return "[" + ", ".join(labels) + "]"
 
 

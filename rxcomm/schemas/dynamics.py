@@ -194,6 +194,9 @@ class DynamicsSummary(Strict):
     validation_total_rms_moving_nm: float | None = None
     validation_total_rms_every_row_nm: float | None = None
     validation_standstill_fraction: list[float | None] | None = None
+    validation_standstill_rows: list[int] | None = Field(
+        None, description="per joint, how many validation rows it stood still on (the in-band share's base)"
+    )
     validation_standstill_rms_nm: list[float | None] | None = None
     validation_standstill_in_band_fraction: list[float | None] | None = Field(
         None,

@@ -262,7 +262,9 @@ def validation_rows(val: Validation) -> dict[str, object]:
     from rxcomm.identification.validation import nan_list
     from rxcomm.reporting.identification import in_band_labels
 
-    in_band = in_band_labels(nan_list(val.standstill_in_band_fraction), val.band_below_noise)
+    in_band = in_band_labels(
+        nan_list(val.standstill_in_band_fraction), val.band_below_noise, val.standstill_rows.tolist()
+    )
     return {
         "validation": val.source,
         "validation_rms_nm (moving rows)": per_joint(
@@ -278,7 +280,7 @@ def validation_rows(val: Validation) -> dict[str, object]:
             if np.isfinite(val.total_rms_moving_nm)
             else "not scored"
         ),
-        "standstill_in_band_fraction": ", ".join(in_band),
+        "standstill rows in the stiction band": ", ".join(in_band),
     }
 
 
