@@ -12,6 +12,7 @@ from rxcomm.model.base_parameters import (
     dynamics_artefact_fields,
     load_dynamics,
     parameters_from_base,
+    regrouping,
 )
 from rxcomm.model.dynamics import (
     COULOMB_EPS_NLP_RAD_S,
@@ -246,6 +247,24 @@ def test_a_frame_tilted_by_rounding_keeps_the_base_set(rx130l, bset_rx, tmp_path
     assert tilted.r_min_kept > 1e-2
     loose = base_parameters(load_robot(robot_dir), rank_tolerance=1e-8)  # the 2.6e-4 direction kept
     assert loose.n_base == bset_rx.n_base + 1 and loose.r_min_kept < 1e-3
+    # regrouped on link 2's inertia about its axis, not spread over every kept column by the least
+    # squares (986b64d: on all of them, friction and offsets included)
+    rotor = tilted.full_names.index("joint_2.rotor_inertia")
+    holders = [tilted.names[i] for i in np.flatnonzero(tilted.K[:, rotor])]
+    assert 1 <= len(holders) <= 3 and all(h.startswith("joint_2.I") for h in holders), holders
+
+
+def test_an_inexact_column_is_regrouped_on_few_columns_an_exact_one_as_it_is():
+    """`regrouping`: a column 1e-3 away from 2·w0 is regrouped on w0 alone (the least squares over
+    random rows puts a little of it on every column); an exact combination keeps its coefficients."""
+    rng = np.random.default_rng(0)
+    kept = rng.standard_normal((400, 8))
+    near = 2.0 * kept[:, 0] + 1e-3 * np.linalg.norm(kept[:, 0]) * rng.standard_normal(400) / 20.0
+    exact = 2.0 * kept[:, 0] - 0.5 * kept[:, 3]
+    kappa = regrouping(kept, np.c_[near, exact])
+    assert np.count_nonzero(np.linalg.lstsq(kept, near, rcond=None)[0]) == 8  # what it replaces
+    assert np.flatnonzero(kappa[:, 0]).tolist() == [0] and kappa[0, 0] == pytest.approx(2.0, rel=1e-3)
+    np.testing.assert_allclose(kappa[:, 1], [2.0, 0, 0, -0.5, 0, 0, 0, 0], atol=1e-12)
 
 
 def test_base_parameters_reproduce_torques(robot):

@@ -38,7 +38,7 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.errors import InputError
-from rxcomm.model.base_parameters import BaseParameterSet
+from rxcomm.model.base_parameters import BaseParameterSet, regrouping
 from rxcomm.model.dynamics import DynamicParameters, joint_torque_regressor, random_states
 from rxcomm.model.robot import Robot
 
@@ -130,7 +130,7 @@ def base_set_on(
     extra = [nominal.full_names.index(k) for k in keep]
     kept = np.unique(np.concatenate([nominal.independent, tilted, extra]).astype(int))
     dropped = np.setdiff1d(np.arange(w.shape[1]), kept)
-    kappa = np.linalg.lstsq(w[:, kept], w[:, dropped], rcond=None)[0]
+    kappa = regrouping(w[:, kept], w[:, dropped])  # sparse where a tilt separates a column
     norms = np.linalg.norm(w, axis=0)
     contrib = np.abs(kappa) * norms[kept][:, None] / np.maximum(norms[dropped], 1e-300)[None, :]
     kappa[contrib < _COEFF_CLEAN] = 0.0
