@@ -99,6 +99,8 @@ def test_a_joint_without_static_friction_is_not_scored_against_its_band(rx130l):
     assert np.isnan(val.standstill_in_band_fraction[[0, 3]]).all()
     assert np.all(val.standstill_in_band_fraction[[1, 2, 4, 5]] > 0.9)
     assert abs(val.total_rms_every_row_nm / val.total_rms_moving_nm - 1.0) < 0.2
+    # the consistent fit drives J4's Coulomb to its bound: 0, not trf's 3.6e-11 inside it (4023f19)
+    assert res.physical_fit.params.coulomb_nm[3] == 0.0
     summary = res.summary()
     assert summary["validation_stiction_band_below_noise"] == list(val.band_below_noise)
     labels = in_band_labels(summary["validation_standstill_in_band_fraction"], val.band_below_noise)

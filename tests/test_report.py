@@ -2,6 +2,7 @@
 paper's figures beside ours, and says "not measured" for what the build lacks."""
 
 import base64
+import math
 import re
 from pathlib import Path
 
@@ -301,6 +302,10 @@ def test_parameter_tables_carry_sigma_in_stated_units():
     )
     assert dyn.rows[0] == ["joint_2.mcx_R", "-2 ± 0.02", "kg·m", "1 %"]
     assert dyn.rows[1] == ["joint_1.Izz_R", "4 (σ not measured)", "kg·m²", "not measured"]
+    # a parameter at its bound of 0 keeps its σ (stored apart: |0| · relative σ cannot carry it)
+    at_bound = {"name": "joint_4.fc", "independent": "joint_4.fc", "value": 0.0, "relative_std": math.inf}
+    row = dynamics_parameter_table([at_bound | {"std": 0.023}]).rows[0]
+    assert row == ["joint_4.fc", "0 ± 0.023", "N·m", "none (value 0)"]
     drive = [("joint_3.rotor_inertia", "kg·m²"), ("joint_1.offset", "N·m"), ("spring.kL0", "N")]
     rows = dynamics_parameter_table(
         [{"name": n, "independent": n, "value": 1.0, "relative_std": 0.01} for n, _ in drive]

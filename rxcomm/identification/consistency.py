@@ -116,6 +116,10 @@ def link_min_eigenvalues(params: DynamicParameters) -> np.ndarray:
 
 # Relative round-off of a least-squares solution (≈ 1e4 · machine ε): below it a value is zero.
 ROUND_OFF = 1e-9
+# trf keeps its iterates strictly inside the bounds, so a drive parameter the fit drives to its bound
+# of 0 ends a little above it (1e-38 N·m·s/rad on the WidowX 250's viscous friction, 5e-10 N·m on the
+# M1013's Coulomb): within this fraction of its typical magnitude it is at the bound, written as 0.
+AT_BOUND = 1e-6
 
 
 def drive_violations(params: DynamicParameters) -> list[str]:
@@ -175,7 +179,8 @@ def physical_fit(
     onto positive-definite pseudo-inertias (eigenvalues raised to 10⁻⁴ of the link's largest) and
     negative drive parameters set to 0, and a bounded least squares over log-Cholesky variables
     minimises ‖R·(K·p − p̂)‖² + regularisation²·‖(p − p_c)/scale‖², p_c that closest vector (the
-    regularisation fixes the directions the data do not see)."""
+    regularisation fixes the directions the data do not see). A drive parameter it ends within
+    `AT_BOUND` of its bound of 0 is 0."""
     prior = prior_parameters(robot) if prior is None else prior.conform(robot)
     n = robot.n
     names = parameter_names(robot.joint_names, prior.has_spring, prior.has_motor_friction)
@@ -222,6 +227,7 @@ def physical_fit(
     # is capped. Every iterate is consistent, so the distance reported is an upper bound of the least.
     res = least_squares(residual, theta0, jac=jacobian, bounds=(lo, hi), method="trf", max_nfev=60)
     p = full(res.x)
+    p[nonneg] = np.where(p[nonneg] <= AT_BOUND * scale[nonneg], 0.0, p[nonneg])
     p_b = bset.K @ p
     d = p_b - est.p_b
     params = DynamicParameters.from_vector(robot.joint_names, p, prior.has_spring, prior.has_motor_friction)

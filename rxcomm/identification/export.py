@@ -54,7 +54,8 @@ def write_parameters_csv(art: Dynamics, path: str | Path, source: str = "") -> P
     for b in art.base_parameters:
         rel = b.relative_std
         known = rel is not None and math.isfinite(rel)
-        std = f"{rel * abs(b.value):.17g}" if known else ""
+        sigma = b.std if b.std is not None else (rel * abs(b.value) if known else None)
+        std = "" if sigma is None else f"{sigma:.17g}"
         label = b.label.replace('"', "'")
         lines.append(
             f"{b.name},{b.value:.17g},{std},{f'{rel:.17g}' if known else ''},{parameter_unit(b.independent)},"

@@ -388,6 +388,7 @@ def dynamics_artefact_fields(
     relative_std: np.ndarray | None = None,
     full: DynamicParameters | None = None,
     full_method: str | None = None,
+    std: np.ndarray | None = None,
 ) -> dict:
     """The data fields of a `schemas.dynamics.Dynamics` artefact (everything but the envelope)."""
     p_b = np.asarray(p_b, dtype=float)
@@ -396,6 +397,7 @@ def dynamics_artefact_fields(
     if full is not None and not np.allclose(bset.project(full), p_b, rtol=1e-6, atol=1e-9):
         raise ValueError("the full estimate does not reproduce the base parameter values")
     rel = [None] * bset.n_base if relative_std is None else [float(v) for v in relative_std]
+    sig = [None] * bset.n_base if std is None else [float(v) for v in std]
     spring = None
     if robot.drives.spring is not None:
         base_of = {int(j): i for i, j in enumerate(bset.independent)}
@@ -434,6 +436,7 @@ def dynamics_artefact_fields(
                 "combination": bset.combination(i),
                 "value": float(p_b[i]),
                 "relative_std": rel[i],
+                "std": sig[i],
             }
             for i in range(bset.n_base)
         ],

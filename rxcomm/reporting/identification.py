@@ -6,6 +6,7 @@ Pure functions over the summaries of excitation and dynamics.yaml (plain mapping
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 from rxcomm.reporting.document import (
@@ -110,8 +111,13 @@ def dynamics_parameter_table(params: Sequence[Mapping]) -> Table | None:
         kind = p["independent"].rsplit(".", 1)[-1]
         unit = "kg·m²" if kind.startswith("I") else _UNITS.get(kind, "SI")
         rel = p.get("relative_std")
-        std = None if rel is None else abs(p["value"]) * rel
-        rel_text = NOT_MEASURED if rel is None else f"{rel * 100:.2g} %"
+        std = p.get("std")
+        if std is None and rel is not None and math.isfinite(rel):
+            std = abs(p["value"]) * rel  # artefacts before `std`
+        if rel is None:
+            rel_text = NOT_MEASURED
+        else:
+            rel_text = f"{rel * 100:.2g} %" if math.isfinite(rel) else "none (value 0)"
         rows.append(
             [
                 p["name"],

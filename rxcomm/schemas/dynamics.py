@@ -31,6 +31,11 @@ class BaseParameterEstimate(Strict):
         None,
         description="standard deviation / |value| from the least-squares covariance; None if not estimated",
     )
+    std: float | None = Field(
+        None,
+        description="standard deviation (units of value) from the least-squares covariance; None if not "
+        "estimated (older artefacts: |value| · relative_std, which a value of 0 cannot carry)",
+    )
 
     @model_validator(mode="after")
     def _independent_in_combination(self) -> BaseParameterEstimate:

@@ -296,6 +296,7 @@ def artefact_fields(robot: Robot, result: Identification, std: np.ndarray) -> di
         result.bset,
         result.p_b,
         relative_std=rel,
+        std=std,
         full=result.params if result.physical else None,
         full_method=(
             "physically consistent: log-Cholesky pseudo-inertias, least squares in the WLS information metric"
