@@ -221,6 +221,51 @@ def test_a_branch_label_the_test_paths_hold_at_its_sign_change_is_left_open(tmp_
     assert Branch.model_validate(branch) == spec.branch
 
 
+def test_a_wrist_each_of_whose_labels_reaches_half_the_cube_gets_paths_with_it_open(tmp_path):
+    """The yaw-wrist arm with its roll along the tool's x (no flip, as MuJoCo Menagerie's WidowX AI):
+    holding the tool's orientation across the test cube, J5 yaws through 0, so each wrist label
+    reaches half the cube and no full branch the whole. On 4023f19 import-robot refused the arm
+    ("no test cube found ... on any IK branch", tried at three orientations); now the paths leave
+    the wrist label open and the line plans across J5 = 0."""
+    from rxcomm.planning.path_ik import solve_path_ik
+    from rxcomm.planning.paths import load_path
+
+    text = (ARM.parent / "yaw_wrist_arm.xml").read_text()
+    flipped = '<body name="l6" pos="0.03 0 0.08" quat="0 1 0 0">'
+    assert flipped in text
+    model = tmp_path / "tool_x_arm.xml"
+    model.write_text(text.replace(flipped, '<body name="l6" pos="0.03 0 0.08">'))
+    out = tmp_path / "tool_x"
+    r = CliRunner().invoke(app, ["import-robot", str(model), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    robot = load_robot(out)
+    for f in (out / "paths").glob("iso9283-*.yaml"):
+        assert yaml.safe_load(f.read_text())["branch"]["wrist"] is None, f.name
+    spec, path = load_path(out / "paths" / "iso9283-line.yaml", robot)
+    j5 = solve_path_ik(robot, path, spec.branch).q[:, 4]
+    assert j5.min() < -0.1 and j5.max() > 0.1  # measured: −0.93 … 0.35 rad
+
+
+def test_a_failed_import_leaves_no_directory_it_made(tmp_path, monkeypatch):
+    """An import that fails after the model has been read (here: no ISO 9283 cube) leaves no empty
+    robot directory behind (on 4023f19 it did); one that was there is kept."""
+    import rxcomm.acceptance.assumed_cell as assumed_cell
+    from rxcomm.errors import InputError
+
+    def no_cube(*_args, **_kwargs):
+        raise InputError("no test cube found (test)", field="paths")
+
+    monkeypatch.setattr(assumed_cell, "assumed_cell_files", no_cube)
+    out = tmp_path / "new" / "robot"
+    r = CliRunner().invoke(app, ["import-robot", str(ARM), "-o", str(out)])
+    assert r.exit_code == 2 and "no test cube found" in r.output
+    assert not out.exists()
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    assert CliRunner().invoke(app, ["import-robot", str(ARM), "-o", str(mine)]).exit_code == 2
+    assert mine.is_dir() and not any(mine.iterdir())
+
+
 def test_the_kept_mjcf_is_the_mujoco_plants_source(imported):
     """The plant parses the kept MJCF (not the URDF written from it): with the truth's errors its TCP
     site is rxcomm's FK of the imported robot to < 1 µm, without errors mj_inverse is rxcomm's inverse

@@ -176,21 +176,27 @@ def iso9283_cube_any_branch(
 ) -> tuple[Iso9283Cube, Branch]:
     """`iso9283_cube` on the default branch (front, elbow up, wrist positive) or, where that reaches no
     cube, the largest over the other seven: an arm whose wrist is built the other way round (the
-    wrist-positive label is geometric) has its test cube only there."""
+    wrist-positive label is geometric) has its test cube only there. Where none does, the largest with
+    the wrist label left out (either): an arm whose wrist turns the tool sideways by a yaw joint (MuJoCo
+    Menagerie's WidowX AI: J5 ±90° across J4) holds the orientation across the cube's width only by
+    yawing that joint through 0, so each wrist label reaches half the cube and neither the whole."""
     try:
         return iso9283_cube(robot, rpy_rad, Branch(), workspace), Branch()
     except InputError as first:
-        found = []
-        for shoulder, elbow, wrist in itertools.product(
-            ("front", "back"), ("up", "down"), ("positive", "negative")
-        ):
-            branch = Branch(shoulder=shoulder, elbow=elbow, wrist=wrist)
-            if branch == Branch():
-                continue
-            try:
-                found.append((iso9283_cube(robot, rpy_rad, branch, workspace), branch))
-            except InputError:
-                continue
+
+        def largest(wrists: tuple[str | None, ...]) -> list[tuple[Iso9283Cube, Branch]]:
+            found = []
+            for shoulder, elbow, wrist in itertools.product(("front", "back"), ("up", "down"), wrists):
+                branch = Branch(shoulder=shoulder, elbow=elbow, wrist=wrist)
+                if branch == Branch():
+                    continue
+                try:
+                    found.append((iso9283_cube(robot, rpy_rad, branch, workspace), branch))
+                except InputError:
+                    continue
+            return found
+
+        found = largest(("positive", "negative")) or largest((None,))
         if not found:
             raise InputError(
                 f"no test cube found with rpy {list(np.round(rpy_rad, 4))} on any IK branch: the TCP "

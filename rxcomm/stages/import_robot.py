@@ -59,18 +59,25 @@ def run(model: Path, output: Path) -> dict[str, object]:
     }
     present = [name for name in (CELL_FILE, ACCEPTANCE_FILE, PATHS_DIR) if (output / name).exists()]
     own_cell = read_yaml_model(output / CELL_FILE, Cell) if CELL_FILE in present else None
+    created = not output.exists()
     output.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=output, prefix=".import-") as tmp:
-        for name, text in files.items():
-            (Path(tmp) / name).write_text(text)
-        robot = load_robot(tmp)  # what we write must load as a robot, or nothing is written
-        cell = assumed_cell_files(robot, present, own_cell)
-        for name, text in files.items():
-            atomic_write_text(output / name, text)
-        atomic_write_bytes(output / source_name, model.read_bytes())
-        for name, text in cell.texts.items():
-            (output / name).parent.mkdir(exist_ok=True)
-            atomic_write_text(output / name, text)
+    try:
+        with tempfile.TemporaryDirectory(dir=output, prefix=".import-") as tmp:
+            for name, text in files.items():
+                (Path(tmp) / name).write_text(text)
+            robot = load_robot(tmp)  # what we write must load as a robot, or nothing is written
+            cell = assumed_cell_files(robot, present, own_cell)
+            for name, text in files.items():
+                atomic_write_text(output / name, text)
+            atomic_write_bytes(output / source_name, model.read_bytes())
+            for name, text in cell.texts.items():
+                (output / name).parent.mkdir(exist_ok=True)
+                atomic_write_text(output / name, text)
+    except Exception:
+        if created and not any(output.iterdir()):  # nor an empty robot directory left behind
+            output.rmdir()
+        raise
+
     out = console.out
     out.print(f"robot {imported.name}: {robot.n} joints {list(robot.joint_names)} → {output}")
     for note in imported.notes:
