@@ -244,7 +244,8 @@ def test_a_column_the_tilted_axes_separate_is_kept_where_the_log_determines_it()
     link 2's gravity on the nominal axes; on the MuJoCo chain its regrouping put joint_2.mcx −6.6σ and
     joint_2.Iyz_R +5.3σ off). `identify_on` keeps it where the log determines it (σ ≤ value/3): on a
     good log it is kept and within 3σ of the truth's; on a log whose noise hides it, it stays regrouped
-    and the set is `base_set_on`'s."""
+    and the set is `base_set_on`'s with the tilt columns regrouped as well (they lower no held-out
+    error there)."""
     from rxcomm.identification.kinematics import identify_on, separated_columns
 
     truth = load_truth(TRUTH)
@@ -256,9 +257,12 @@ def test_a_column_the_tilted_axes_separate_is_kept_where_the_log_determines_it()
     assert k, bset.names
     std = np.sqrt(np.diag(res.estimate.cov))
     assert abs(res.estimate.p_b[k[0]] - bset.project(truth.params)[k[0]]) <= 3 * std[k[0]]
-    res, bset, _ = identify_on(true, nominal, _multisine_log(true, truth.params, 0.1), settings)
+    res, bset, regrouped = identify_on(true, nominal, _multisine_log(true, truth.params, 0.1), settings)
     assert "spring.k" not in [bset.full_names[j] for j in bset.independent]
-    assert bset.names == base_set_on(true, nominal).names
+    # link 1's first moments across the tilted J1 regrouped too: kept, they raise J1's held-out error
+    # on this noisy log (measured: 20.6 against 14.6 N·m rms; a 6 s validation log 11.4 against 10.3)
+    assert bset.names == base_set_on(true, nominal, tilt=()).names
+    assert regrouped == ("joint_1.mcx", "joint_1.mcy")
 
 
 def test_a_first_moment_the_log_cannot_condition_is_regrouped_not_refused():
