@@ -85,7 +85,7 @@ def dynamics_z(build: Path, truth_path: Path) -> tuple[float, str, float]:
     )
     truth_b = bset.project(params)
     est = np.array([b["value"] for b in bps])
-    std = np.array([b["relative_std"] for b in bps]) * np.abs(est)
+    std = np.array([b.get("std") or b["relative_std"] * abs(b["value"]) for b in bps])
     z = (est - truth_b) / std
     worst = int(np.argmax(np.abs(z)))
     return float(np.abs(z[worst])), names[worst], float(np.sqrt(np.mean(z**2)))

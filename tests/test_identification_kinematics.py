@@ -286,3 +286,21 @@ def test_a_first_moment_the_log_cannot_condition_is_regrouped_not_refused():
     assert res.estimate.cond <= settings.max_cond
     fit = identify_on(true, nominal, _multisine_log(true, truth.params, 1e-3, j1_swing=0.35), settings)
     assert set(fit.base_set.names) - set(nominal.names) == {"j1.mcx_R", "j1.mcy_R"} and fit.regrouped == ()
+
+
+@pytest.mark.slow
+def test_the_consistent_fit_starts_from_the_prior_too():
+    """Where the minimum-change full vector is far from any body (the RX130L's tilt columns kept on a
+    log with 1 % noise and a short J1 swing), trf started from its projection alone stalls at 1130σ
+    (986b64d); started from the prior as well it reports 343σ. Still an upper bound far above the
+    truth's 4.9σ (architecture §6.1): measured, not fixed. On MuJoCo Menagerie's WidowX AI the prior
+    start is the difference between a model written consistent (4.3σ) and one refused (9.5σ)."""
+    from rxcomm.identification.consistency import physical_fit
+
+    truth = load_truth(TRUTH)
+    nominal, true = base_parameters(truth.robot), _true_robot(truth)
+    bset = base_set_on(true, nominal)
+    settings = IdentifySettings(cutoff_hz=10.0, holdout_fraction=0.2, folds=0)
+    log = _multisine_log(true, truth.params, 0.01, j1_swing=0.35)
+    est = identify(true, log, settings, bset=bset).estimate
+    assert physical_fit(true, bset, est).mahalanobis < 500.0
