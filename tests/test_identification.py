@@ -17,9 +17,8 @@ import rxcomm
 from rxcomm.cli import app
 from rxcomm.errors import InputError
 from rxcomm.identification.consistency import (
-    _link_from_theta,
-    _link_jacobian,
-    _theta_from_link,
+    _SVEC,
+    _minimise_norm,
     link_min_eigenvalues,
     pseudo_inertia,
 )
@@ -142,22 +141,24 @@ def validation_traj(rx130l, cell_rx, bset_rx):
 # --------------------------------------------------------------------------------------------- units
 
 
-def test_pseudo_inertia_log_cholesky_round_trip(rx130l):
+def test_the_consistency_cone_is_the_pseudo_inertias_psd_cone(rx130l):
+    """The conic program's PSD cone holds each link's pseudo-inertia in the solver's order and scaling:
+    the nearest positive semi-definite matrix in the Frobenius norm (the eigenvalues clipped at 0) is
+    what it returns for a link made inconsistent (a wrong order or a missing √2 gives another)."""
+    import clarabel
+
     prior = prior_parameters(rx130l)
     assert np.all(link_min_eigenvalues(prior) > 0)  # CAD inertias are physical
-    for pi in prior.inertial:
-        assert np.allclose(_link_from_theta(_theta_from_link(pi)), pi, rtol=1e-9, atol=1e-12)
-    # a non-physical link (negative mass) has a pseudo-inertia that is not positive definite
     bad = prior.inertial[2].copy()
-    bad[0] = -1.0
-    assert np.linalg.eigvalsh(pseudo_inertia(bad))[0] < 0
-    theta = np.random.default_rng(0).standard_normal(10)
-    num = np.empty((10, 10))
-    for k in range(10):
-        d = np.zeros(10)
-        d[k] = 1e-6
-        num[:, k] = (_link_from_theta(theta + d) - _link_from_theta(theta - d)) / 2e-6
-    assert np.allclose(_link_jacobian(theta), num, atol=1e-7)
+    bad[0] = -1.0  # a negative mass: not positive definite
+    bad[5] += 3.0  # and a product of inertia no body has
+    j_bad = pseudo_inertia(bad)
+    lam, vec = np.linalg.eigh(j_bad)
+    assert lam[0] < 0
+    nearest = (vec * np.maximum(lam, 0.0)) @ vec.T
+    pi, status = _minimise_norm(_SVEC, _SVEC @ bad, -_SVEC, np.zeros(10), [clarabel.PSDTriangleConeT(4)])
+    assert status == "Solved"
+    assert np.allclose(pseudo_inertia(pi), nearest, atol=1e-6 * np.abs(lam).max())
 
 
 def test_run_log_round_trip(tmp_path, rx130l, random_traj):
@@ -726,13 +727,16 @@ def test_the_consistency_note_says_beyond_the_noise_where_it_is():
     from rxcomm.identification.fit import Identification
 
     def note(distance: float, n_base: int, physical: bool) -> str:
-        fit = SimpleNamespace(mahalanobis=distance)
+        fit = SimpleNamespace(mahalanobis=distance, params_mahalanobis=math.hypot(distance, 1.0))
         return Identification.consistency_note(
             SimpleNamespace(physical_fit=fit, bset=SimpleNamespace(n_base=n_base), physical=physical)
         )
 
     assert "10.6 σ away, beyond the noise (√n_base = 7.68); --physical" in note(10.6, 59, False)
-    assert "3 σ away, within the noise (√n_base = 7.68); written" in note(3.0, 59, True)
+    assert (
+        "3 σ away, within the noise (√n_base = 7.68); written: the consistent body closest to the "
+        "prior among those within one σ more (3.16 σ away)" in note(3.0, 59, True)
+    )
 
 
 @pytest.mark.slow

@@ -105,10 +105,14 @@ class Identification:
     def consistency_note(self) -> str:
         """How far the nearest physically consistent estimate is, against the noise's √n_base σ."""
         dist, bound = self.physical_fit.mahalanobis, float(np.sqrt(self.bset.n_base))
+        written = (
+            f"written: the consistent body closest to the prior among those within one σ more "
+            f"({self.physical_fit.params_mahalanobis:.3g} σ away)"
+        )
         return (
             f"the nearest consistent estimate is {dist:.3g} σ away, "
             f"{'within' if dist <= bound else 'beyond'} the noise (√n_base = {bound:.3g}); "
-            + ("written" if self.physical else "--physical writes it")
+            + (written if self.physical else "--physical writes it")
         )
 
     def warnings(self, settings: IdentifySettings | None = None) -> list[str]:
@@ -184,6 +188,7 @@ class Identification:
             "inconsistent_links": ", ".join(self.inconsistent_links()),
             "negative_drive_parameters": ", ".join(self.drive_violations),
             "consistency_distance_sigma": self.physical_fit.mahalanobis,
+            "consistency_written_sigma": self.physical_fit.params_mahalanobis if self.physical else None,
             **(self.cross_validation.summary() if self.cross_validation else {"cv_folds": 0}),
             **(
                 self.cutoff_choice.summary()

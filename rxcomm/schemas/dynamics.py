@@ -236,6 +236,7 @@ class DynamicsSummary(Strict):
     inconsistent_links: str | None = None
     negative_drive_parameters: str | None = None
     consistency_distance_sigma: float | None = None
+    consistency_written_sigma: float | None = None
     cv_folds: int | None = None
     cv_folds_scored: int | None = None
     cv_rms_nm: list[float | None] | None = None

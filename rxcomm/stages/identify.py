@@ -320,8 +320,9 @@ def console_rows(result: Identification, summary: dict[str, object]) -> dict[str
             f"{summary['inconsistent_links']}: pseudo-inertia not positive definite (no body has that mass "
             f"distribution); {result.consistency_note()}"
         )
-    for k in ("consistency_distance_sigma", "method", "seconds"):
-        shown[k] = summary[k]
+    for k in ("consistency_distance_sigma", "consistency_written_sigma", "method", "seconds"):
+        if summary[k] is not None:
+            shown[k] = summary[k]
     return shown
 
 
