@@ -297,7 +297,7 @@ def identify(
     physical = settings.physical
     if physical is None:  # auto: no body has that mass distribution, and the data cannot tell
         inconsistent = bool(np.any(link_min_eigenvalues(closest) <= 0) or drive_violations(closest))
-        # (consistent by construction, converged or not: log-Cholesky links, non-negative drives)
+        # (consistent by construction, solved or not: links projected positive definite, drives ≥ 0)
         physical = inconsistent and phys.mahalanobis <= np.sqrt(len(est.p_b))
     if physical:
         params, p_b = phys.params, phys.p_b

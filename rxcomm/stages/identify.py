@@ -299,7 +299,8 @@ def artefact_fields(robot: Robot, result: Identification, std: np.ndarray) -> di
         std=std,
         full=result.params if result.physical else None,
         full_method=(
-            "physically consistent: log-Cholesky pseudo-inertias, least squares in the WLS information metric"
+            "physically consistent: of the bodies within one σ of the nearest consistent estimate (WLS "
+            "information metric, pseudo-inertias positive definite), the one closest to the prior"
             if result.physical
             else None
         ),
