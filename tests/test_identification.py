@@ -161,6 +161,30 @@ def test_the_consistency_cone_is_the_pseudo_inertias_psd_cone(rx130l):
     assert np.allclose(pseudo_inertia(pi), nearest, atol=1e-6 * np.abs(lam).max())
 
 
+def test_a_failed_consistent_fit_still_returns_a_consistent_body_and_says_so(
+    monkeypatch, rx130l, bset_rx, random_traj
+):
+    """Where the solver returns no point (a numerical failure), the closest full vector is projected:
+    a consistent body, `success` false, and its own distance as the figure (a bound, not 0)."""
+    import rxcomm.identification.consistency as consistency
+
+    t, q, qd, qdd = sampled(rx130l, random_traj)
+    pushing = dataclasses.replace(prior_parameters(rx130l), coulomb_nm=np.r_[-20.0, np.full(5, 5.0)])
+    _, tau = measured(rx130l, pushing, t, q, qd, qdd)
+    est = identify(rx130l, JointLog(t, q, tau), IdentifySettings(folds=0), bset=bset_rx).estimate
+    fine = consistency.physical_fit(rx130l, bset_rx, est)
+    assert fine.success and fine.mahalanobis > 0
+
+    def failing(g, h, rows, rhs, cones):
+        return np.full(g.shape[1], np.nan), "NumericalError"
+
+    monkeypatch.setattr(consistency, "_minimise_norm", failing)
+    failed = consistency.physical_fit(rx130l, bset_rx, est)
+    assert not failed.success and "NumericalError" in failed.message
+    assert np.all(link_min_eigenvalues(failed.params) > 0) and np.all(failed.params.coulomb_nm >= 0)
+    assert failed.mahalanobis == failed.params_mahalanobis >= fine.mahalanobis
+
+
 def test_run_log_round_trip(tmp_path, rx130l, random_traj):
     t, q, qd, qdd = sampled(rx130l, random_traj)
     tau = RobotDynamics(rx130l, prior_parameters(rx130l)).inverse_dynamics(q, qd, qdd)

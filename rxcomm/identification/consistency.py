@@ -166,6 +166,9 @@ PSD_MARGIN = 1e-9
 # 0.31 and 0.0082), where the ball put every mass at the prior's.
 PRIOR_BUDGET_CHI2 = 1.0
 _SOLVED = ("Solved", "AlmostSolved")
+# Beyond ~700σ one σ more is below the solver's relative tolerance (a noise-free log: 6.4e6σ, and
+# the second program failed numerically): there it may fit this fraction of the distance worse.
+_RELATIVE_SLACK = 1e-6
 
 
 def _minimise_norm(
@@ -207,10 +210,12 @@ def physical_fit(
     already, it is the answer (distance 0). Otherwise two convex problems over the full vector scaled
     by `parameter_scale`, with each link's pseudo-inertia ⪰ `PSD_MARGIN`·tr(prior's)·1 and the drive
     parameters ≥ 0: the least ‖R·(K·p − p̂)‖ (Λ = RᵀR), the nearest distance d; then the least
-    ‖(p − p_prior)/scale‖ with ‖R·(K·p − p̂)‖² ≤ d² + `PRIOR_BUDGET_CHI2`. The first alone leaves
-    the directions the data do not see anywhere (a 127 kg link 1 on a 3.7 kg UR5e at 4.1σ); the
-    second takes the prior's there (3.7 kg) and moves what the data barely see towards it by at most
-    one standard deviation. A drive parameter within `AT_BOUND` of its bound of 0 is 0."""
+    ‖(p − p_prior)/scale‖ with ‖R·(K·p − p̂)‖² ≤ d² + `PRIOR_BUDGET_CHI2` (far away, ≤ d·(1 + 1e-6)).
+    The first alone leaves the directions the data do not see anywhere (a 127 kg link 1 on a 3.7 kg
+    UR5e at 4.1σ); the second takes the prior's there (3.7 kg) and moves what the data barely see
+    towards it by at most one standard deviation. If the solver returns no point, the closest full
+    vector is projected (`success` false, its own distance the figure). A drive parameter within
+    `AT_BOUND` of its bound of 0 is 0."""
     prior = prior_parameters(robot) if prior is None else prior.conform(robot)
     n = robot.n
     names = parameter_names(robot.joint_names, prior.has_spring, prior.has_motor_friction)
@@ -251,7 +256,7 @@ def physical_fit(
     z, status = _minimise_norm(a_mat, b_vec, rows, rhs, cones)
     nearest, message, status2 = distance(z), f"nearest: {status}", "not run"
     if status in _SOLVED:
-        allow = math.sqrt(nearest**2 + PRIOR_BUDGET_CHI2)
+        allow = max(math.sqrt(nearest**2 + PRIOR_BUDGET_CHI2), (1.0 + _RELATIVE_SLACK) * nearest)
         data = np.vstack([np.zeros((1, nz)), -a_mat])  # [allow, A·z − b] in a second-order cone
         z2, status2 = _minimise_norm(
             np.eye(nz),
@@ -263,6 +268,8 @@ def physical_fit(
         message += f"; closest to the prior within {allow:.3g} σ: {status2}"
         if status2 in _SOLVED:
             z = z2
+    if not np.all(np.isfinite(z)):  # a solver failure returns no point: the closest full vector's
+        z = p_c / scale
     p = scale * z
     for i in range(n):  # through the solver's tolerance, strictly positive definite
         p[10 * i : 10 * i + 10] = _project_link(p[10 * i : 10 * i + 10], 0.5 * margins[i])
