@@ -268,7 +268,7 @@ def physical_fit(
         message += f"; closest to the prior within {allow:.3g} σ: {status2}"
         if status2 in _SOLVED:
             z = z2
-    if not np.all(np.isfinite(z)):  # a solver failure returns no point: the closest full vector's
+    if not np.all(np.isfinite(z)):  # a solver failure returns no point: take the closest full vector
         z = p_c / scale
     p = scale * z
     for i in range(n):  # through the solver's tolerance, strictly positive definite
