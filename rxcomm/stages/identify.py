@@ -159,8 +159,9 @@ def command(
         bool | None,
         typer.Option(
             "--physical/--no-physical",
-            help="Write the physically consistent estimate (positive-definite pseudo-inertias). Default: "
-            "where the unconstrained one is inconsistent and the consistent one lies within √n_base σ.",
+            help="Write a physically consistent estimate (positive-definite pseudo-inertias): of those "
+            "within one σ of the nearest, the one closest to the prior. Default: where the unconstrained "
+            "one is inconsistent and the nearest consistent one lies within √n_base σ.",
         ),
     ] = None,
     method: Annotated[Method, typer.Option(help="Weighted (per-joint noise) or ordinary least squares.")] = (
