@@ -33,14 +33,16 @@ from rxcomm.schemas.excitation import ExcitationSettings
 ROBOT = Path("samples/rx130l")
 
 
-def _synthetic_log(robot, traj, duration_s: float, rate_hz: float, seed: int = 0) -> JointLog:
-    """The prior model's torques along the excitation (repeated), white noise of 0.4 % of peak torque,
-    quantised to 0.1 % of rated torque as the gateway reports it."""
+def _synthetic_log(
+    robot, traj, duration_s: float, rate_hz: float, seed: int = 0, noise_fraction: float = 0.004
+) -> JointLog:
+    """The prior model's torques along the excitation (repeated), white noise of `noise_fraction` of
+    peak torque (0.4 %), quantised to 0.1 % of rated torque as the gateway reports it."""
     t = np.arange(int(duration_s * rate_hz) + 1) / rate_hz
     q, qd, qdd = traj.evaluate(t)
     tau = RobotDynamics(robot, prior_parameters(robot)).inverse_dynamics(q, qd, qdd)
     rng = np.random.default_rng(seed)
-    tau = tau + rng.standard_normal(tau.shape) * 0.004 * robot.tau_max
+    tau = tau + rng.standard_normal(tau.shape) * noise_fraction * robot.tau_max
     lsb = 1e-3 * robot.tau_cont
     return JointLog(t, q, np.round(tau / lsb) * lsb, "synthetic")
 
@@ -120,14 +122,11 @@ def bench_identification(quick: bool = False) -> dict[str, float | list[float]]:
     # The consistent fit where the estimate is not consistent: the same trajectory with 1 % of peak
     # torque noise, three seeds; the prior model that made the data is consistent, so the nearest
     # consistent estimate can lie no farther than it does.
-    t_fit = log.t[: int(10.0 * 2500.0) + 1]
-    q, qd, qdd = design.trajectory.evaluate(t_fit)
-    tau = RobotDynamics(robot, prior_parameters(robot)).inverse_dynamics(q, qd, qdd)
     p_true = bset.project(prior_parameters(robot))
     nearest, true_sigma, fit_s = [], [], []
     for seed in range(3):
-        noisy = tau + np.random.default_rng(seed).standard_normal(tau.shape) * 0.01 * robot.tau_max
-        noisy_fit = identify(robot, JointLog(t_fit, q, noisy, "noisy"), IdentifySettings(folds=0), bset=bset)
+        noisy = _synthetic_log(robot, design.trajectory, 10.0, 2500.0, seed=seed, noise_fraction=0.01)
+        noisy_fit = identify(robot, noisy, IdentifySettings(folds=0), bset=bset)
         d = p_true - noisy_fit.estimate.p_b
         nearest.append(noisy_fit.physical_fit.mahalanobis)
         true_sigma.append(float(np.sqrt(d @ noisy_fit.estimate.info @ d)))
