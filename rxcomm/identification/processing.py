@@ -30,9 +30,9 @@ class Processed:
     `coulomb` [M, n]: sgn(q̇) taken at the source rate and low-passed like the torque; `near_stick`
     [M, n]: within the stick guard of a sample where the joint was slower than min_speed_rad_s;
     `motor_coulomb` [M, n]: sgn(R·q̇) of the motors, filtered alike (None without a robot);
-    `coulomb_predicted`, `motor_coulomb_predicted`: the same with the sign 0 where the joint (motor)
-    is slower than standstill_speed_rad_s — the prediction's friction shape: zero velocity at standstill,
-    never the sign of the noise in q̇ (the fit's rows keep away from standstill, `near_stick`)."""
+    `coulomb_predicted`, `motor_coulomb_predicted`: the same of `predicted_sign` — the prediction's
+    friction shape: zero velocity at standstill, never the sign of the noise in q̇ (the fit's rows
+    keep away from standstill, `near_stick`)."""
 
     t: np.ndarray
     q: np.ndarray
@@ -69,6 +69,30 @@ class Processed:
         )
 
 
+def predicted_sign(v: np.ndarray, v_min: float | np.ndarray) -> np.ndarray:
+    """The Coulomb sign the prediction takes for velocities `v` [N, k]: sgn(v) where a column is at
+    least `v_min` fast (per column), and inside each run slower than that the sign it had until v
+    first reaches zero, the sign it leaves with from where v last left zero, and 0 between: a joint
+    standing still has its friction anywhere in ±Fc and its q̇ is noise around zero, while one that
+    only slows (a dip to 0.0035 rad/s), reverses (a smooth reversal at 0.16 rad/s² takes 60 ms to
+    cross ±5 mrad/s) or creeps to a stop still slides, in the direction it moves."""
+    v = np.asarray(v, dtype=float)
+    lim = np.broadcast_to(np.asarray(v_min, dtype=float), v.shape[1:])
+    out = np.where(np.abs(v) >= lim, np.sign(v), 0.0)
+    for j in range(v.shape[1]):
+        slow = np.concatenate([[False], np.abs(v[:, j]) < lim[j], [False]])
+        edges = np.flatnonzero(np.diff(slow.astype(np.int8)))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):  # runs v[a:b] below the band
+            sign = np.sign(v[a:b, j])
+            if a > 0:
+                other = np.flatnonzero(sign != out[a - 1, j])
+                out[a : a + (other[0] if other.size else b - a), j] = out[a - 1, j]
+            if b < len(v):
+                other = np.flatnonzero(sign != out[b, j])
+                out[a + (other[-1] + 1 if other.size else 0) : b, j] = out[b, j]
+    return out
+
+
 def preprocess(log: JointLog, settings: IdentifySettings, robot: Robot | None = None) -> Processed:
     """Zero-phase low-pass, differentiation, trimming, decimation (module docstring); with `robot`,
     the motors' filtered Coulomb shapes too (motor friction columns)."""
@@ -95,15 +119,13 @@ def preprocess(log: JointLog, settings: IdentifySettings, robot: Robot | None = 
     # smeared by the low-pass over ~1/cutoff, so the regressor's sgn(q̇) gets the same filter.
     coulomb = sosfiltfilt(sos, np.sign(qd), axis=0, padlen=pad)
     v_min = settings.standstill_speed_rad_s
-    still = np.where(np.abs(qd) >= v_min, np.sign(qd), 0.0)
-    coulomb_predicted = sosfiltfilt(sos, still, axis=0, padlen=pad)
+    coulomb_predicted = sosfiltfilt(sos, predicted_sign(qd, v_min), axis=0, padlen=pad)
     motor = motor_predicted = None
     if robot is not None and robot.has_motor_friction:
         vm = qd @ robot.joint_to_motor.T
         motor = sosfiltfilt(sos, np.sign(vm), axis=0, padlen=pad)
         scale = np.abs(np.diag(robot.joint_to_motor))  # a motor's speed in its axis's joint units
-        shape = np.where(np.abs(vm) >= v_min * scale, np.sign(vm), 0.0)
-        motor_predicted = sosfiltfilt(sos, shape, axis=0, padlen=pad)
+        motor_predicted = sosfiltfilt(sos, predicted_sign(vm, v_min * scale), axis=0, padlen=pad)
     guard = 1.0 / fc if settings.stick_guard_s is None else settings.stick_guard_s
     slow = np.abs(qd) < settings.min_speed_rad_s
     if robot is not None and robot.has_motor_friction and robot.coupled_motors:

@@ -115,8 +115,9 @@ class IdentifySettings(Strict):
         0.005,
         ge=0,
         description="the prediction takes a joint slower than this as standing (zero velocity: no "
-        "Coulomb term), never the sign of the noise in q̇; above the filtered q̇'s noise (≈1e-4 rad/s "
-        "for 2e-5 rad encoder noise at 10 Hz), below any motion (a stop passes it in a few ms)",
+        "Coulomb term), never the sign of the noise in q̇, except until q̇ first reaches zero and from "
+        "where it last leaves zero (a reversal, a dip, a creep to a stop slide the way they move); "
+        "above the filtered q̇'s noise (≈1e-4 rad/s for 2e-5 rad encoder noise at 10 Hz)",
     )
     method: Literal["wls", "ols"] = Field("wls", description="weighted (per-joint noise) or ordinary LS")
     physical: bool | None = Field(
