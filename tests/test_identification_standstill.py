@@ -80,7 +80,9 @@ def test_every_row_error_is_the_moving_row_error_and_in_band_is_reported(rx130l,
     val = res.validation
     assert val.scored.all() and np.all(val.standstill_fraction > 0.25)
     assert abs(val.total_rms_every_row_nm / val.total_rms_moving_nm - 1.0) < 0.2
-    assert np.all(val.standstill_in_band_fraction > 0.9)
+    # the joints stand inside their band on every standstill row; on 0cc3a74 0.95 (J3) and 0.93 (J5):
+    # rows slower than min_speed where the joint slides (±Fc, the band's edge) counted as standing
+    assert np.all(val.standstill_in_band_fraction > 0.99), val.standstill_in_band_fraction
     summary = res.summary()
     assert summary["validation_total_rms_every_row_nm"] == val.total_rms_every_row_nm
     for key in ("validation_rms_nm", "validation_rms_all_rows_nm", "validation_standstill_in_band_fraction"):
@@ -149,7 +151,8 @@ def test_a_joint_without_static_friction_is_not_scored_against_its_band(rx130l):
     assert labels[0] == labels[3] == "band < noise" and float(labels[1]) > 0.9
     # with the counts the share reads as rows ("k of n"): a share of 4 rows is not one of 40
     rows = summary["validation_standstill_rows"]
-    assert rows == [int(k) for k in (~val.moving).sum(axis=0)] and min(rows) >= 40
+    slow = (~val.moving).sum(axis=0)  # standing rows are slow rows, less those that slide
+    assert rows == val.standstill_rows.tolist() and np.all(rows <= slow) and min(rows) >= 40
     counted = in_band_labels(summary["validation_standstill_in_band_fraction"], val.band_below_noise, rows)
     inside, _, total = counted[1].partition(" of ")
     assert int(total) == rows[1]

@@ -32,7 +32,8 @@ class Processed:
     `motor_coulomb` [M, n]: sgn(R·q̇) of the motors, filtered alike (None without a robot);
     `coulomb_predicted`, `motor_coulomb_predicted`: the same of `predicted_sign` — the prediction's
     friction shape: zero velocity at standstill, never the sign of the noise in q̇ (the fit's rows
-    keep away from standstill, `near_stick`)."""
+    keep away from standstill, `near_stick`); `standing` [M, n]: where that sign is 0 (the joint
+    stands, its friction anywhere in ±Fc)."""
 
     t: np.ndarray
     q: np.ndarray
@@ -46,6 +47,7 @@ class Processed:
     motor_coulomb: np.ndarray | None = None
     coulomb_predicted: np.ndarray | None = None
     motor_coulomb_predicted: np.ndarray | None = None
+    standing: np.ndarray | None = None
 
     def window(self, t0: float, t1: float) -> Processed:
         return self.select((self.t >= t0) & (self.t < t1))
@@ -66,6 +68,7 @@ class Processed:
             motor_coulomb_predicted=(
                 None if self.motor_coulomb_predicted is None else self.motor_coulomb_predicted[k]
             ),
+            standing=None if self.standing is None else self.standing[k],
         )
 
 
@@ -119,7 +122,8 @@ def preprocess(log: JointLog, settings: IdentifySettings, robot: Robot | None = 
     # smeared by the low-pass over ~1/cutoff, so the regressor's sgn(q̇) gets the same filter.
     coulomb = sosfiltfilt(sos, np.sign(qd), axis=0, padlen=pad)
     v_min = settings.standstill_speed_rad_s
-    coulomb_predicted = sosfiltfilt(sos, predicted_sign(qd, v_min), axis=0, padlen=pad)
+    sign_predicted = predicted_sign(qd, v_min)
+    coulomb_predicted = sosfiltfilt(sos, sign_predicted, axis=0, padlen=pad)
     motor = motor_predicted = None
     if robot is not None and robot.has_motor_friction:
         vm = qd @ robot.joint_to_motor.T
@@ -159,6 +163,7 @@ def preprocess(log: JointLog, settings: IdentifySettings, robot: Robot | None = 
         None if motor is None else motor[idx],
         coulomb_predicted[idx],
         None if motor_predicted is None else motor_predicted[idx],
+        sign_predicted[idx] == 0,
     )
 
 

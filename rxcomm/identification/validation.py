@@ -32,9 +32,11 @@ class Validation:
     `nrmse` (RMS error / (max − min) of the measured torque on those rows) and `r2`; NaN where the
     joint moved on fewer than `MIN_SCORED_ROWS` rows (not scored: nothing was measured, not 0).
     Standstill rows apart: `standstill_fraction`, `standstill_rms_nm` (NaN without any) and
-    `standstill_rows` (how many) and `standstill_in_band_fraction`, the share whose measured torque
-    lies within the prediction
-    without Coulomb friction ± the static friction (stiction: anything inside is no model error),
+    `standstill_rows` (how many), the rows slower than that where the joint stands
+    (`Processed.standing`: not those where it reverses, dips or creeps to a stop, which slide at ±Fc,
+    the band's edge), and `standstill_in_band_fraction`, the share whose measured torque lies within
+    the prediction without Coulomb friction ± the static friction (stiction: anything inside is no
+    model error),
     NaN where the band (`stiction_band_nm`) is narrower than the joint's torque noise
     (`band_below_noise`: a row can then be neither inside nor outside it, as on a joint whose friction
     is all viscous). `rms_all_nm`: the plain RMS error over every row. `source` says on what."""
@@ -116,9 +118,10 @@ def validate(
     `noise_nm`: each joint's torque noise (the fit's), below which a stiction band is not scored.
 
     The headline is the plain prediction error on the rows where the joint moves. A joint slower than
-    `min_speed_rad_s` sticks: its friction is static, anywhere within ±Fc, so those rows are scored
-    apart (module docstring); an ISO 9283 path may hold a wrist joint still throughout, which is then
-    "not scored", never a perfect fit."""
+    `min_speed_rad_s` that stands sticks: its friction is static, anywhere within ±Fc, so those rows
+    are scored apart (module docstring); one slower than that which still slides (a reversal) counts
+    in the every-row error only; an ISO 9283 path may hold a wrist joint still throughout, which is
+    then "not scored", never a perfect fit."""
     params = params.conform(robot)
     params.check_robot(robot)
     y = regressor(robot, data)
@@ -137,7 +140,7 @@ def validate(
     moving = np.abs(data.qd) >= min_speed_rad_s
     n = robot.n
     still_rms, in_band = np.full(n, np.nan), np.full(n, np.nan)
-    still = ~moving
+    still = ~moving if data.standing is None else ~moving & data.standing
     band = friction_band_nm(robot, params)
     below = np.zeros(n, dtype=bool) if noise_nm is None else band < np.asarray(noise_nm, dtype=float)
     rms, nrmse, r2 = joint_scores(data.tau, pred, moving)
