@@ -138,6 +138,24 @@ def test_ten_sigma_blunder_is_flagged_and_dropped(rx, grade):
 
 
 @pytest.mark.slow
+def test_a_blunder_is_judged_against_its_own_quantitys_noise(rx):
+    """Camera-grade seed 12 (21 fit poses at 1 mm), fit pose 0 10σ off along y, a component the fit
+    leans on (its standardised residual 5.6σ at the robust noise): flagged and dropped, the noise
+    estimate within 25 % of the clean one's. On 0cc3a74 the orientation residuals' median scale
+    (1.35σ at the efficient noise) raised the pooled threshold to 6.1σ, the pose came back into the
+    fit, and the position noise read 1.60 mm for 1.26 without it: not flagged."""
+    robot, _, t2b = rx
+    ms, sp = _campaign(rx, 12, "camera")
+    clean = calibrate(robot, ms, tracker_to_base=t2b)
+    p = ms.position_m.copy()
+    p[0] += [0.0, 10 * sp, 0.0]
+    res = calibrate(robot, MeasurementSet(ms.q, p, ms.rotation, ms.valid, ms.role), tracker_to_base=t2b)
+    assert res.outlier_idx.tolist() == [0]
+    ratio = res.noise.position_sigma_m / clean.noise.position_sigma_m
+    assert 0.8 < ratio < 1.25, ratio
+
+
+@pytest.mark.slow
 def test_clean_pose_with_a_large_draw_is_not_flagged(rx):
     """Clean camera-grade seed 16 (24 fit poses at 1.5 mm; the draws' rms 1.38 mm, fit pose 2 has
     −2.34σ along y): nothing flagged and the noise estimate within 25 % of the draws' rms. Before,
