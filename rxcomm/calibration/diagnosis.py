@@ -71,15 +71,6 @@ def joint_mixup(robot: Robot, ms: MeasurementSet, point: np.ndarray | None) -> s
     )
 
 
-def explained(robot: Robot, ms: MeasurementSet, point: np.ndarray | None, error: InputError) -> InputError:
-    """`error` (measurements that do not fit the robot) replaced by the joint mix-up that explains
-    the data, when there is one."""
-    what = joint_mixup(robot, ms, point)
-    if what is None:
-        return error
-    return InputError(what, file=ms.source, field="q")
-
-
 def heldout_standardised(
     fitter: Fitter, result: FitResult, fit: np.ndarray, heldout: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:

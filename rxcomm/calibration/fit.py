@@ -52,7 +52,7 @@ import numpy as np
 import pinocchio as pin
 
 from rxcomm.calibration.compliance import compliant_joints, holding_torques
-from rxcomm.calibration.diagnosis import explained, heldout_disagreement
+from rxcomm.calibration.diagnosis import heldout_disagreement, joint_mixup
 from rxcomm.calibration.frames import DataFrames, estimate_frames, reference_base
 from rxcomm.calibration.lm import BaselineComparison, FitResult, Fitter, at_links, rank_check
 from rxcomm.calibration.measurements import ROLES, MeasurementSet
@@ -237,12 +237,14 @@ def calibrate(
     ident, need = _identifiable(robot, ms, fit.size, point)
     ms_fit = ms.subset(fit)
     rank_check(robot, ms_fit, ident, point)
+    # An exporter's joint order or signs first (closed-form frames for 21 alternatives, ~0.05 s): every
+    # later check would blame something else (the angle convention, blunders, the fit's convergence).
+    mixup = joint_mixup(robot, ms_fit, point)
+    if mixup is not None:
+        raise InputError(mixup, file=ms.source, field="q")
     # The frames from the data; a guess is a reference when it agrees, never a refusal.
     data = estimate_frames(robot, ms_fit, point)
-    try:
-        check_rigid_tool(data, ms)
-    except InputError as e:
-        raise explained(robot, ms_fit, point, e) from e
+    check_rigid_tool(data, ms)
     guess, source = (
         (tracker_to_base, "cell") if tracker_to_base is not None else (ms.tracker_to_base, "measurements")
     )
@@ -295,10 +297,7 @@ def calibrate(
         raise InputError(f"the base + tool frames cannot be fitted: {frames_c.note}", file=ms.source)
     fitter = fitter_for(np.array(chosen.idx), chosen.comp, full_f)
     # Plausibility after the fit: what the frames and errors cannot explain is the wrong robot.
-    try:
-        check_fits_robot(robot, ms_fit, result, tau[fit], t2b, point)
-    except InputError as e:
-        raise explained(robot, ms_fit, point, e) from e
+    check_fits_robot(robot, ms_fit, result, tau[fit], t2b, point)
     notes += fit_notes(result, po, noise_source != "estimated")
     if full_f.prior_scale >= WIDENED_PRIOR_NOTE:
         notes.append(
