@@ -9,6 +9,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+from rxcomm.calibration.artefact import detectable_blunder_figures
 from rxcomm.calibration.fit import calibrate
 from rxcomm.calibration.loading import load_calibration
 from rxcomm.calibration.measurements import MeasurementSet
@@ -153,6 +154,34 @@ def test_a_blunder_is_judged_against_its_own_quantitys_noise(rx):
     assert res.outlier_idx.tolist() == [0]
     ratio = res.noise.position_sigma_m / clean.noise.position_sigma_m
     assert 0.8 < ratio < 1.25, ratio
+
+
+@pytest.mark.slow
+def test_the_minimal_detectable_blunder_is_what_the_blunder_test_catches(rx):
+    """12 camera-grade fit poses (seed 0, 1 mm) measured in position only: the fit leans on pose 7,
+    whose x no other pose checks. The summary names it with its minimal detectable blunder (measured
+    8.53 mm, 14.7σ; the median component 10.1σ), and a note says a blunder that size could hide
+    there. A blunder of 1.3× that in pose 7's x is flagged, either sign; one of 0.5× is not: the
+    figure is where the test starts to catch. (On 0cc3a74 nothing said a 10σ blunder could pass.)"""
+    robot, _, t2b = rx
+    ms, _ = _campaign(rx, 0, "camera")
+    keep = list(range(12)) + [i for i, r in enumerate(ms.role) if r == "validation"]
+    ms = MeasurementSet(
+        ms.q[keep], ms.position_m[keep], None, ms.valid[keep], tuple(ms.role[i] for i in keep)
+    )
+    res = calibrate(robot, ms, tracker_to_base=t2b)
+    figures = detectable_blunder_figures(res)
+    worst, sigma = figures["minimal_detectable_blunder_m"], res.noise.position_sigma_m
+    assert figures["minimal_detectable_blunder_pose"] == 7 and worst / sigma > 10
+    assert figures["median_minimal_detectable_blunder_m"] < worst
+    (note,) = [n for n in res.notes if "leans on pose" in n]
+    assert "pose 7 " in note and f"{worst * 1e3:.3g} mm" in note and "in its x" in note
+    for factor, flagged in ((1.3, [7]), (0.5, [])):
+        for sign in (1.0, -1.0):
+            p = ms.position_m.copy()
+            p[7, 0] += sign * factor * worst
+            bad = calibrate(robot, MeasurementSet(ms.q, p, None, ms.valid, ms.role), tracker_to_base=t2b)
+            assert bad.outlier_idx.tolist() == flagged, (factor, sign)
 
 
 @pytest.mark.slow

@@ -147,6 +147,7 @@ def _summary(robot: Robot, res: CalibrationResult, torque_model: str, source: st
         "n_fit": int(res.fit_idx.size),
         "n_heldout": int(res.heldout_idx.size),
         "n_outliers": int(res.outlier_idx.size),
+        **detectable_blunder_figures(res),
         "n_unread_fit_poses": res.unread["fit"],
         "n_unread_validation_poses": res.unread["validation"],
         "n_unread_baseline_poses": res.unread["baseline"],
@@ -239,3 +240,17 @@ def calibration_artefact(
         undetermined=list(res.undetermined),
         notes=list(res.notes),
     )
+
+
+def detectable_blunder_figures(res: CalibrationResult) -> dict[str, float | int | None]:
+    """The pose set's check on blunders (`Fitter.detectable_blunders_m`): the largest and the median
+    minimal detectable blunder over the fit poses' position components, and the pose of the largest."""
+    mdb = res.detectable_blunder_m
+    if mdb is None or mdb.size == 0:
+        return {}
+    k = int(np.argmax(mdb)) // mdb.shape[1]
+    return {
+        "minimal_detectable_blunder_m": float(mdb.max()),
+        "minimal_detectable_blunder_pose": int(res.fit_idx[k]),
+        "median_minimal_detectable_blunder_m": float(np.median(mdb)),
+    }

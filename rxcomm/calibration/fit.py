@@ -108,12 +108,33 @@ class CalibrationResult:
     notes: tuple[str, ...] = ()  # what the user should know (frames far from the guess, tool offset…)
     prior_scale: float = 1.0  # on the geometric priors' σ, from the data (`Fitter.noise_from_residuals`)
     unread: dict[str, int] = field(default_factory=dict)  # role → its poses without a tracker reading
+    # [fit poses, 3]: each position component's minimal detectable blunder (`Fitter.detectable_blunders_m`)
+    detectable_blunder_m: np.ndarray | None = None
 
 
 # The prior scales beyond which the widening or narrowing is worth a note (the sample truths, drawn
 # on the classes' scale, read 0.57–1.3 at camera grade).
 WIDENED_PRIOR_NOTE = 2.0
 NARROWED_PRIOR_NOTE = 0.3
+
+
+# A pose set that lets a blunder this many σ_p hide in one of its components is worth a note: the
+# blunder test is shown to catch 10σ (issue 30), and 10σ would then pass unflagged 1 time in 5 or more.
+HIDDEN_BLUNDER_NOTE_SIGMA = 10.0
+
+
+def hidden_blunder_note(detectable_m: np.ndarray, fit: np.ndarray, sigma_p: float) -> str | None:
+    """Where the fit leans on one pose so much that a blunder of `HIDDEN_BLUNDER_NOTE_SIGMA` σ_p in
+    one of its position components would go unflagged (`Fitter.detectable_blunders_m`), say which."""
+    k, axis = np.unravel_index(int(np.argmax(detectable_m)), detectable_m.shape)
+    worst = float(detectable_m[k, axis])
+    if worst <= HIDDEN_BLUNDER_NOTE_SIGMA * sigma_p:
+        return None
+    return (
+        f"the fit leans on pose {int(fit[k])} so much that a blunder of up to {worst * 1e3:.3g} mm "
+        f"({worst / sigma_p:.1f}σ) in its {'xyz'[axis]} would likely go unflagged: no other pose checks "
+        "it; a few more poses around it make it checkable"
+    )
 
 
 def unread_note(ms: MeasurementSet) -> str | None:
@@ -278,7 +299,8 @@ def calibrate(
         else ()
     )
     full_f = _with_noise(fitter_for(np.array(ident.indices), comp), fit, sp, estimate)
-    _, fit, flagged = full_f.fit_dropping_outliers(fit)
+    full_fit, fit, flagged = full_f.fit_dropping_outliers(fit)
+    detectable = full_f.detectable_blunders_m(fit, full_fit)
     ms_fit = ms.subset(fit)
     noise = TrackerNoise(full_f.sigma_p, None if po else full_f.sigma_o, noise_source)
     # The model chosen by the data: k-fold cross-validation over the fit poses.
@@ -331,6 +353,7 @@ def calibrate(
     valid = np.flatnonzero(ms.valid)
     baseline_poses = valid[np.array(ms.role)[valid] == "baseline"]
     notes += [] if (note := unread_note(ms)) is None else [note]
+    notes += [] if (note := hidden_blunder_note(detectable, fit, full_f.sigma_p)) is None else [note]
     comparison = None
     if baseline_poses.size:
         comparison = fitter.compare_baseline(baseline_poses, heldout, result)
@@ -359,4 +382,5 @@ def calibrate(
         notes=tuple(notes),
         prior_scale=full_f.prior_scale,
         unread={role: ms.unread(role)[0] for role in ROLES},
+        detectable_blunder_m=detectable,
     )

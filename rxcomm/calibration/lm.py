@@ -40,6 +40,9 @@ PRIOR_SCALE_MAX = 30.0
 # The robust losses' scale on the weighted residual (3σ: a residual within the noise keeps most weight).
 ROBUST_SCALE = 3.0
 
+# The standard normal's 80 % quantile: a minimal detectable blunder is flagged 4 times in 5.
+DETECTION_POWER_Z = 0.8416
+
 
 def loss_weights(loss: str, u: np.ndarray) -> np.ndarray:
     """The weights ρ'(u²) a fit with `loss` gives the weighted residuals u·ROBUST_SCALE at its
@@ -304,6 +307,14 @@ class Fitter:
         n_data = full.size - prior_rows.size
         res, red = full[:n_data], np.maximum(var[:n_data], 1e-6)
         return (res / np.sqrt(red)).reshape(poses.size, -1), red.reshape(poses.size, -1)
+
+    def detectable_blunders_m(self, poses: np.ndarray, fit: FitResult) -> np.ndarray:
+        """[n, 3] per pose and position axis, the minimal detectable blunder (Baarda): the error in
+        that one component which `fit_dropping_outliers` flags 4 times in 5, (outlier_sigma + 0.84)·
+        σ_p/√v_k. A blunder b moves its standardised residual by b·√v_k/σ_p (`standardised`), so a
+        component the fit leans on (v_k = 1 − h_k small: no other pose checks it) hides a large one."""
+        _, var = self.standardised(poses, fit)
+        return (self.settings.outlier_sigma + DETECTION_POWER_Z) * self.sigma_p / np.sqrt(var[:, :3])
 
     def _row_variances(self, poses: np.ndarray, fit: FitResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(the weighted residual: the data rows, then the prior rows; each row's variance v_k

@@ -191,6 +191,18 @@ class CalibrationSummary(Strict):
     n_fit: int | None = None
     n_heldout: int | None = None
     n_outliers: int | None = None
+    minimal_detectable_blunder_m: float | None = Field(
+        None,
+        description="the largest, over the fit poses' position components, of the blunder the outlier "
+        "test flags 4 times in 5 (Baarda's minimal detectable blunder: (outlier_sigma + 0.84)·σ_p/√(1 − h)); "
+        "a larger one there is likely caught, a smaller one may hide",
+    )
+    minimal_detectable_blunder_pose: int | None = Field(
+        None, description="the pose of minimal_detectable_blunder_m (the one the fit leans on most)"
+    )
+    median_minimal_detectable_blunder_m: float | None = Field(
+        None, description="the median of the same over all fit poses' position components"
+    )
     n_unread_fit_poses: int | None = Field(
         None, description="fit poses in the measurements without a tracker reading (valid: false), left out"
     )
