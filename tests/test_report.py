@@ -128,6 +128,20 @@ def test_calibration_section_shows_the_naive_poses_beside_the_selected_when_meas
     assert "0.09 / 0.16 mm; p = 2.5e-07" in text and "×4.1" in text
 
 
+def test_calibration_section_states_the_blunder_its_poses_let_the_test_catch():
+    """The minimal detectable blunder (calibrate's summary, tests/test_calibration_robust.py) reaches
+    the customer's report, with the pose it is worst at; a summary without it shows nothing."""
+    figures = {"minimal_detectable_blunder_m": 8.53e-3, "minimal_detectable_blunder_pose": 7}
+    figures["median_minimal_detectable_blunder_m"] = 5.8e-3
+    text = render_sections(
+        "t", "p", [calibration_section(_p(CalibrationSummary, _CALIBRATION_FIGURES | figures), [])]
+    )
+    (row,) = [line for line in text.splitlines() if "minimal detectable" in line]
+    assert "(pose 7)" in row and "8.53" in row and "5.8" in row
+    bare = render_sections("t", "p", [calibration_section(_p(CalibrationSummary, _CALIBRATION_FIGURES), [])])
+    assert "minimal detectable" not in bare
+
+
 def test_calibration_section_carries_the_calibrations_notes():
     """What calibrate told the user to act on reaches the customer's report (on main the section's
     note was fixed text, and claimed a simulated cell whose joints bend, whatever the robot)."""

@@ -125,15 +125,15 @@ HIDDEN_BLUNDER_NOTE_SIGMA = 10.0
 
 def hidden_blunder_note(detectable_m: np.ndarray, fit: np.ndarray, sigma_p: float) -> str | None:
     """Where the fit leans on one pose so much that a blunder of `HIDDEN_BLUNDER_NOTE_SIGMA` σ_p in
-    one of its position components would go unflagged (`Fitter.detectable_blunders_m`), say which."""
+    one of its position components could go unflagged (`Fitter.detectable_blunders_m`), say which."""
     k, axis = np.unravel_index(int(np.argmax(detectable_m)), detectable_m.shape)
     worst = float(detectable_m[k, axis])
     if worst <= HIDDEN_BLUNDER_NOTE_SIGMA * sigma_p:
         return None
     return (
         f"the fit leans on pose {int(fit[k])} so much that a blunder of up to {worst * 1e3:.3g} mm "
-        f"({worst / sigma_p:.1f}σ) in its {'xyz'[axis]} would likely go unflagged: no other pose checks "
-        "it; a few more poses around it make it checkable"
+        f"({worst / sigma_p:.1f}σ) in its {'xyz'[axis]} could go unflagged (one that size is caught 4 "
+        "times in 5): no other pose checks it; a few more poses around it make it checkable"
     )
 
 

@@ -342,10 +342,9 @@ class Fitter:
         (`robust`): a pose with a standardised residual component (`standardised`: r_k/√v_k, v_k
         its variance under the robust fit's weights) beyond outlier_sigma σ is flagged, σ the
         fitter's noise (≥ the MAD of its quantity's components, when the noise is underestimated:
-        `_robust_scales`). One blunder
-        smears into its neighbours' residuals through the fit, so when dropping, the worst pose only
-        is removed and the rest refitted, until none is beyond (at most a quarter of the poses); the
-        fit returned is this fitter's on the rest."""
+        `_robust_scales`). One blunder smears into its neighbours' residuals through the fit, so when
+        dropping, the worst pose only is removed and the rest refitted, until none is beyond (at most
+        a quarter of the poses); the fit returned is this fitter's on the rest."""
         rob = self.robust()
         result = rob.fit(poses)
         flagged: list[int] = []

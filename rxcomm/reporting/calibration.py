@@ -235,6 +235,16 @@ def model_figures(s: CalibrationSummary, prior: CalibrationSummary | None = None
                 + ("" if ori is None else f", {fmt(ori, 1e3, unit='mrad')}"),
             )
         )
+    if s.minimal_detectable_blunder_m is not None:
+        out.append(
+            Figure(
+                "blunder the outlier test catches 4 times in 5 (Baarda's minimal detectable): the pose "
+                "the fit leans on most / the median component",
+                f"{fmt(s.minimal_detectable_blunder_m, 1e3, unit='mm')} (pose "
+                f"{s.minimal_detectable_blunder_pose}) / "
+                f"{fmt(s.median_minimal_detectable_blunder_m, 1e3, unit='mm')}",
+            )
+        )
     if s.prior_scale is not None:
         out.append(Figure("priors: the manufacturing classes' σ ×", fmt(s.prior_scale)))
     if s.model is not None:
