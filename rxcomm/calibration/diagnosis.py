@@ -18,8 +18,9 @@ import itertools
 import numpy as np
 
 from rxcomm.calibration.frames import estimate_frames
-from rxcomm.calibration.lm import FitResult, Fitter, Regularised
+from rxcomm.calibration.lm import FitResult, Fitter
 from rxcomm.calibration.measurements import MeasurementSet
+from rxcomm.calibration.priors import Regularised
 from rxcomm.calibration.residuals import log3
 from rxcomm.errors import InputError
 from rxcomm.model.geometric_errors import characteristic_length_m, predict_poses
@@ -82,7 +83,7 @@ def heldout_standardised(
     jac = prob.jacobian(result.x)
     fit_prob = fitter.problem(fit)
     j_fit = fit_prob.jacobian(result.x)
-    info = j_fit.T @ j_fit + np.diag(Regularised(fit_prob, fitter.prior).precision)
+    info = j_fit.T @ j_fit + Regularised(fit_prob, fitter.prior, fitter.prior_corr).information
     var = 1.0 + np.einsum("ij,jk,ik->i", jac, np.linalg.pinv(info), jac).reshape(heldout.size, -1)
     return res, res / np.sqrt(var)
 

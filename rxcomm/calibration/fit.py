@@ -63,7 +63,7 @@ from rxcomm.calibration.plausibility import (
     fit_notes,
     undetermined_parameters,
 )
-from rxcomm.calibration.priors import effective_prior_sigmas
+from rxcomm.calibration.priors import effective_priors
 from rxcomm.calibration.residuals import ErrorStats, error_table
 from rxcomm.calibration.selection import Candidate, candidate_models, chosen_model, score_candidates
 from rxcomm.calibration.settings import CalibrateSettings
@@ -280,14 +280,27 @@ def calibrate(
     noise_source = "settings" if settings.position_sigma_m else "measurements" if sp else "estimated"
     tau = holding_torques(robot, ms.q, dynamics)
     poses = random_poses(robot, 60, np.random.default_rng(0))  # as `_identifiable`'s
-    sig = effective_prior_sigmas(robot, np.array(ident.indices), poses, po, point)
+    sig, corr = effective_priors(robot, np.array(ident.indices), poses, po, point)
 
     def fitter_for(idx: np.ndarray, comp: tuple[int, ...], base: Fitter | None = None) -> Fitter:
         x0 = np.concatenate([start[idx], np.zeros(len(comp))])
         if base is not None:
             return replace(base, idx=np.asarray(idx), comp=comp, x0=x0)
         return Fitter(
-            robot, ms, t2b, np.asarray(idx), sp or 1e-3, so or 1e-2, point, settings, need, tau, comp, x0, sig
+            robot,
+            ms,
+            t2b,
+            np.asarray(idx),
+            sp or 1e-3,
+            so or 1e-2,
+            point,
+            settings,
+            need,
+            tau,
+            comp,
+            x0,
+            sig,
+            geometric_corr=corr,
         )
 
     estimate = noise_source == "estimated" or (not po and so is None)

@@ -19,7 +19,7 @@ import scipy.stats
 
 from rxcomm.calibration.compliance import TAU_REF_NM
 from rxcomm.calibration.measurements import MeasurementSet
-from rxcomm.calibration.priors import prior_sigmas
+from rxcomm.calibration.priors import Regularised, prior_sigmas
 from rxcomm.calibration.residuals import Problem
 from rxcomm.calibration.settings import CalibrateSettings
 from rxcomm.errors import InfeasibleError, InputError
@@ -94,12 +94,14 @@ def fit_problem(
     tau: np.ndarray | None = None,
     comp: tuple[int, ...] = (),
     prior: np.ndarray | None = None,
+    prior_corr: np.ndarray | None = None,
 ) -> FitResult:
     """The (regularised) fit: `prior` [k] the prior σ of each element of the solution vector (inf:
-    flat; None: no prior, plain least squares); its rows x/σ join the weighted residual (`priors`)."""
+    flat; None: no prior, plain least squares), `prior_corr` [k, k] their correlation (None: none);
+    its rows join the weighted residual (`Regularised`, `priors`)."""
     idx = np.asarray(idx, dtype=int)
     prob = Problem(robot, ms.q, ms.position_m, ms.rotation, t2b, sigma_p, sigma_o, idx, point, tau, comp)
-    aug = Regularised(prob, prior)
+    aug = Regularised(prob, prior, prior_corr)
     k = len(idx) + len(comp)
     x0 = np.zeros(k) if x0 is None else np.asarray(x0, dtype=float)
     m = prob.residual(x0).size
@@ -123,7 +125,7 @@ def fit_problem(
         raise InfeasibleError(f"calibration did not converge: {sol.message}")
     jac = prob.jacobian(sol.x)
     res = prob.residual(sol.x)
-    info = jac.T @ jac + np.diag(aug.precision)
+    info = jac.T @ jac + aug.information
     # the parameters the data spend (the hat matrix's trace; k without a prior)
     dof = max(m - float(np.trace(np.linalg.pinv(info) @ (jac.T @ jac))), 1.0)
     s2 = float(res @ res) / dof
@@ -151,44 +153,6 @@ def fit_problem(
         compliance_std,
         np.array(sol.x),
     )
-
-
-@dataclass(frozen=True)
-class Regularised:
-    """A weighted residual with its prior rows x_k/σ_k appended (σ_k finite; `priors`)."""
-
-    prob: Problem
-    prior: np.ndarray | None
-
-    @property
-    def rows(self) -> np.ndarray:
-        return np.zeros(0, dtype=int) if self.prior is None else np.flatnonzero(np.isfinite(self.prior))
-
-    @property
-    def precision(self) -> np.ndarray:
-        """[k] 1/σ² (0 where flat)."""
-        k = len(self.prob.idx) + len(self.prob.comp)
-        out = np.zeros(k)
-        if self.prior is not None:
-            out[self.rows] = 1.0 / self.prior[self.rows] ** 2
-        return out
-
-    @property
-    def n_free(self) -> int:
-        return len(self.prob.idx) + len(self.prob.comp) - self.rows.size
-
-    def residual(self, x: np.ndarray) -> np.ndarray:
-        if self.prior is None:
-            return self.prob.residual(x)
-        return np.concatenate([self.prob.residual(x), x[self.rows] / self.prior[self.rows]])
-
-    def jacobian(self, x: np.ndarray) -> np.ndarray:
-        if self.prior is None:
-            return self.prob.jacobian(x)
-        rows = self.rows
-        extra = np.zeros((rows.size, x.size))
-        extra[np.arange(rows.size), rows] = 1.0 / self.prior[rows]
-        return np.vstack([self.prob.jacobian(x), extra])
 
 
 def rank_check(robot: Robot, ms: MeasurementSet, ident: IdentifiableSet, point: np.ndarray | None) -> None:
@@ -246,7 +210,8 @@ class Fitter:
     tau: np.ndarray  # [N, n] prior holding torques of all poses of `ms`
     comp: tuple[int, ...] = ()  # compliant joints
     x0: np.ndarray | None = None
-    geometric_prior: np.ndarray | None = None  # [48] prior σ (`priors.effective_prior_sigmas`)
+    geometric_prior: np.ndarray | None = None  # [48] prior σ (`priors.effective_priors`)
+    geometric_corr: np.ndarray | None = None  # [48, 48] their correlation (the same)
     prior_scale: float = 1.0  # on the geometric priors' σ, as the data ask (`noise_from_residuals`)
 
     def problem(self, poses: np.ndarray) -> Problem:
@@ -274,6 +239,17 @@ class Fitter:
         out[: len(self.idx)] *= self.prior_scale
         return out
 
+    @property
+    def prior_corr(self) -> np.ndarray | None:
+        """[k, k] the prior's correlation over the solution vector (the compliances uncorrelated)."""
+        if self.geometric_corr is None or not self.settings.regularise:
+            return None
+        k = len(self.idx) + len(self.comp)
+        out = np.eye(k)
+        idx = np.asarray(self.idx, dtype=int)
+        out[: idx.size, : idx.size] = self.geometric_corr[np.ix_(idx, idx)]
+        return out
+
     def fit(self, poses: np.ndarray, x0: np.ndarray | None = None) -> FitResult:
         return fit_problem(
             self.robot,
@@ -288,6 +264,7 @@ class Fitter:
             self.tau[poses],
             self.comp,
             self.prior,
+            self.prior_corr,
         )
 
     def residuals(self, poses: np.ndarray, fit: FitResult) -> np.ndarray:
@@ -319,7 +296,7 @@ class Fitter:
     def _row_variances(self, poses: np.ndarray, fit: FitResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(the weighted residual: the data rows, then the prior rows; each row's variance v_k
         (`standardised`); the parameter each prior row holds (`Regularised.rows`))."""
-        aug = Regularised(self.problem(poses), self.prior)
+        aug = Regularised(self.problem(poses), self.prior, self.prior_corr)
         full = aug.residual(fit.x)  # the data rows, then the prior rows
         jac = aug.jacobian(fit.x)
         w = loss_weights(self.settings.loss, full / ROBUST_SCALE)
